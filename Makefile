@@ -1,0 +1,45 @@
+# dpe5g: `make book` and `make test` do all set-up themselves on a fresh clone (see README.md).
+SHELL := /bin/bash
+.SHELLFLAGS := -eo pipefail -c
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+SOURCES := $(wildcard dpe5g/*.py dpe5g/data/*)
+CHAPTERS := $(wildcard chapters/*.md)
+BOOK_SRC := $(wildcard book/*.md book/*.yml book/*.bib book/_static/*) $(CHAPTERS)
+FIG_STAMP := figures/.built
+HTML := book/_build/html/index.html
+
+.PHONY: all setup figures book test clean
+all: book
+
+setup: $(STAMP)
+
+# The virtual environment: exact pins from environment.txt, the package installed editable.
+$(STAMP): environment.txt pyproject.toml
+	test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip==26.3
+	$(BIN)/python -m pip install --quiet -r environment.txt
+	touch $@
+
+# Regenerate every registered figure (PNG + data JSON) when the package changed since the last build.
+$(FIG_STAMP): $(STAMP) $(SOURCES)
+	$(BIN)/python -m dpe5g figures --out figures
+	touch $@
+
+figures: $(FIG_STAMP)
+
+# Build the HTML book; chapters are executed (cached by jupyter-cache), warnings are errors.
+$(HTML): $(STAMP) $(FIG_STAMP) $(BOOK_SRC) $(SOURCES)
+	$(BIN)/jupyter-book build . --config book/_config.yml --toc book/_toc.yml --path-output book -W -n --keep-going
+	test -f $@ && touch $@
+
+book: $(HTML)
+
+# Every test: unit + property tests, bad input, figure-diff against the committed baselines, browser test of the book.
+test: $(STAMP) $(HTML)
+	$(BIN)/python -m pytest
+
+clean:
+	rm -rf book/_build $(FIG_STAMP)

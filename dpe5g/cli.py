@@ -1,0 +1,63 @@
+"""Command line: ``dpe5g figures`` (the figure build script) and ``dpe5g profile`` (print a scaled TDL table).
+
+Bad input ends with one line on stderr and exit code 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+
+def _figures(args) -> int:
+    from . import figures
+
+    ids = args.only or list(figures.REGISTRY)
+    for fig_id in ids:
+        figures.get(fig_id)  # validate every id before spending time
+    for fig_id in ids:
+        t0 = time.perf_counter()
+        png, js = figures.write(fig_id, args.out)
+        print(f"{fig_id}: {png} {js} ({time.perf_counter() - t0:.1f} s)", flush=True)
+    return 0
+
+
+def _profile(args) -> int:
+    from . import channel
+
+    prof = channel.tdl_profile(args.name, args.delay_spread, args.k_factor_db)
+    print(f"{prof.name} ({prof.table}) scaled to DS = {prof.delay_spread_s * 1e9:g} ns, K = {prof.k_factor_db}")
+    print(f"{'tap':>3} {'delay (ns)':>11} {'power (dB)':>11} {'kind':>9}")
+    for i, (d, p, los) in enumerate(zip(prof.delays_s, prof.powers_db, prof.los)):
+        print(f"{i:3d} {d * 1e9:11.3f} {p:11.2f} {'LoS' if los else 'Rayleigh':>9}")
+    print(f"RMS delay spread of the scaled profile: {channel.rms_delay_spread(prof.delays_s, prof.powers) * 1e9:.3f} ns")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="dpe5g", description=__doc__)
+    sub = p.add_subparsers(dest="command", required=True)
+    f = sub.add_parser("figures", help="regenerate figures: <out>/<id>.png and <out>/data/<id>.json")
+    f.add_argument("--out", default="figures", help="output folder (default: figures)")
+    f.add_argument("--only", nargs="*", metavar="ID", help="figure ids (default: all registered)")
+    f.set_defaults(func=_figures)
+    t = sub.add_parser("profile", help="print a TR 38.901 TDL profile scaled to a delay spread")
+    t.add_argument("name", help="A, B, C, D or E")
+    t.add_argument("--delay-spread", type=float, default=65e-9, help="desired RMS delay spread in SECONDS (65e-9)")
+    t.add_argument("--k-factor-db", type=float, default=None, help="K-factor override for D/E, dB")
+    t.set_defaults(func=_profile)
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except ValueError as e:
+        print(f"dpe5g: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

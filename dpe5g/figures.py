@@ -1,0 +1,210 @@
+"""The one place where the paper's figures are registered.
+
+Each figure has one ``compute`` function (config + seed → JSON-able payload of every plotted number) and one
+``plot`` function in ``dpe5g.plots`` (payload → matplotlib Figure).  ``make figures`` (``dpe5g figures``), the
+figure-diff test and the book's chapters all go through ``REGISTRY``, so they cannot drift apart.
+
+Payload layout: ``{"id", "paper_ref", "caption", "seed", "config": {...}, "data": {...}}``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import jax
+import numpy as np
+
+from . import channel, plots
+from .nr import PAPER
+
+
+@dataclass(frozen=True)
+class FigureSpec:
+    id: str
+    paper_ref: str
+    caption: str
+    compute: Callable[[], dict]
+    plot: Callable[[dict], Any]
+
+
+REGISTRY: dict[str, FigureSpec] = {}
+
+
+def register(fig_id: str, paper_ref: str, caption: str, plot: Callable[[dict], Any]):
+    """Decorator registering ``compute`` as the producer of figure ``fig_id``."""
+
+    def wrap(compute: Callable[[], dict]) -> Callable[[], dict]:
+        if fig_id in REGISTRY:
+            raise ValueError(f"figure id {fig_id!r} registered twice")
+        REGISTRY[fig_id] = FigureSpec(fig_id, paper_ref, caption, compute, plot)
+        return compute
+
+    return wrap
+
+
+def _jsonable(x):
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, (np.ndarray, jax.Array)):
+        return _jsonable(np.asarray(x).tolist())
+    if isinstance(x, (np.bool_, bool)):
+        return bool(x)
+    if isinstance(x, (np.integer, int)):
+        return int(x)
+    if isinstance(x, (np.floating, float)):
+        return float(x)
+    return x
+
+
+def get(fig_id: str) -> FigureSpec:
+    if fig_id not in REGISTRY:
+        raise ValueError(f"figure must be one of {', '.join(REGISTRY)}; got {fig_id!r}")
+    return REGISTRY[fig_id]
+
+
+def compute(fig_id: str) -> dict:
+    """Run the producer of ``fig_id`` and return its JSON-able payload."""
+    spec = get(fig_id)
+    payload = spec.compute()
+    payload = {"id": spec.id, "paper_ref": spec.paper_ref, "caption": spec.caption, **payload}
+    return _jsonable(payload)
+
+
+def render(payload: dict):
+    """Draw a payload with its registered plot function; returns a matplotlib Figure."""
+    return get(payload["id"]).plot(payload)
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    with os.fdopen(fd, "wb") as f:
+        f.write(data)
+    os.replace(tmp, path)
+
+
+def write(fig_id: str, out_dir) -> tuple[Path, Path]:
+    """Compute and draw ``fig_id``; write ``out_dir/<id>.png`` and ``out_dir/data/<id>.json``."""
+    out = Path(out_dir)
+    payload = compute(fig_id)
+    js = out / "data" / f"{fig_id}.json"
+    _atomic_write(js, (json.dumps(payload, indent=1, sort_keys=True) + "\n").encode())
+    fig = render(payload)
+    png = out / f"{fig_id}.png"
+    png.parent.mkdir(parents=True, exist_ok=True)
+    tmp = png.with_name(f".{png.name}.tmp.png")
+    plots.save_png(fig, tmp)
+    os.replace(tmp, png)
+    return png, js
+
+
+def compare_data(expected, actual, rtol: float, atol: float, path: str = "") -> tuple[bool, str, float]:
+    """Compare two payloads: numbers with |a - e| <= atol + rtol |e|, everything else exactly.
+
+    Returns (ok, where, largest_abs_difference) with ``where`` the JSON path of the first mismatch or of the
+    largest numeric difference.
+    """
+    worst = (0.0, path)
+    if isinstance(expected, dict) and isinstance(actual, dict):
+        if set(expected) != set(actual):
+            return False, f"{path} keys differ: {sorted(set(expected) ^ set(actual))}", math.inf
+        for k in sorted(expected):
+            ok, where, diff = compare_data(expected[k], actual[k], rtol, atol, f"{path}.{k}")
+            if not ok:
+                return ok, where, diff
+            worst = max(worst, (diff, where))
+        return True, worst[1], worst[0]
+    if isinstance(expected, list) and isinstance(actual, list):
+        if len(expected) != len(actual):
+            return False, f"{path} length {len(expected)} != {len(actual)}", math.inf
+        if expected and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in expected + actual):
+            e = np.asarray(expected, dtype=float)
+            a = np.asarray(actual, dtype=float)
+            diff = np.abs(a - e)
+            bad = diff > atol + rtol * np.abs(e)
+            i = int(np.argmax(diff)) if diff.size else 0
+            if bad.any():
+                j = int(np.argmax(bad))
+                return False, f"{path}[{j}] expected {e[j]!r} got {a[j]!r}", float(diff.max())
+            return True, f"{path}[{i}]", float(diff.max()) if diff.size else 0.0
+        for i, (e, a) in enumerate(zip(expected, actual)):
+            ok, where, diff = compare_data(e, a, rtol, atol, f"{path}[{i}]")
+            if not ok:
+                return ok, where, diff
+            worst = max(worst, (diff, where))
+        return True, worst[1], worst[0]
+    if isinstance(expected, (int, float)) and isinstance(actual, (int, float)) and not isinstance(expected, bool):
+        diff = abs(float(actual) - float(expected))
+        if diff > atol + rtol * abs(float(expected)):
+            return False, f"{path} expected {expected!r} got {actual!r}", diff
+        return True, path, diff
+    if expected != actual:
+        return False, f"{path} expected {expected!r} got {actual!r}", math.inf
+    return True, path, 0.0
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Figs. 1–5: TDL-A … TDL-E at 65 ns.
+
+TDL_DELAY_SPREAD_S = 65e-9  # paper: "desired RMS delay spread of 65 ns", UMi street canyon, short-delay profile
+TDL_SEED = 5
+
+
+def tdl_payload(profile_name: str, delay_spread_s: float = TDL_DELAY_SPREAD_S, seed: int = TDL_SEED) -> dict:
+    """Data of one TDL figure: the scaled profile, one draw of its taps and the sampled CIR.
+
+    The draw uses ``jax.random.PRNGKey(seed)`` folded with the profile letter, so each figure has its own
+    reproducible realisation.
+    """
+    prof = channel.tdl_profile(profile_name, delay_spread_s)
+    key = jax.random.fold_in(jax.random.PRNGKey(seed), ord(profile_name))
+    gains = np.asarray(channel.draw_gains(prof, key))
+    h = np.asarray(channel.sampled_cir(gains, prof.delays_s, PAPER))
+    ts = PAPER.sample_period_s
+    n_show = int(np.ceil(prof.delays_s.max() / ts)) + 3
+    return {
+        "seed": seed,
+        "config": {
+            "profile": profile_name,
+            "profile_name": prof.name,
+            "table": prof.table,
+            "delay_spread_s": delay_spread_s,
+            "k_factor_db": prof.k_factor_db,
+            "scs_hz": PAPER.scs_hz,
+            "n_fft": PAPER.n_fft,
+        },
+        "data": {
+            "delays_ns": prof.delays_s * 1e9,
+            "powers": prof.powers,
+            "pdp_db": prof.pdp_db(),
+            "los": prof.los,
+            "gains_re": gains.real,
+            "gains_im": gains.imag,
+            "ts_ns": ts * 1e9,
+            "grid_ns": np.arange(n_show) * ts * 1e9,
+            "grid_abs": np.abs(h[:n_show]),
+            "rms_ds_ns": channel.rms_delay_spread(prof.delays_s, prof.powers) * 1e9,
+        },
+    }
+
+
+def _register_tdl(number: int, letter: str, condition: str) -> None:
+    caption = (
+        f"TDL-{letter} channel model for {condition} condition generated with a desired RMS delay spread of 65 ns. "
+        "(a) is the channel impulse response of the TDL model, (b) is the power delay profile."
+    )
+    register(f"fig0{number}_tdl_{letter.lower()}", f"Fig. {number}", caption, plots.plot_tdl)(
+        lambda: tdl_payload(letter)
+    )
+
+
+for _n, _l, _c in ((1, "A", "NLoS"), (2, "B", "NLoS"), (3, "C", "NLoS"), (4, "D", "LoS"), (5, "E", "LoS")):
+    _register_tdl(_n, _l, _c)

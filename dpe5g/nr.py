@@ -1,0 +1,214 @@
+"""NR numerology of the paper's carrier and the downlink positioning reference signal (PRS).
+
+The paper (Section II-B, Table I) uses a 100 MHz carrier with 30 kHz subcarrier spacing and full-band PRS with
+QPSK pilots of unit power, "frequency resource pattern not a primary concern".  With a 4096-point FFT this gives
+
+* sampling rate ``f_s = N * scs = 122.88 MHz``, sample period ``T_s = 1/f_s ≈ 8.14 ns``,
+  sample spacing ``c * T_s ≈ 2.44 m`` (the paper's "2.44 m between adjacent taps");
+* 273 resource blocks, i.e. 3276 active subcarriers (TS 38.101-1 Table 5.3.2-1 for 100 MHz at 30 kHz);
+* normal cyclic prefix: 288 samples at this rate (TS 38.211 §5.3.1; the first symbol of each half-subframe has 16
+  more), i.e. about 2.34 µs, longer than any excess delay of a TDL profile scaled to 65 ns.
+
+The PRS pilots come from the TS 38.211 §5.2.1 length-31 Gold sequence initialised as in §7.4.1.7.2.  The paper's
+simplification, every one of the ``N`` FFT bins carrying a unit-modulus QPSK pilot, is the default
+(``pattern="full"``); the standard's pattern of 3276 active subcarriers with a comb is an option
+(``pattern="comb"``).  All arrays are in FFT-bin order ``k = 0 … N-1`` as in eq. (3) of the paper.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from . import _checks
+
+#: Speed of light in vacuum, m/s.
+C = 299_792_458.0
+
+#: Length of the Gold-sequence warm-up, TS 38.211 §5.2.1.
+GOLD_NC = 1600
+
+#: OFDM symbols per slot with normal cyclic prefix.
+SYMBOLS_PER_SLOT = 14
+
+
+@dataclass(frozen=True)
+class Numerology:
+    """OFDM numerology.  Defaults are the paper's carrier: 100 MHz, 30 kHz SCS, N = 4096, 273 RB, normal CP.
+
+    Attributes
+    ----------
+    scs_hz : subcarrier spacing Δf in Hz (15, 30, 60, 120 or 240 kHz).
+    n_fft : FFT size N (number of subcarriers of eq. (3)).
+    n_rb : number of resource blocks of 12 subcarriers in the carrier.
+    """
+
+    scs_hz: float = 30e3
+    n_fft: int = 4096
+    n_rb: int = 273
+
+    def __post_init__(self) -> None:
+        _checks.one_of("scs_hz", float(self.scs_hz), [15e3, 30e3, 60e3, 120e3, 240e3])
+        _checks.integer("n_fft", self.n_fft, 8, 1 << 16)
+        _checks.integer("n_rb", self.n_rb, 1, 275)
+        if 12 * self.n_rb > self.n_fft:
+            raise ValueError(f"n_rb must satisfy 12*n_rb <= n_fft={self.n_fft}, got n_rb={self.n_rb}")
+
+    @property
+    def mu(self) -> int:
+        """Numerology index μ, Δf = 15 kHz · 2^μ."""
+        return int(round(np.log2(self.scs_hz / 15e3)))
+
+    @property
+    def sample_rate_hz(self) -> float:
+        """f_s = N Δf in Hz (122.88 MHz for the paper)."""
+        return self.n_fft * self.scs_hz
+
+    @property
+    def sample_period_s(self) -> float:
+        """T_s = T_u / N in seconds."""
+        return 1.0 / self.sample_rate_hz
+
+    @property
+    def sample_spacing_m(self) -> float:
+        """Distance light travels in one sample, c T_s, in metres (≈ 2.44 m for the paper)."""
+        return C / self.sample_rate_hz
+
+    @property
+    def useful_symbol_s(self) -> float:
+        """T_u = 1/Δf in seconds."""
+        return 1.0 / self.scs_hz
+
+    @property
+    def n_active(self) -> int:
+        """Active subcarriers, 12 per resource block (3276 for 273 RB)."""
+        return 12 * self.n_rb
+
+    @property
+    def bandwidth_occupied_hz(self) -> float:
+        """Occupied bandwidth of the active subcarriers in Hz."""
+        return self.n_active * self.scs_hz
+
+    @property
+    def cp_samples(self) -> int:
+        """Normal CP length in samples, 144 κ 2^-μ T_c (TS 38.211 §5.3.1) at this FFT size."""
+        return int(round(144 * self.n_fft / 2048))
+
+    @property
+    def cp_s(self) -> float:
+        """Normal CP duration T_CP in seconds."""
+        return self.cp_samples * self.sample_period_s
+
+    @property
+    def slots_per_frame(self) -> int:
+        return 10 * 2**self.mu
+
+
+#: The paper's carrier.
+PAPER = Numerology()
+
+
+def gold_sequence(c_init: int, length: int) -> np.ndarray:
+    """Pseudo-random sequence c(n), n = 0 … length-1, of TS 38.211 §5.2.1.
+
+    x1(n+31) = (x1(n+3) + x1(n)) mod 2, x1(0) = 1, x1(1..30) = 0;
+    x2(n+31) = (x2(n+3) + x2(n+2) + x2(n+1) + x2(n)) mod 2, x2 initialised with the bits of c_init;
+    c(n) = (x1(n + Nc) + x2(n + Nc)) mod 2, Nc = 1600.
+
+    Returns a uint8 array of shape (length,).
+    """
+    c_init = _checks.integer("c_init", c_init, 0, 2**31 - 1)
+    length = _checks.integer("length", length, 0, 1 << 24)
+    return _gold_cached(c_init, length).copy()
+
+
+@lru_cache(maxsize=64)
+def _gold_cached(c_init: int, length: int) -> np.ndarray:
+    total = length + GOLD_NC + 31
+    x1 = np.zeros(total, dtype=np.uint8)
+    x2 = np.zeros(total, dtype=np.uint8)
+    x1[0] = 1
+    x2[:31] = [(c_init >> i) & 1 for i in range(31)]
+    # The recursions only look 31 steps back, so they can be advanced 28 samples at a time with array slices.
+    n = 0
+    while n < total - 31:
+        step = min(28, total - 31 - n)
+        x1[n + 31 : n + 31 + step] = x1[n + 3 : n + 3 + step] ^ x1[n : n + step]
+        x2[n + 31 : n + 31 + step] = (
+            x2[n + 3 : n + 3 + step] ^ x2[n + 2 : n + 2 + step] ^ x2[n + 1 : n + 1 + step] ^ x2[n : n + step]
+        )
+        n += step
+    return (x1[GOLD_NC : GOLD_NC + length] ^ x2[GOLD_NC : GOLD_NC + length]).astype(np.uint8)
+
+
+def prs_c_init(prs_id: int, slot: int = 0, symbol: int = 0) -> int:
+    """Gold-sequence initialiser of the DL PRS, TS 38.211 §7.4.1.7.2.
+
+    c_init = (2^22 ⌊n_ID/1024⌋ + 2^10 (N_symb^slot n_s + l + 1)(2 (n_ID mod 1024) + 1) + (n_ID mod 1024)) mod 2^31
+
+    prs_id : n_ID^PRS in 0 … 4095; slot : n_s,f^μ (slot in frame); symbol : l in 0 … 13.
+    """
+    prs_id = _checks.integer("prs_id", prs_id, 0, 4095)
+    slot = _checks.integer("slot", slot, 0, 159)
+    symbol = _checks.integer("symbol", symbol, 0, SYMBOLS_PER_SLOT - 1)
+    lo = prs_id % 1024
+    v = (2**22) * (prs_id // 1024) + (2**10) * (SYMBOLS_PER_SLOT * slot + symbol + 1) * (2 * lo + 1) + lo
+    return v % (2**31)
+
+
+def qpsk_from_bits(bits: np.ndarray) -> np.ndarray:
+    """r(m) = ((1 - 2 c(2m)) + j (1 - 2 c(2m+1))) / √2, TS 38.211 §7.4.1.7.2; unit modulus. Shape (len(bits)//2,)."""
+    b = np.asarray(bits, dtype=np.float64)
+    return ((1 - 2 * b[0::2]) + 1j * (1 - 2 * b[1::2])) / np.sqrt(2.0)
+
+
+def active_bins(num: Numerology = PAPER) -> np.ndarray:
+    """FFT bins of the active subcarriers, in subcarrier order.
+
+    Subcarrier j = 0 … n_active-1 sits at frequency (j - n_active/2) Δf around the carrier, i.e. in FFT bin
+    (j - n_active/2) mod N.  Shape (n_active,), int.
+    """
+    j = np.arange(num.n_active)
+    return (j - num.n_active // 2) % num.n_fft
+
+
+def prs_symbols(
+    prs_id: int,
+    num: Numerology = PAPER,
+    *,
+    pattern: str = "full",
+    comb: int = 2,
+    comb_offset: int = 0,
+    slot: int = 0,
+    symbol: int = 0,
+) -> np.ndarray:
+    """PRS frequency-domain symbols d_{m,k} of one BS for one OFDM symbol, in FFT-bin order k = 0 … N-1.
+
+    pattern="full" (the paper's simplification, default): every bin carries a unit-modulus QPSK pilot,
+        d_k = r(k), so D^H D = I as eq. (6) of the paper requires.
+    pattern="comb" (TS 38.211 §7.4.3.2.1): only the 3276 active subcarriers can carry PRS, every ``comb``-th one
+        starting at ``comb_offset`` (comb size 2, 4, 6 or 12, k' = 0 for this symbol); the other bins are zero.
+        Pilots keep unit modulus.
+
+    Returns complex128 array of shape (N,).
+    """
+    _checks.one_of("pattern", pattern, ["full", "comb"])
+    d = np.zeros(num.n_fft, dtype=np.complex128)
+    c_init = prs_c_init(prs_id, slot, symbol)
+    if pattern == "full":
+        d[:] = qpsk_from_bits(gold_sequence(c_init, 2 * num.n_fft))
+        return d
+    comb = _checks.integer("comb", comb, 2, 12)
+    _checks.one_of("comb", str(comb), ["2", "4", "6", "12"])
+    comb_offset = _checks.integer("comb_offset", comb_offset, 0, comb - 1)
+    bins = active_bins(num)[comb_offset::comb]
+
+    d[bins] = qpsk_from_bits(gold_sequence(c_init, 2 * bins.size))
+    return d
+
+
+def prs_matrix(prs_ids, num: Numerology = PAPER, **kwargs) -> np.ndarray:
+    """Stack the PRS of several BSs: complex (M, N), row m from ``prs_symbols(prs_ids[m], num, **kwargs)``."""
+    return np.stack([prs_symbols(int(i), num, **kwargs) for i in prs_ids])

@@ -1,0 +1,120 @@
+"""Transmitted OFDM symbol (eq. (3)) and received samples (eqs. (3)–(4)) of the paper.
+
+Conventions (used by every module):
+
+* Arrays are in FFT-bin order, k = 0 … N-1, and bin k is the tone at k Δf of eq. (3).
+* Time-domain synthesis follows eq. (3): x[n] = (1/√N) Σ_k d_k e^{+j2πkn/N}, i.e. the unitary inverse DFT
+  (``jnp.fft.ifft(..., norm="ortho")``).  Eq. (4) writes the same thing as F^H D Γ F_L h with
+  [F]_{ι,κ} = e^{+j2πικ/N}/√N, which would make synthesis a *forward* DFT; the code follows eq. (3).
+* A delay τ multiplies bin k by e^{-j2πkΔfτ} (the diagonal Γ(τ) of eq. (4)), exactly, for any real τ.
+* The ToA of BS m is τ_m = ‖p - b_m‖/c + δt with a clock bias δt common to all BSs.
+
+SNR (``snr_db``) is the per-sample signal-to-noise ratio over the sampled band N Δf: the mean received signal
+power per time-domain sample, for a channel of unit mean total power (E Σ_l |h_l|² = 1) and the transmitted
+pilots' mean power per sample mean_k |d_k|², divided by the complex noise variance σ² = E|η[n]|².  With the
+paper's full-band unit-modulus PRS, σ² = 10^(-SNR/10).  Because the DFT is unitary it is also the per-subcarrier
+SNR.  It is the SNR before correlation: the correlation gain of N = 4096 samples (36 dB) comes on top.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import _checks
+from .channel import frequency_response
+from .nr import PAPER, Numerology
+
+
+def ofdm_symbol(prs) -> jax.Array:
+    """Eq. (3) sampled at t = nT_s after CP removal: x[n] = (1/√N) Σ_k d_k e^{j2πkn/N}.
+
+    prs : complex (..., N) PRS symbols d_{m,k} in FFT-bin order.  Returns complex (..., N).
+    """
+    return jnp.fft.ifft(jnp.asarray(prs), axis=-1, norm="ortho")
+
+
+def delay_phasor(tau_s, num: Numerology = PAPER) -> jax.Array:
+    """Diagonal of Γ(τ) in eq. (4): e^{-j2πkΔfτ}, k = 0 … N-1.  tau_s : real (...) seconds → complex (..., N)."""
+    k = jnp.arange(num.n_fft)
+    return jnp.exp(-2j * jnp.pi * num.scs_hz * jnp.asarray(tau_s)[..., None] * k)
+
+
+def noise_variance(snr_db, prs) -> jax.Array:
+    """σ² of the complex AWGN for per-sample SNR ``snr_db`` (dB, scalar or (M,)), see the module docstring."""
+    pilot_power = jnp.mean(jnp.abs(jnp.asarray(prs)) ** 2, axis=-1)
+    return pilot_power * 10.0 ** (-jnp.asarray(snr_db) / 10.0)
+
+
+def check_snr_db(snr_db) -> np.ndarray:
+    """Validate an SNR in dB (scalar or array): finite and within [-50, 100] dB."""
+    s = np.asarray(snr_db, dtype=np.float64)
+    if not np.all(np.isfinite(s)):
+        raise ValueError(f"snr_db must be finite (dB, in [-50, 100]), got {snr_db!r}")
+    if np.any(s < -50) or np.any(s > 100):
+        raise ValueError(f"snr_db must be in [-50, 100] dB, got {snr_db!r}")
+    return s
+
+
+def received_noiseless(prs, gains, tap_delays_s, toa_s, clock_bias_s=0.0, num: Numerology = PAPER) -> jax.Array:
+    """Noise-free received samples of eq. (3), computed in the frequency domain.
+
+    y_m[n] = (1/√N) Σ_k d_{m,k} H_{m,k} e^{-j2πkΔf(τ_m + δt)} e^{j2πkn/N},  H_{m,k} = Σ_l h_{m,l} e^{-j2πkΔf τ_l}.
+
+    prs : complex (M, N); gains : complex (M, L) tap gains h_{m,l}; tap_delays_s : real (M, L) excess delays τ_l in
+    seconds (first arrival at 0); toa_s : real (M,) ToA τ_m of the first path in seconds; clock_bias_s : UE clock
+    bias δt in seconds, common to all BSs.  Returns complex (M, N).
+    """
+    H = frequency_response(gains, tap_delays_s, num)
+    tau = jnp.asarray(toa_s) + clock_bias_s
+    return ofdm_symbol(jnp.asarray(prs) * H * delay_phasor(tau, num))
+
+
+def awgn(key: jax.Array, shape, variance) -> jax.Array:
+    """Circular complex Gaussian noise CN(0, variance); variance broadcast against ``shape[:-1]``."""
+    z = jax.random.normal(key, (*shape, 2)) @ jnp.array([1.0, 1j])
+    return jnp.sqrt(jnp.asarray(variance) / 2.0)[..., None] * z
+
+
+def received_samples(
+    key: jax.Array,
+    prs,
+    gains,
+    tap_delays_s,
+    toa_s,
+    snr_db,
+    clock_bias_s: float = 0.0,
+    num: Numerology = PAPER,
+) -> jax.Array:
+    """Received samples y_m = F^{-1} D_m Γ_m(p) H_m + η_m of eqs. (3)–(4) with AWGN at ``snr_db``.
+
+    key : jax.random key for the noise; snr_db : dB, scalar or (M,), per-sample SNR as defined in the module
+    docstring.  Other arguments as ``received_noiseless``.  Returns complex (M, N).
+    """
+    check_snr_db(snr_db)
+    _checks.in_range("clock_bias_s", clock_bias_s, -1e-3, 1e-3, "s")
+    s = received_noiseless(prs, gains, tap_delays_s, toa_s, clock_bias_s, num)
+    return s + awgn(key, s.shape, noise_variance(snr_db, prs))
+
+
+def received_noiseless_direct(prs, gains, tap_delays_s, toa_s, clock_bias_s=0.0, num: Numerology = PAPER):
+    """Eq. (3) evaluated term by term in the time domain, for verification on small N (O(L N²) memory N²).
+
+    y_m[n] = (1/√N) Σ_l h_{m,l} Σ_k d_{m,k} exp(j2πk n/N) exp(-j2πkΔf(τ_m + δt + τ_l)).
+
+    Same arguments and result as ``received_noiseless``; uses NumPy, no FFT.
+    """
+    d = np.asarray(prs)
+    g = np.asarray(gains)
+    tl = np.asarray(tap_delays_s)
+    tau = np.asarray(toa_s) + clock_bias_s
+    n_fft = num.n_fft
+    n = np.arange(n_fft)[:, None]
+    k = np.arange(n_fft)[None, :]
+    out = np.zeros(d.shape, dtype=np.complex128)
+    for m in range(d.shape[0]):
+        for l in range(g.shape[1]):
+            tone = np.exp(2j * np.pi * k * n / n_fft) * np.exp(-2j * np.pi * k * num.scs_hz * (tau[m] + tl[m, l]))
+            out[m] += g[m, l] * tone @ d[m]
+    return out / np.sqrt(n_fft)

@@ -1,0 +1,106 @@
+"""Open the built book in Debian's headless chromium and check what a reader sees.
+
+For every HTML page of book/_build/html: it loads, MathJax (served from the book itself) has typeset every math
+element, every <img> has loaded, and no request left 127.0.0.1.  Skipped, with a message, only where chromium is
+absent; a missing book is a failure (``make test`` builds it first).
+"""
+
+import functools
+import http.server
+import shutil
+import threading
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+HTML = ROOT / "book" / "_build" / "html"
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="chromium not installed (apt-get install chromium); "
+                                "the browser test of the book is skipped")
+
+FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+         "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+
+
+class _Quiet(http.server.SimpleHTTPRequestHandler):
+    def log_message(self, *args):
+        pass
+
+
+@pytest.fixture(scope="module")
+def server():
+    assert (HTML / "index.html").exists(), f"no built book at {HTML}: run `make book` first"
+    httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(_Quiet, directory=str(HTML)))
+    t = threading.Thread(target=httpd.serve_forever, daemon=True)
+    t.start()
+    yield f"http://127.0.0.1:{httpd.server_address[1]}"
+    httpd.shutdown()
+    httpd.server_close()
+
+
+@pytest.fixture(scope="module")
+def browser():
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=FLAGS)
+        yield b
+        b.close()
+
+
+def pages():
+    skip = {"genindex.html", "search.html"}
+    return sorted(str(p.relative_to(HTML)) for p in HTML.rglob("*.html")
+                  if p.name not in skip and "_static" not in p.parts and "_sources" not in p.parts
+                  and not _is_redirect(p))
+
+
+def _is_redirect(p: Path) -> bool:
+    return 'http-equiv="Refresh"' in p.read_text(errors="replace")[:2000]
+
+
+def test_index_leads_to_landing_page(server, browser):
+    page = browser.new_page()
+    page.goto(f"{server}/index.html")
+    page.wait_for_url("**/book/intro.html", timeout=10000)
+    assert "What the paper claims" in page.content()
+    page.close()
+
+
+@pytest.mark.parametrize("page_path", pages() or ["index.html"])
+def test_page_renders_offline(server, browser, page_path):
+    page = browser.new_page()
+    requests = []
+    page.on("request", lambda r: requests.append(r.url))
+    failed = []
+    page.on("requestfailed", lambda r: failed.append(r.url))
+    resp = page.goto(f"{server}/{page_path}", wait_until="load")
+    assert resp is not None and resp.ok, f"{page_path}: HTTP {resp.status if resp else 'no response'}"
+    n_math = page.evaluate("document.querySelectorAll('div.math, span.math').length")
+    if n_math:
+        page.wait_for_function("() => window.MathJax && MathJax.startup && MathJax.startup.promise", timeout=30000)
+        page.evaluate("() => MathJax.startup.promise")
+        untypeset = page.evaluate(
+            "Array.from(document.querySelectorAll('div.math, span.math'))"
+            ".filter(e => !e.querySelector('mjx-container')).map(e => e.textContent.slice(0, 60))")
+        assert not untypeset, f"{page_path}: raw TeX left untypeset: {untypeset[:3]}"
+        assert page.evaluate("document.querySelectorAll('mjx-merror').length") == 0, f"{page_path}: MathJax errors"
+    broken = page.evaluate(
+        "Array.from(document.images).filter(i => !(i.complete && i.naturalWidth > 0)).map(i => i.src)")
+    assert not broken, f"{page_path}: images not loaded: {broken}"
+    outside = [u for u in requests if not u.startswith(server) and not u.startswith("data:")]
+    assert not outside, f"{page_path}: requests left localhost: {outside[:5]}"
+    assert not failed, f"{page_path}: failed requests: {failed[:5]}"
+    page.close()
+
+
+def test_chapters_have_figures_and_math(server, browser):
+    page = browser.new_page()
+    page.goto(f"{server}/chapters/01_tdl_channel.html", wait_until="load")
+    page.wait_for_function("() => window.MathJax && MathJax.startup && MathJax.startup.promise", timeout=30000)
+    page.evaluate("() => MathJax.startup.promise")
+    assert page.evaluate("document.querySelectorAll('mjx-container').length") >= 2
+    assert page.evaluate("Array.from(document.images).filter(i => i.naturalWidth > 0).length") >= 5
+    page.close()

@@ -1,0 +1,31 @@
+import subprocess
+import sys
+
+import pytest
+
+
+def run(*args):
+    return subprocess.run([sys.executable, "-m", "dpe5g", *args], capture_output=True, text=True, timeout=300)
+
+
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (("profile", "C", "--delay-spread", "65"), "nanoseconds"),
+        (("profile", "Z"), "profile must be one of"),
+        (("profile", "C", "--delay-spread", "nan"), "finite"),
+        (("figures", "--only", "fig99_nothing"), "figure must be one of"),
+    ],
+)
+def test_bad_input_is_one_line_exit_2(args, needle):
+    r = run(*args)
+    assert r.returncode == 2
+    assert "Traceback" not in r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and needle in lines[0], r.stderr
+
+
+def test_profile_prints_table():
+    r = run("profile", "D")
+    assert r.returncode == 0
+    assert "TDL-D" in r.stdout and "K = 13.3" in r.stdout
