@@ -29,8 +29,11 @@ import numpy as np
 from . import _checks
 from .nr import C, PAPER, Numerology
 
-#: Default receiver window L (taps).  Chosen from the study in Chapter 3: see ``SearchConfig``.
-DEFAULT_TAPS = 8
+#: Default receiver window L (taps), chosen from the study in Chapter 3 (8 BSs on a 150 m ring, every link TDL-C at
+#: 65 ns, 20 dB, 5 ns clock bias, 200 trials, grid centred on the truth): L = 12 gave the smallest RMSE, 1.10 m,
+#: against 2.25 m for L = 8, 3.39 m for L = 16 and 6.27 m for L = 32.  Shorter windows lock onto the strongest
+#: cluster of some links; longer ones flatten the peak (the TDL-C excess delay is 69 samples).
+DEFAULT_TAPS = 12
 
 
 def _check_inputs(y, prs, n_taps):
@@ -247,11 +250,14 @@ class Estimate:
     cost: np.ndarray
 
 
-def estimate(y, prs, bs_xyz, center, cfg: SearchConfig = SearchConfig(), num: Numerology = PAPER) -> Estimate:
+def estimate(
+    y, prs, bs_xyz, center, cfg: SearchConfig = SearchConfig(), num: Numerology = PAPER, batch_size: int = 8
+) -> Estimate:
     """DPE fix by divide-and-conquer search of eq. (8) around ``center``, batched over trials with vmap.
 
     y, prs : complex (..., M, N); bs_xyz : (..., M, 3) metres; center : (..., 4) = [x, y, z, δt] (m, m, m, s), the
     grid centre — the true position in the paper's set-up, or a prior from a coarse fix; z is the known UE height.
+    batch_size : trials evaluated together (vmap) inside a sequential ``lax.map``; results do not depend on it.
     Returns an ``Estimate`` with leading shape (...).
     """
     y = jnp.asarray(y)
@@ -264,10 +270,16 @@ def estimate(y, prs, bs_xyz, center, cfg: SearchConfig = SearchConfig(), num: Nu
         raise ValueError(f"bs_xyz must be (..., M, 3) and center (..., 4); got {bs_xyz.shape} and {center.shape}")
     if not bool(jnp.all(jnp.isfinite(center))) or not bool(jnp.all(jnp.isfinite(bs_xyz))):
         raise ValueError("center and bs_xyz must be finite")
+    batch_size = _checks.integer("batch_size", batch_size, 1, 1 << 16)
     fn = partial(_estimate_one, cfg=cfg, n_fft=num.n_fft, scs_hz=num.scs_hz)
-    for _ in range(y.ndim - 2):
-        fn = jax.vmap(fn)
-    q, cost = fn(y, prs, bs_xyz, center)
+    lead = y.shape[:-2]
+    if lead:
+        # trials in vmapped chunks of `batch_size` (bounded memory); each trial's result is independent of chunking
+        flat = [a.reshape((-1,) + a.shape[len(lead):]) for a in (y, prs, bs_xyz, center)]
+        q, cost = jax.lax.map(lambda a: fn(*a), tuple(flat), batch_size=batch_size)
+        q, cost = q.reshape(lead + (3,)), cost.reshape(lead)
+    else:
+        q, cost = fn(y, prs, bs_xyz, center)
     q = np.asarray(q)
     xyz = np.concatenate([q[..., :2], np.asarray(center)[..., 2:3]], axis=-1)
     return Estimate(xyz, q[..., 2] / C, np.asarray(cost))

@@ -208,3 +208,51 @@ def _register_tdl(number: int, letter: str, condition: str) -> None:
 
 for _n, _l, _c in ((1, "A", "NLoS"), (2, "B", "NLoS"), (3, "C", "NLoS"), (4, "D", "LoS"), (5, "E", "LoS")):
     _register_tdl(_n, _l, _c)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Fig. 6: the ML cost over (x, y) from 8 BSs through the paper's 3-tap NLoS channel.
+
+FIG6_TAPS = (0.7079, 1.0, 0.8913)  # |h_1|, |h_2|, |h_3|: LoS 3 dB and third path 1 dB below the strongest
+FIG6_RADIUS_M = 150.0  # the paper gives no geometry; ours: 8 BSs evenly on a circle, 10 m high
+FIG6_HALF_WIDTH_M = 10.0
+FIG6_STEP_M = 0.25
+
+
+def cost_surface_payload(n_taps: int | None = None) -> dict:
+    """Eq. (8) on an (x, y) grid around the UE: 8 BSs, each through the 3-tap channel, taps one sample apart.
+
+    Noise-free, taps real and positive (the paper gives amplitudes only), UE height and clock bias known (the paper:
+    "the estimation for altitude and clock bias is not involved").  The receiver window is the default L.
+    """
+    from . import dpe, nr, signal
+
+    n_taps = dpe.DEFAULT_TAPS if n_taps is None else n_taps
+    m = 8
+    ang = np.arange(m) * 2 * np.pi / m
+    bs = np.stack([FIG6_RADIUS_M * np.cos(ang), FIG6_RADIUS_M * np.sin(ang), np.full(m, 10.0)], axis=-1)
+    ue = np.array([0.0, 0.0, 2.0])
+    prs = nr.prs_matrix(range(1, m + 1))
+    ts = PAPER.sample_period_s
+    gains = np.tile(FIG6_TAPS, (m, 1))
+    y = signal.received_noiseless(prs, gains, np.tile(np.arange(3) * ts, (m, 1)), dpe.toa(ue, bs, 0.0))
+    axis = np.arange(-FIG6_HALF_WIDTH_M, FIG6_HALF_WIDTH_M + 1e-9, FIG6_STEP_M)
+    rows = []
+    for yy in axis:  # one grid row at a time keeps the (candidates, M, N) intermediate small
+        xyz = np.stack([axis, np.full_like(axis, yy), np.full_like(axis, ue[2])], axis=-1)
+        rows.append(np.asarray(dpe.ml_cost(y, prs, dpe.toa(xyz, bs, 0.0), n_taps, PAPER.scs_hz)))
+    cost = np.stack(rows)  # [iy, ix]
+    iy, ix = np.unravel_index(np.argmax(cost), cost.shape)
+    return {
+        "seed": None,
+        "config": {"n_bs": m, "bs_radius_m": FIG6_RADIUS_M, "bs_height_m": 10.0, "ue_xyz": ue, "taps_abs": FIG6_TAPS,
+                   "tap_spacing_samples": 1, "n_taps_receiver": n_taps, "n_fft": PAPER.n_fft, "noise": "none",
+                   "grid_step_m": FIG6_STEP_M},
+        "data": {"x_m": axis, "y_m": axis, "cost_norm": cost / cost.max(), "cost_max": cost.max(),
+                 "peak_xy": [axis[ix], axis[iy]], "bs_xyz": bs},
+    }
+
+
+register("fig06_cost_surface", "Fig. 6",
+         "Cost function composed of signals from 8 BSs, each propagating through an equally spaced 3-tap NLoS channel.",
+         plots.plot_cost_surface)(cost_surface_payload)

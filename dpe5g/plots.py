@@ -80,3 +80,34 @@ def plot_tdl(payload: dict):
         fig.suptitle(f"{cfg['profile_name']} ({cfg['table']}), desired DS {cfg['delay_spread_s'] * 1e9:g} ns",
                      fontsize=10)
     return fig
+
+
+def plot_cost_surface(payload: dict):
+    """Fig. 6: eq. (8) normalized to its maximum over (x, y), (a) as a map, (b) cuts through the peak."""
+    d = payload["data"]
+    cfg = payload["config"]
+    x, y = np.asarray(d["x_m"]), np.asarray(d["y_m"])
+    c = np.asarray(d["cost_norm"])
+    ue = cfg["ue_xyz"]
+    with style():
+        fig = Figure(figsize=(8.0, 3.4), layout="constrained")
+        ax_a, ax_b = fig.subplots(1, 2)
+        im = ax_a.pcolormesh(x, y, c, shading="nearest", cmap="viridis", vmin=0, vmax=1)
+        fig.colorbar(im, ax=ax_a, label="normalized cost")
+        ax_a.plot(ue[0], ue[1], "r+", markersize=12, mew=2, label="true position")
+        ax_a.plot(*d["peak_xy"], "wx", markersize=8, mew=1.5, label="grid maximum")
+        ax_a.set_xlabel("x (m)")
+        ax_a.set_ylabel("y (m)")
+        ax_a.set_aspect("equal")
+        ax_a.legend(fontsize=7, loc="lower left")
+        ax_a.set_title(f"(a) eq. (8), {cfg['n_bs']} BSs, L = {cfg['n_taps_receiver']} taps")
+        iy = int(np.argmin(np.abs(y - ue[1])))
+        ix = int(np.argmin(np.abs(x - ue[0])))
+        ax_b.plot(x, c[iy, :], label="cut along x at true y")
+        ax_b.plot(y, c[:, ix], "--", label="cut along y at true x")
+        ax_b.axvline(0.0, color="r", lw=0.8)
+        ax_b.set_xlabel("offset from true position (m)")
+        ax_b.set_ylabel("normalized cost")
+        ax_b.set_title("(b) cuts through the true position")
+        ax_b.legend(fontsize=7)
+    return fig

@@ -1,0 +1,105 @@
+import jax
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from dpe5g import dpe, nr, signal
+from dpe5g.nr import C, PAPER, Numerology
+
+
+def random_case(seed, n_fft, m, n_tau):
+    rng = np.random.default_rng(seed)
+    num = PAPER if n_fft == 4096 else Numerology(n_fft=n_fft, n_rb=min(5, n_fft // 12))
+    prs = nr.prs_matrix(rng.integers(0, 4096, size=m), num)
+    y = rng.normal(size=(m, n_fft)) + 1j * rng.normal(size=(m, n_fft))
+    tau = rng.uniform(-1e-6, 3e-6, size=(n_tau, m))
+    return y, prs, tau, num
+
+
+@given(st.integers(0, 2**32 - 1), st.sampled_from([64, 256]), st.integers(1, 4), st.integers(1, 12))
+def test_fast_cost_equals_literal(seed, n_fft, m, n_taps):
+    y, prs, tau, num = random_case(seed, n_fft, m, 3)
+    lit = dpe.ml_cost_literal(y, prs, tau, n_taps, num.scs_hz)
+    fast = np.asarray(dpe.ml_cost(y, prs, tau, n_taps, num.scs_hz))
+    assert np.all(np.abs(fast - lit) <= 1e-9 * np.abs(lit))
+
+
+def test_fast_cost_equals_literal_full_size():
+    y, prs, tau, num = random_case(1, 4096, 2, 2)
+    lit = dpe.ml_cost_literal(y, prs, tau, 8, num.scs_hz)
+    fast = np.asarray(dpe.ml_cost(y, prs, tau, 8, num.scs_hz))
+    assert np.all(np.abs(fast - lit) <= 1e-9 * np.abs(lit))
+
+
+def test_correlogram_exact_on_its_grid():
+    y, prs, _, num = random_case(2, 256, 3, 1)
+    u = 8
+    corr = dpe.correlogram(y, prs, 6, u)
+    ts = num.sample_period_s
+    j = np.array([0, 1, 7, 8, 100, 256 * u - 1])
+    tau = np.repeat((j * ts / u)[:, None], 3, axis=1)
+    ref = np.asarray(dpe.ml_cost(y, prs, tau, 6, num.scs_hz))
+    got = np.asarray(dpe.correlogram_lookup(corr, tau, ts, u))
+    assert np.allclose(got, ref, rtol=1e-10)
+
+
+def test_cost_of_matched_signal_is_channel_energy():
+    # noise-free, channel taps on the sample grid inside the window: cost at the true ToA = N Σ|h|² per BS
+    prs = nr.prs_matrix([4, 5])
+    h = np.array([[0.7079, 1.0, 0.8913]] * 2)
+    ts = PAPER.sample_period_s
+    tau = np.array([1.3e-6, 0.77e-6])
+    y = signal.received_noiseless(prs, h, np.array([[0, 1, 2]] * 2) * ts, tau)
+    cost = float(dpe.ml_cost(y, prs, tau[None], 3, PAPER.scs_hz)[0])
+    assert cost == pytest.approx(4096 * 2 * np.sum(h[0] ** 2), rel=1e-10)
+
+
+def _geometry(m=8, radius=150.0):
+    ang = np.arange(m) * 2 * np.pi / m + 0.3
+    return np.stack([radius * np.cos(ang), radius * np.sin(ang), np.full(m, 10.0)], axis=-1)
+
+
+@pytest.mark.parametrize("bias", [0.0, 4e-9])
+def test_estimate_noise_free_three_tap_channel(bias):
+    bs = _geometry()
+    ue = np.array([3.3, -2.1, 2.0])
+    prs = nr.prs_matrix(range(8))
+    h = np.tile([0.7079, 1.0, 0.8913], (8, 1))
+    ts = PAPER.sample_period_s
+    y = signal.received_noiseless(prs, h, np.tile([0.0, ts, 2 * ts], (8, 1)), dpe.toa(ue, bs, 0.0), bias)
+    est = dpe.estimate(y, prs, bs, np.array([0.0, 0.0, 2.0, 0.0]), dpe.SearchConfig(n_taps=3))
+    assert np.linalg.norm(est.xyz[:2] - ue[:2]) < 0.1
+    assert abs(est.clock_bias_s - bias) * C < 0.1
+
+
+def test_estimate_batched_equals_single():
+    bs = _geometry()
+    prs = nr.prs_matrix(range(8))
+    keys = jax.random.split(jax.random.PRNGKey(0), 2)
+    ues = np.array([[1.0, 2.0, 2.0], [-4.0, 0.5, 2.0]])
+    ys = np.stack([
+        signal.received_samples(k, prs, np.ones((8, 1)), np.zeros((8, 1)), dpe.toa(u, bs, 0.0), 10.0)
+        for k, u in zip(keys, ues)
+    ])
+    center = np.array([0.0, 0.0, 2.0, 0.0])
+    batch = dpe.estimate(ys, np.stack([prs] * 2), np.stack([bs] * 2), np.stack([center] * 2))
+    chunked = dpe.estimate(ys, np.stack([prs] * 2), np.stack([bs] * 2), np.stack([center] * 2), batch_size=1)
+    for i in range(2):
+        one = dpe.estimate(ys[i], prs, bs, center)
+        assert np.allclose(batch.xyz[i], one.xyz, atol=1e-9)
+        assert np.allclose(chunked.xyz[i], one.xyz, atol=1e-9)
+
+
+def test_bad_inputs():
+    y, prs, tau, num = random_case(3, 64, 2, 1)
+    with pytest.raises(ValueError, match="n_taps"):
+        dpe.ml_cost(y, prs, tau, 0, num.scs_hz)
+    with pytest.raises(ValueError, match="tau must have shape"):
+        dpe.ml_cost(y, prs, tau[:, :1], 4, num.scs_hz)
+    with pytest.raises(ValueError, match="y and prs"):
+        dpe.ml_cost(y, prs[:1], tau, 4, num.scs_hz)
+    with pytest.raises(ValueError, match="final_step_m"):
+        dpe.SearchConfig(final_step_m=5.0)
+    with pytest.raises(ValueError, match="finite"):
+        dpe.estimate(np.zeros((2, 4096), complex), nr.prs_matrix([1, 2]), _geometry(2), [np.nan, 0, 2, 0])
