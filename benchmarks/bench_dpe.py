@@ -11,6 +11,7 @@ Times are medians of repeated runs (wall clock, after a warm-up call).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -85,7 +86,7 @@ def main(argv=None):
     result = {
         "machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "jax": jax.__version__,
                     "device": str(jax.devices()[0])},
-        "config": {"n_fft": n, "n_taps": n_taps, "search": cfg.__dict__},
+        "config": {"n_fft": n, "n_taps": n_taps, "search": dataclasses.asdict(cfg)},
         "seconds": {"literal_per_bs_candidate": t_lit / 32, "fast_per_bs_candidate": t_fast / 32, "fix_m24": t_fix,
                     "fix_m24_grid_only": t_fix_np, "fft_4096": t_fft},
         "ratios": {"fast_vs_literal": t_lit / t_fast, "per_bs_vs_fft": t_fix / m / t_fft},

@@ -159,7 +159,7 @@ class SearchConfig:
     bias_half_width_m : and centre ± this in c δt (the paper's clock bias: σ = 5 ns = 1.5 m).
     coarse_step_m : step of the first grid; each further level is a 5-point-per-axis grid around the best point,
         with the step divided by 2.5, until the step is ≤ final_step_m.
-    final_step_m : resolution reached by the grid (the issue's 0.1 m).
+    final_step_m : resolution reached by the grid (0.1 m by default).
     polish : after the grid, Newton steps on the exact ``ml_cost`` with JAX autodiff (accepted only if the cost rises).
     """
 

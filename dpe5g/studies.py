@@ -6,7 +6,7 @@ so a trial's data do not depend on how many trials run or how they are batched.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import jax
 import jax.numpy as jnp
@@ -78,7 +78,7 @@ def window_study(sc: RingScenario, taps, seed: int, n_trials: int, cfg: dpe.Sear
     center = np.concatenate([ue, bias[:, None]], axis=-1)
     rows = []
     for n_taps in taps:
-        c = dpe.SearchConfig(**{**cfg.__dict__, "n_taps": int(n_taps)})
+        c = replace(cfg, n_taps=int(n_taps))
         est = run_estimates(sc, y, prs, center, c)
         rows.append({"n_taps": int(n_taps), **summary(errors(est, ue)),
                      "bias_rmse_m": float(np.sqrt(np.mean(((est.clock_bias_s - bias) * C) ** 2)))})
