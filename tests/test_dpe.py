@@ -44,6 +44,18 @@ def test_correlogram_exact_on_its_grid():
     assert np.allclose(got, ref, rtol=1e-10)
 
 
+def test_correlogram_cubic_interpolation_between_grid_points():
+    y, prs, _, num = random_case(5, 256, 3, 1)
+    ts, u = num.sample_period_s, 8
+    corr = dpe.correlogram(y, prs, 6, u)
+    tau = np.random.default_rng(0).uniform(0, 256 * ts, size=(200, 3))
+    ref = np.asarray(dpe.ml_cost(y, prs, tau, 6, num.scs_hz))
+    got = np.asarray(dpe.correlogram_lookup(corr, tau, ts, u))
+    err = np.abs(got - ref)
+    assert err.max() <= 2e-3 * ref.max()
+    assert err.max() > 0  # between grid points it is an interpolation, not the exact cost
+
+
 def test_cost_of_matched_signal_is_channel_energy():
     # noise-free, channel taps on the sample grid inside the window: cost at the true ToA = N Σ|h|² per BS
     prs = nr.prs_matrix([4, 5])
@@ -73,6 +85,38 @@ def test_estimate_noise_free_three_tap_channel(bias):
     assert abs(est.clock_bias_s - bias) * C < 0.1
 
 
+def _three_tap(bs, ue, bias, prs):
+    h = np.tile([0.7079, 1.0, 0.8913], (len(bs), 1))
+    ts = PAPER.sample_period_s
+    return signal.received_noiseless(prs, h, np.tile([0.0, ts, 2 * ts], (len(bs), 1)), dpe.toa(ue, bs, 0.0), bias)
+
+
+def test_polish_reaches_the_exact_maximum():
+    bs, prs = _geometry(), nr.prs_matrix(range(8))
+    ue = np.array([3.33, -2.17, 2.0])
+    y = _three_tap(bs, ue, 2e-9, prs)
+    center = np.array([0.0, 0.0, 2.0, 0.0])
+    grid = dpe.estimate(y, prs, bs, center, dpe.SearchConfig(n_taps=3))
+    pol = dpe.estimate(y, prs, bs, center, dpe.SearchConfig(n_taps=3, polish=True))
+    assert np.linalg.norm(pol.xyz - ue) < 0.01 < np.linalg.norm(grid.xyz - ue)
+    assert abs(pol.clock_bias_s - 2e-9) * C < 0.01
+    assert pol.cost >= grid.cost
+
+
+def test_estimate_3d_search():
+    # BSs at different heights make z observable; the search starts 3 m below the true UE height
+    bs = _geometry(radius=60.0)
+    bs[:, 2] = [5.0, 40.0, 10.0, 25.0, 5.0, 40.0, 10.0, 25.0]
+    prs = nr.prs_matrix(range(8))
+    ue = np.array([1.4, 2.6, 4.5])
+    y = _three_tap(bs, ue, 2e-9, prs)
+    cfg = dpe.SearchConfig(n_taps=3, z_half_width_m=5.0, polish=True)
+    est = dpe.estimate(y, prs, bs, np.array([0.0, 0.0, 1.5, 0.0]), cfg)
+    assert np.linalg.norm(est.xyz - ue) < 0.05
+    flat = dpe.estimate(y, prs, bs, np.array([0.0, 0.0, 1.5, 0.0]), dpe.SearchConfig(n_taps=3))
+    assert flat.xyz[2] == 1.5  # without the z search the height stays at the centre's
+
+
 def test_estimate_batched_equals_single():
     bs = _geometry()
     prs = nr.prs_matrix(range(8))
@@ -99,6 +143,8 @@ def test_bad_inputs():
         dpe.ml_cost(y, prs, tau[:, :1], 4, num.scs_hz)
     with pytest.raises(ValueError, match="y and prs"):
         dpe.ml_cost(y, prs[:1], tau, 4, num.scs_hz)
+    with pytest.raises(ValueError, match="z_half_width_m"):
+        dpe.SearchConfig(z_half_width_m=-1.0)
     with pytest.raises(ValueError, match="final_step_m"):
         dpe.SearchConfig(final_step_m=5.0)
     with pytest.raises(ValueError, match="finite"):
