@@ -1,4 +1,5 @@
-"""Command line: ``dpe5g figures`` (the figure build script) and ``dpe5g profile`` (print a scaled TDL table).
+"""Command line: ``dpe5g figures`` (the figure build script), ``dpe5g profile`` (print a scaled TDL table),
+``dpe5g deployment`` (check and summarise a deployment file) and ``dpe5g scene`` (export the 3-D scene as HTML).
 
 Bad input ends with one line on stderr and exit code 2, never a traceback.
 """
@@ -35,6 +36,29 @@ def _profile(args) -> int:
     return 0
 
 
+def _deployment(args) -> int:
+    import numpy as np
+
+    from . import scenario
+
+    dep = scenario.tst() if args.path == "tst" else scenario.load_deployment(args.path)
+    x0, y0, x1, y1 = dep.region
+    d = np.linalg.norm(dep.bs_xyz[:, None, :2] - dep.bs_xyz[None, :, :2], axis=-1) + np.eye(dep.n_bs) * 1e9
+    print(f"{dep.name}: {dep.n_bs} BSs, region {x1 - x0:.1f} m x {y1 - y0:.1f} m = {dep.area_m2:,.0f} m2, "
+          f"{dep.n_bs / dep.area_m2 * 1e6:.1f} BSs per km2, nearest-neighbour spacing {np.median(d.min(1)):.1f} m "
+          f"(median), {len(dep.buildings)} buildings, UE height {dep.ue_height_m:g} m")
+    return 0
+
+
+def _scene(args) -> int:
+    from . import figures, scene3d
+
+    path = scene3d.export(figures.compute("fig07_deployment_map"), figures.compute("fig08_urban_correlogram"),
+                          args.out)
+    print(f"wrote {path}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="dpe5g", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
@@ -47,6 +71,12 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--delay-spread", type=float, default=65e-9, help="desired RMS delay spread in SECONDS (65e-9)")
     t.add_argument("--k-factor-db", type=float, default=None, help="K-factor override for D/E, dB")
     t.set_defaults(func=_profile)
+    d = sub.add_parser("deployment", help="check a deployment file (JSON or CSV) and print a summary")
+    d.add_argument("path", nargs="?", default="tst", help="path, or 'tst' for the packaged layout (default)")
+    d.set_defaults(func=_deployment)
+    s = sub.add_parser("scene", help="export the meshcat 3-D scene of the urban example as a static HTML file")
+    s.add_argument("--out", default="urban_scene.html", help="output HTML file (default: urban_scene.html)")
+    s.set_defaults(func=_scene)
     return p
 
 

@@ -250,10 +250,15 @@ def _newton_step(y, prs, bs_xyz, q, mask, n_taps, scs_hz, max_step_m):
     return jnp.where(better, step, 0.0)
 
 
-@partial(jax.jit, static_argnames=("cfg", "n_fft"))
-def _estimate_one(y, prs, bs_xyz, center, cfg: SearchConfig, n_fft: int, scs_hz: float):
+def search(corr, y, prs, bs_xyz, center, cfg: SearchConfig, n_fft: int, scs_hz: float, with_cost: bool = True):
+    """The divide-and-conquer search on precomputed correlograms (traceable; used inside jit by ``estimate`` and
+    by ``dpe5g.montecarlo``, which reuses one set of correlograms for several M).
+
+    corr : (M, N·U) from ``correlogram``; y, prs : (M, N) (read only by the polish); bs_xyz : (M, 3) m;
+    center : (4,) = [x, y, z, δt].  Returns q (4,) = (x, y, z, c δt) in metres and the exact cost there (or only q
+    when ``with_cost`` is False).
+    """
     ts = 1.0 / (n_fft * scs_hz)
-    corr = _correlogram(y, prs, cfg.n_taps, cfg.upsample)
     q = jnp.array([center[0], center[1], center[2], center[3] * C])
     search_b, search_z = cfg.bias_half_width_m > 0, cfg.z_half_width_m > 0
     steps = cfg.steps()
@@ -269,7 +274,15 @@ def _estimate_one(y, prs, bs_xyz, center, cfg: SearchConfig, n_fft: int, scs_hz:
         mask = jnp.array([1.0, 1.0, float(search_z), float(search_b)])
         for _ in range(cfg.polish_iters):
             q = q + _newton_step(y, prs, bs_xyz, q, mask, cfg.n_taps, scs_hz, 2 * steps[-1])
+    if not with_cost:
+        return q
     return q, _ml_cost(y, prs, _tau_of(q, bs_xyz), cfg.n_taps, scs_hz)
+
+
+@partial(jax.jit, static_argnames=("cfg", "n_fft"))
+def _estimate_one(y, prs, bs_xyz, center, cfg: SearchConfig, n_fft: int, scs_hz: float):
+    corr = _correlogram(y, prs, cfg.n_taps, cfg.upsample)
+    return search(corr, y, prs, bs_xyz, center, cfg, n_fft, scs_hz)
 
 
 @dataclass(frozen=True)

@@ -256,3 +256,100 @@ def cost_surface_payload(n_taps: int | None = None) -> dict:
 register("fig06_cost_surface", "Fig. 6",
          "Cost function composed of signals from 8 BSs, each propagating through an equally spaced 3-tap NLoS channel.",
          plots.plot_cost_surface)(cost_surface_payload)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Figs. 7–9: the urban study (Section IV-A).
+
+URBAN_SEED = 9
+URBAN_TRIALS = 5000  # the paper's Monte Carlo size
+EXAMPLE_TRIAL = 0  # the example UE of Figs. 7–8 and of the 3-D scene: trial 0 of the Fig. 9 experiment
+EXAMPLE_SNR_DB = 20.0
+EXAMPLE_M = 12
+FIG8_HALF_WIDTH_M = 10.0
+FIG8_STEP_M = 0.2
+
+
+def urban_experiment(n_trials: int = URBAN_TRIALS):
+    """The Fig. 9 experiment: fixed per-link SNR 10…40 dB, M = 6, 12, 18, 24 nearest BSs, LoS from eq. (9)."""
+    from . import montecarlo
+
+    return montecarlo.Experiment(name="fig09", n_trials=n_trials, seed=URBAN_SEED)
+
+
+def _example():
+    from . import montecarlo
+
+    e = urban_experiment(n_trials=EXAMPLE_TRIAL + 1)
+    return e, montecarlo.example(e, EXAMPLE_TRIAL, list(e.snrs_db).index(EXAMPLE_SNR_DB))
+
+
+def deployment_payload() -> dict:
+    """Fig. 7: the deployment (region, buildings, streets, 26 BSs) and the example UE with its M nearest links."""
+    e, ex = _example()
+    dep = e.load_deployment()
+    m = EXAMPLE_M
+    return {
+        "seed": URBAN_SEED,
+        "config": {"deployment": dep.name, "n_bs": dep.n_bs, "area_m2": dep.area_m2, "example_trial": EXAMPLE_TRIAL,
+                   "m": m, "anchor_lat_lon_deg": [dep.anchor_lat_deg, dep.anchor_lon_deg]},
+        "data": {"region": dep.region, "buildings": dep.buildings, "streets": [dict(s) for s in dep.streets],
+                 "bs_ids": list(dep.bs_ids), "bs_xyz": dep.bs_xyz, "ue_xyz": ex["ue"],
+                 "link_bs_xyz": ex["bs"][:m], "link_los": ex["los"][:m]},
+    }
+
+
+def urban_correlogram_payload() -> dict:
+    """Fig. 8: eq. (8) — the correlograms of the M nearest BSs summed — over (x, y) around the example UE, at the
+    fix's clock bias, with the DPE fix (grid centred on the truth, the paper's set-up) and the truth."""
+    from . import dpe
+
+    e, ex = _example()
+    m = EXAMPLE_M
+    y, prs, bs = ex["y"][:m], ex["prs"][:m], ex["bs"][:m]
+    ue, bias = ex["ue"], float(ex["bias"])
+    est = dpe.estimate(y, prs, bs, np.concatenate([ue, [bias]]), e.search)
+    axis = np.arange(-FIG8_HALF_WIDTH_M, FIG8_HALF_WIDTH_M + 1e-9, FIG8_STEP_M)
+    rows = []
+    for yy in axis:
+        xyz = np.stack([ue[0] + axis, np.full_like(axis, ue[1] + yy), np.full_like(axis, ue[2])], axis=-1)
+        rows.append(np.asarray(dpe.ml_cost(y, prs, dpe.toa(xyz, bs, float(est.clock_bias_s)), e.search.n_taps,
+                                           PAPER.scs_hz)))
+    cost = np.stack(rows)
+    return {
+        "seed": URBAN_SEED,
+        "config": {"example_trial": EXAMPLE_TRIAL, "snr_db": EXAMPLE_SNR_DB, "m": m, "n_taps": e.search.n_taps,
+                   "grid_step_m": FIG8_STEP_M, "centring": "truth"},
+        "data": {"x_m": ue[0] + axis, "y_m": ue[1] + axis, "cost_norm": cost / cost.max(), "ue_xyz": ue,
+                 "true_bias_s": bias, "est_xyz": est.xyz, "est_bias_s": est.clock_bias_s,
+                 "error_m": float(np.linalg.norm(est.xyz[:2] - ue[:2])), "n_los": int(ex["los"][:m].sum())},
+    }
+
+
+def rmse_payload(e) -> dict:
+    """Fig. 9 from an experiment's results (run or loaded from the cache): RMSE, median and 90 % error per
+    (SNR, M), and the LoS share of the links."""
+    from . import montecarlo
+
+    res = montecarlo.run(e)
+    err = res.error_m
+    return {
+        "seed": e.seed,
+        "config": {"n_trials": e.n_trials, "snrs_db": e.snrs_db, "m_values": e.m_values, "los_mode": e.los_mode,
+                   "centring": e.centring, "delay_spread_s": e.delay_spread_s, "k_factor_db": e.k_factor_db,
+                   "clock_sigma_s": e.clock_sigma_s, "clock_bound_sigmas": e.clock_bound_sigmas,
+                   "n_taps": e.search.n_taps, "deployment": e.deployment},
+        "data": {"rmse_m": res.rmse_m(), "median_m": np.median(err, axis=0), "p90_m": np.quantile(err, 0.9, axis=0),
+                 "los_share_all": res.los_share(), "los_share_by_m": [res.los_share(m) for m in e.m_values]},
+    }
+
+
+register("fig07_deployment_map", "Fig. 7",
+         "Our Tsim Sha Tsui-like deployment: 26 BSs over a 227,360 m² region, and an example UE with its 12 "
+         "nearest links (LoS/NLoS drawn from eq. (9)).", plots.plot_deployment)(deployment_payload)
+register("fig08_urban_correlogram", "Fig. 8",
+         "2-D correlogram (eq. (8), the 12 nearest BSs summed) of the example urban fix at 20 dB.",
+         plots.plot_urban_correlogram)(urban_correlogram_payload)
+register("fig09_rmse_vs_snr", "Fig. 9",
+         "DPE RMSE against SNR for M = 6, 12, 18, 24 nearest BSs, 5000 trials per point.",
+         plots.plot_rmse_vs_snr)(lambda: rmse_payload(urban_experiment()))

@@ -111,3 +111,96 @@ def plot_cost_surface(payload: dict):
         ax_b.set_title("(b) cuts through the true position")
         ax_b.legend(fontsize=7)
     return fig
+
+
+def plot_deployment(payload: dict):
+    """Fig. 7: buildings (shaded by height), streets, BSs, the example UE and its links (LoS solid, NLoS dashed)."""
+    from matplotlib.patches import Rectangle
+
+    d = payload["data"]
+    x0, y0, x1, y1 = d["region"]
+    with style():
+        fig = Figure(figsize=(6.4, 6.0), layout="constrained")
+        ax = fig.subplots()
+        ax.set_facecolor("#f4f4f0")
+        heights = [b[4] for b in d["buildings"]]
+        cmap = matplotlib.colormaps["Greys"]
+        norm = matplotlib.colors.Normalize(0, max(heights) if heights else 1)
+        for bx0, by0, bx1, by1, h in d["buildings"]:
+            ax.add_patch(Rectangle((bx0, by0), bx1 - bx0, by1 - by0, facecolor=cmap(0.25 + 0.6 * norm(h)),
+                                   edgecolor="none"))
+        sm = matplotlib.cm.ScalarMappable(norm=norm, cmap=matplotlib.colors.ListedColormap(
+            cmap(np.linspace(0.25, 0.85, 64))))
+        fig.colorbar(sm, ax=ax, label="building height (m)", shrink=0.7)
+        for s in d["streets"]:
+            if s["axis"] == "north-south":
+                ax.text(s["centre_m"], y1 - 4, s["name"], rotation=90, ha="center", va="top", fontsize=6.5,
+                        color="#555555")
+            else:
+                ax.text(x0 + 4, s["centre_m"], s["name"], ha="left", va="center", fontsize=6.5, color="#555555")
+        ue = d["ue_xyz"]
+        for b, los in zip(d["link_bs_xyz"], d["link_los"]):
+            ax.plot([ue[0], b[0]], [ue[1], b[1]], "-" if los else "--", color="#2ca02c" if los else "#ff7f0e",
+                    lw=1.4 if los else 1.0, zorder=3)
+        bs = np.asarray(d["bs_xyz"])
+        ax.plot(bs[:, 0], bs[:, 1], "^", color="#d62728", markersize=7, markeredgecolor="k", mew=0.5, zorder=4,
+                label=f"BS ({len(bs)}, 10 m, 24 dBm)")
+        for bid, (bx, by, _) in zip(d["bs_ids"], bs):
+            ax.annotate(bid[2:], (bx, by), xytext=(3, 3), textcoords="offset points", fontsize=6, zorder=5)
+        ax.plot(ue[0], ue[1], "o", color="#1f77b4", markersize=8, markeredgecolor="k", zorder=5, label="example UE")
+        ax.plot([], [], "-", color="#2ca02c", label="LoS link")
+        ax.plot([], [], "--", color="#ff7f0e", label="NLoS link")
+        ax.set_xlim(x0, x1)
+        ax.set_ylim(y0, y1)
+        ax.set_aspect("equal")
+        ax.grid(False)
+        ax.set_xlabel("east (m)")
+        ax.set_ylabel("north (m)")
+        ax.legend(fontsize=7, loc="lower right", framealpha=0.9)
+        c = payload["config"]
+        ax.set_title(f"{c['n_bs']} BSs over {c['area_m2']:,.0f} m², example UE with its {c['m']} nearest links")
+    return fig
+
+
+def plot_urban_correlogram(payload: dict):
+    """Fig. 8: the summed correlogram around the example UE with the truth and the DPE fix."""
+    d = payload["data"]
+    c = payload["config"]
+    x, y = np.asarray(d["x_m"]), np.asarray(d["y_m"])
+    ue, est = d["ue_xyz"], d["est_xyz"]
+    with style():
+        fig = Figure(figsize=(5.6, 4.6), layout="constrained")
+        ax = fig.subplots()
+        im = ax.pcolormesh(x - ue[0], y - ue[1], np.asarray(d["cost_norm"]), shading="nearest", cmap="viridis",
+                           vmin=0, vmax=1)
+        fig.colorbar(im, ax=ax, label="normalized cost, eq. (8)")
+        ax.plot(0, 0, "r+", markersize=14, mew=2, label="ground truth")
+        ax.plot(est[0] - ue[0], est[1] - ue[1], "wx", markersize=9, mew=2,
+                label=f"DPE fix ({d['error_m']:.2f} m off)")
+        ax.set_xlabel("east offset from the UE (m)")
+        ax.set_ylabel("north offset from the UE (m)")
+        ax.set_aspect("equal")
+        ax.legend(fontsize=7, loc="lower left")
+        ax.set_title(f"{c['m']} nearest BSs ({d['n_los']} LoS), {c['snr_db']:g} dB, L = {c['n_taps']}")
+    return fig
+
+
+def plot_rmse_vs_snr(payload: dict):
+    """Fig. 9: RMSE of the horizontal error against the per-link SNR, one curve per M."""
+    d = payload["data"]
+    c = payload["config"]
+    snr = np.asarray(c["snrs_db"])
+    rmse = np.asarray(d["rmse_m"])
+    with style():
+        fig = Figure(figsize=(6.0, 4.0), layout="constrained")
+        ax = fig.subplots()
+        for j, (m, marker) in enumerate(zip(c["m_values"], "osd^v<>")):
+            ax.plot(snr, rmse[:, j], marker=marker, label=f"M = {m}")
+        ax.set_yscale("log")
+        ax.set_xlabel("SNR per link (dB)")
+        ax.set_ylabel("RMSE (m)")
+        ax.set_xticks(snr)
+        ax.legend(fontsize=8)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.set_title(f"{c['n_trials']} trials per point, {100 * d['los_share_all']:.0f} % of links LoS")
+    return fig

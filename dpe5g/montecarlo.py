@@ -1,0 +1,378 @@
+"""Monte Carlo engine of the urban study (Section IV): experiments as frozen configs, per-trial keys, cached chunks.
+
+One trial = one UE position uniform over the deployment's region at the UE height, the ``max(m_values)`` nearest
+BSs, a LoS/NLoS draw per link (eq. (9)), TDL-D (K = 13.3 dB) for LoS and TDL-C for NLoS links at 65 ns, a truncated
+Gaussian clock bias, then for every SNR independent noise and a DPE fix with each M in ``m_values`` (the M nearest of
+the same links, so the M curves share their channels).  Every draw of trial t comes from
+``fold_in(PRNGKey(seed), t)``; the noise of SNR index s from ``fold_in(noise_key, s)``.  Results therefore do not
+depend on the batch size, the chunk size or which chunks come from the cache.
+
+Results are cached per experiment in ``<cache>/<name>-<hash>/``, one ``.npz`` per chunk of trials, written atomically
+(temporary file + rename), so an interrupted run resumes where it stopped and ends with results identical to an
+uninterrupted one.  The hash covers the config and the source of every module the numbers depend on.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import sys
+import tempfile
+from dataclasses import dataclass, field
+from functools import partial
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import _checks, channel, dpe, nr, scenario, signal
+from .nr import C, PAPER
+
+#: default cache directory: ``.cache/montecarlo`` next to the package (the repository root for an editable install);
+#: the environment variable DPE5G_CACHE overrides it.
+DEFAULT_CACHE = Path(__file__).resolve().parent.parent / ".cache" / "montecarlo"
+_SOURCES = ("channel.py", "dpe.py", "montecarlo.py", "nr.py", "scenario.py", "signal.py")
+
+LOS_MODES = ("eq9", "two_of_four")
+SNR_MODES = ("fixed", "link_budget")
+CENTRINGS = ("truth",)
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """One urban Monte Carlo experiment.
+
+    name : label (cache directory prefix).  n_trials, seed : trials t = 0 … n_trials-1 draw from fold_in(seed, t).
+    snr_mode : "fixed" — every link at each SNR of ``snrs_db`` (per-sample SNR of ``dpe5g.signal``, dB), as Fig. 9;
+        "link_budget" — each link's SNR from the UMi path loss and shadow fading (``link``), ``snrs_db`` must be ().
+    m_values : numbers of nearest BSs used by the DPE (each ≤ the deployment's BS count).
+    los_mode : "eq9" — each link LoS with the probability of eq. (9); "two_of_four" — the paper's stated case for
+        Fig. 10: of the four nearest links, two (chosen at random) LoS and two NLoS (needs max(m_values) = 4).
+    centring : "truth" — the search grid is centred on the true position and clock bias (the paper's set-up).
+    delay_spread_s, k_factor_db : TDL-C (NLoS) / TDL-D (LoS) at this RMS delay spread; TDL-D's K.
+    clock_sigma_s, clock_bound_sigmas : UE clock bias, Gaussian σ truncated at ± bound · σ.
+    search : the DPE search; link : the link budget; deployment : "tst" or a path to a JSON/CSV deployment.
+    chunk_trials : trials per cache file (results do not depend on it; resuming needs the same value).
+    """
+
+    name: str = "urban"
+    n_trials: int = 5000
+    seed: int = 9
+    snr_mode: str = "fixed"
+    snrs_db: tuple[float, ...] = (10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0)
+    m_values: tuple[int, ...] = (6, 12, 18, 24)
+    los_mode: str = "eq9"
+    centring: str = "truth"
+    delay_spread_s: float = 65e-9
+    k_factor_db: float = 13.3
+    clock_sigma_s: float = 5e-9
+    clock_bound_sigmas: float = 3.0
+    search: dpe.SearchConfig = field(default_factory=dpe.SearchConfig)
+    link: scenario.LinkBudget = field(default_factory=scenario.LinkBudget)
+    deployment: str = "tst"
+    chunk_trials: int = 100
+
+    def __post_init__(self):
+        _checks.integer("n_trials", self.n_trials, 1, 10_000_000)
+        _checks.integer("seed", self.seed, 0, 2**31 - 1)
+        _checks.integer("chunk_trials", self.chunk_trials, 1, 100_000)
+        _checks.one_of("snr_mode", self.snr_mode, SNR_MODES)
+        _checks.one_of("los_mode", self.los_mode, LOS_MODES)
+        _checks.one_of("centring", self.centring, CENTRINGS)
+        if self.snr_mode == "fixed":
+            if len(self.snrs_db) == 0:
+                raise ValueError("snrs_db must list at least one SNR (dB) when snr_mode is 'fixed'")
+            signal.check_snr_db(np.asarray(self.snrs_db))
+        elif len(self.snrs_db):
+            raise ValueError(f"snrs_db must be empty when snr_mode is 'link_budget' (the SNR comes from the path "
+                             f"loss), got {self.snrs_db!r}")
+        if len(self.m_values) == 0 or list(self.m_values) != sorted(set(self.m_values)):
+            raise ValueError(f"m_values must be a non-empty increasing tuple of BS counts, got {self.m_values!r}")
+        for m in self.m_values:
+            _checks.integer("m_values entry", m, 3, 1024)
+        if self.los_mode == "two_of_four" and max(self.m_values) != 4:
+            raise ValueError(f"los_mode 'two_of_four' fixes the LoS state of the four nearest links; m_values must "
+                             f"end in 4, got {self.m_values!r}")
+        channel.check_delay_spread(self.delay_spread_s)
+        _checks.in_range("k_factor_db", self.k_factor_db, -30.0, 60.0, "dB")
+        _checks.in_range("clock_sigma_s", self.clock_sigma_s, 0.0, 1e-6, "s")
+        _checks.in_range("clock_bound_sigmas", self.clock_bound_sigmas, 0.1, 10.0, "σ")
+
+    @property
+    def n_snr(self) -> int:
+        return max(len(self.snrs_db), 1)
+
+    def load_deployment(self) -> scenario.Deployment:
+        dep = scenario.tst() if self.deployment == "tst" else scenario.load_deployment(self.deployment)
+        if max(self.m_values) > dep.n_bs:
+            raise ValueError(f"m_values must not exceed the deployment's {dep.n_bs} base stations, "
+                             f"got {self.m_values!r}")
+        return dep
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    def key(self) -> str:
+        """Hash of the config and of the source and data the results depend on.  Leaves out ``n_trials`` and
+        ``chunk_trials``: trial t's result depends on neither, so a longer run reuses a shorter one's chunks."""
+        h = hashlib.sha256()
+        d = self.to_dict()
+        d.pop("chunk_trials")
+        d.pop("n_trials")
+        h.update(json.dumps(d, sort_keys=True, default=str).encode())
+        here = Path(__file__).resolve().parent
+        for name in _SOURCES:
+            h.update((here / name).read_bytes())
+        dep = scenario.TST_FILE if self.deployment == "tst" else Path(self.deployment)
+        h.update(dep.read_bytes())
+        return h.hexdigest()[:16]
+
+
+@dataclass(frozen=True)
+class Results:
+    """Per-trial results of an experiment (arrays over trials t, SNR index s, M index j, link i of the nearest).
+
+    ue_xyz (T, 3) m; clock_bias_s (T,); bs_index (T, I) deployment index of the i-th nearest BS; los (T, I) bool;
+    link_snr_db (T, S, I) per-sample SNR of each link; est_xyz (T, S, J, 3) m; est_bias_s (T, S, J);
+    error_m (T, S, J) horizontal error.
+    """
+
+    experiment: Experiment
+    ue_xyz: np.ndarray
+    clock_bias_s: np.ndarray
+    bs_index: np.ndarray
+    los: np.ndarray
+    link_snr_db: np.ndarray
+    est_xyz: np.ndarray
+    est_bias_s: np.ndarray
+    error_m: np.ndarray
+
+    FIELDS = ("ue_xyz", "clock_bias_s", "bs_index", "los", "link_snr_db", "est_xyz", "est_bias_s", "error_m")
+
+    def rmse_m(self) -> np.ndarray:
+        """(S, J) RMSE of the horizontal error over trials."""
+        return np.sqrt(np.mean(self.error_m**2, axis=0))
+
+    def los_share(self, m: int | None = None) -> float:
+        """Fraction of LoS links among the m nearest (all simulated links if None) over all trials."""
+        return float(np.mean(self.los if m is None else self.los[:, :m]))
+
+    def table(self) -> list[dict]:
+        """Tidy rows: one per (trial, SNR, M) with the error, the estimate and the LoS count of the links used."""
+        e = self.experiment
+        snrs = e.snrs_db if e.snr_mode == "fixed" else ("link",)
+        rows = []
+        for t in range(self.error_m.shape[0]):
+            for s, snr in enumerate(snrs):
+                for j, m in enumerate(e.m_values):
+                    rows.append({"trial": t, "snr_db": snr, "m": m, "error_m": float(self.error_m[t, s, j]),
+                                 "est_x_m": float(self.est_xyz[t, s, j, 0]), "est_y_m": float(self.est_xyz[t, s, j, 1]),
+                                 "true_x_m": float(self.ue_xyz[t, 0]), "true_y_m": float(self.ue_xyz[t, 1]),
+                                 "n_los": int(self.los[t, :m].sum())})
+        return rows
+
+    def write_csv(self, path) -> None:
+        import csv
+
+        rows = self.table()
+        with open(path, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
+
+
+def _profiles(e: Experiment):
+    nlos = channel.tdl_profile("C", e.delay_spread_s)
+    los = channel.tdl_profile("D", e.delay_spread_s, e.k_factor_db)
+    k = np.arange(PAPER.n_fft)
+    resp = [np.exp(-2j * np.pi * PAPER.scs_hz * p.delays_s[:, None] * k) for p in (nlos, los)]  # (L, N) each
+    return nlos, los, resp
+
+
+def _draw_fn(e: Experiment, dep: scenario.Deployment):
+    """Build the traceable t → (draws of trial t, noise-free received samples), shared by the engine and ``example``.
+
+    Returns a dict: ue (3,), bias (), idx (I,), bs (I, 3), los (I,), prs (I, N), y0 (I, N) noise-free samples,
+    link_snr (S, I) per-sample SNR of each link, k_noise (the key the noise of SNR index s is folded from).
+    """
+    nlos, los_prof, (resp_c, resp_d) = _profiles(e)
+    prs_all = jnp.asarray(nr.prs_matrix(range(dep.n_bs)))  # PRS ID = deployment index
+    bs_all = jnp.asarray(dep.bs_xyz)
+    pw_all = jnp.asarray(dep.power_dbm)
+    x0, y0, x1, y1 = dep.region
+    m_max = max(e.m_values)
+    snrs = jnp.asarray(e.snrs_db if e.snr_mode == "fixed" else (0.0,), dtype=jnp.float64)
+    k = np.arange(PAPER.n_fft)
+
+    def draw(t):
+        key = jax.random.fold_in(jax.random.PRNGKey(e.seed), t)
+        k_ue, k_los, k_c, k_d, k_b, k_sf, k_n = jax.random.split(key, 7)
+        xy = jax.random.uniform(k_ue, (2,), minval=jnp.array([x0, y0]), maxval=jnp.array([x1, y1]))
+        ue = jnp.concatenate([xy, jnp.array([dep.ue_height_m])])
+        d2d = jnp.linalg.norm(bs_all[:, :2] - xy, axis=-1)
+        idx = jnp.argsort(d2d)[:m_max]  # nearest first
+        bs = bs_all[idx]
+        if e.los_mode == "eq9":
+            los = jax.random.uniform(k_los, (m_max,)) < scenario.los_probability(d2d[idx])
+        else:  # two of the four nearest LoS, which two at random
+            los = jax.random.permutation(k_los, jnp.array([True, True, False, False]))
+        g_c = jax.vmap(lambda kk: channel.draw_gains(nlos, kk))(jax.random.split(k_c, m_max))
+        g_d = jax.vmap(lambda kk: channel.draw_gains(los_prof, kk))(jax.random.split(k_d, m_max))
+        h = jnp.where(los[:, None], g_d @ resp_d, g_c @ resp_c)  # (I, N) channel frequency response, eq. (3)
+        bias = scenario.clock_bias(k_b, e.clock_sigma_s, e.clock_bound_sigmas)
+        tau = scenario.toa_s(ue, bs) + bias
+        prs = prs_all[idx]
+        y_clean = signal.ofdm_symbol(prs * h * jnp.exp(-2j * jnp.pi * PAPER.scs_hz * tau[:, None] * k))
+        if e.snr_mode == "fixed":
+            link_snr = jnp.broadcast_to(snrs[:, None], (snrs.size, m_max))
+        else:
+            pl = scenario.path_loss_umi_db(d2d[idx], bs[:, 2], dep.ue_height_m, e.link.fc_hz, los)
+            sf = jax.random.normal(k_sf, (m_max,)) * jnp.where(los, scenario.SIGMA_SF_LOS_DB,
+                                                               scenario.SIGMA_SF_NLOS_DB)
+            link_snr = e.link.model_snr_db(e.link.snr_db(pw_all[idx], pl, sf))[None, :]
+        return {"ue": ue, "bias": bias, "idx": idx, "bs": bs, "los": los, "prs": prs, "y0": y_clean,
+                "link_snr": link_snr, "k_noise": k_n}
+
+    return draw
+
+
+def _noisy(d, s):
+    """Received samples of SNR index s: the trial's noise-free samples plus AWGN keyed by fold_in(k_noise, s)."""
+    noise = signal.awgn(jax.random.fold_in(d["k_noise"], s), d["y0"].shape,
+                        signal.noise_variance(d["link_snr"][s], d["prs"]))
+    return d["y0"] + noise
+
+
+def _trial_fn(e: Experiment, dep: scenario.Deployment):
+    """Build the traceable per-trial function t → result dict (closed over constants of the experiment)."""
+    draw = _draw_fn(e, dep)
+    cfg = e.search
+
+    def one(t):
+        d = draw(t)
+        center = jnp.concatenate([d["ue"], d["bias"][None]])
+        bs, prs = d["bs"], d["prs"]
+
+        def per_snr(s):
+            y = _noisy(d, s)
+            corr = dpe._correlogram(y, prs, cfg.n_taps, cfg.upsample)  # once for all M: the M nearest are nested
+            qs = [dpe.search(corr[:m], y[:m], prs[:m], bs[:m], center, cfg, PAPER.n_fft, PAPER.scs_hz,
+                             with_cost=False) for m in e.m_values]
+            return jnp.stack(qs)  # (J, 4)
+
+        q = jax.lax.map(per_snr, jnp.arange(d["link_snr"].shape[0]))  # (S, J, 4)
+        err = jnp.linalg.norm(q[..., :2] - d["ue"][:2], axis=-1)
+        return {"ue_xyz": d["ue"], "clock_bias_s": d["bias"], "bs_index": d["idx"], "los": d["los"],
+                "link_snr_db": d["link_snr"], "est_xyz": q[..., :3], "est_bias_s": q[..., 3] / C, "error_m": err}
+
+    return one
+
+
+def example(e: Experiment, trial: int, snr_index: int = 0) -> dict:
+    """The draws and received samples of one trial at one SNR index, exactly as the engine sees them (NumPy).
+
+    Returns ue (3,), bias, idx (I,), bs (I, 3), los (I,), prs (I, N), y (I, N), link_snr (I,).
+    """
+    dep = e.load_deployment()
+    _checks.integer("trial", trial, 0, e.n_trials - 1)
+    _checks.integer("snr_index", snr_index, 0, e.n_snr - 1)
+    d = _draw_fn(e, dep)(jnp.asarray(trial))
+    out = {k: np.asarray(v) for k, v in d.items() if k != "k_noise"}
+    out["y"] = np.asarray(_noisy(d, snr_index))
+    out["link_snr"] = out["link_snr"][snr_index]
+    del out["y0"]
+    return out
+
+
+def draw_links(e: Experiment, n_trials: int) -> dict:
+    """Link draws only (no signals, no DPE) for trials 0 … n_trials-1: LoS flags (T, I), per-sample link SNR
+    (T, S, I), 2-D distances (T, I) in metres — the statistics Chapter 4 shows, from the same keys as the engine."""
+    dep = e.load_deployment()
+    draw = _draw_fn(e, dep)
+
+    @jax.jit
+    def one(t):
+        d = draw(t)
+        return d["los"], d["link_snr"], jnp.linalg.norm(d["bs"][:, :2] - d["ue"][:2], axis=-1)
+
+    los, snr, dist = jax.lax.map(one, jnp.arange(n_trials), batch_size=64)
+    return {"los": np.asarray(los), "link_snr_db": np.asarray(snr), "d2d_m": np.asarray(dist)}
+
+
+@partial(jax.jit, static_argnames=("fn", "batch_size"))
+def _run_chunk(trials, fn, batch_size):
+    return jax.lax.map(fn, trials, batch_size=batch_size)
+
+
+def _atomic_savez(path: Path, arrays: dict) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, **arrays)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def cache_dir(e: Experiment, cache: str | os.PathLike | None = None) -> Path:
+    root = Path(cache or os.environ.get("DPE5G_CACHE") or DEFAULT_CACHE)
+    return root / f"{e.name}-{e.key()}"
+
+
+def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = True, batch_size: int = 2) -> Results:
+    """Run (or resume, or load) an experiment; returns its ``Results``.
+
+    Chunks already in the cache are loaded, the others computed and written atomically as they finish.
+    progress : a tqdm bar with ETA on stderr.  batch_size : trials vmapped together (memory/speed only).
+    """
+    _checks.integer("batch_size", batch_size, 1, 4096)
+    dep = e.load_deployment()
+    d = cache_dir(e, cache)
+    d.mkdir(parents=True, exist_ok=True)
+    for stale in d.glob("*.tmp"):  # left by a run killed while writing; its chunk is recomputed
+        stale.unlink()
+    meta = d / "experiment.json"
+    if not meta.exists():
+        d_meta = e.to_dict()
+        d_meta.pop("n_trials")
+        d_meta.pop("chunk_trials")
+        _atomic_write_text(meta, json.dumps({"key": e.key(), "experiment": d_meta}, indent=1, default=str))
+    starts = list(range(0, e.n_trials, e.chunk_trials))
+    paths = [d / f"trials-{s:07d}-{min(s + e.chunk_trials, e.n_trials):07d}.npz" for s in starts]
+    todo = [i for i, p in enumerate(paths) if not p.exists()]
+    fn = None
+    bar = None
+    if todo and progress:
+        from tqdm.auto import tqdm
+
+        done = e.n_trials - sum(min(s + e.chunk_trials, e.n_trials) - s for s in (starts[i] for i in todo))
+        bar = tqdm(total=e.n_trials, initial=done, desc=f"{e.name} trials", unit="trial", file=sys.stderr,
+                   dynamic_ncols=True)
+    try:
+        for i in todo:
+            if fn is None:
+                fn = _trial_fn(e, dep)
+            s = starts[i]
+            stop = min(s + e.chunk_trials, e.n_trials)
+            out = _run_chunk(jnp.arange(s, stop), fn, min(batch_size, stop - s))
+            _atomic_savez(paths[i], {k: np.asarray(v) for k, v in out.items()})
+            if bar is not None:
+                bar.update(stop - s)
+    finally:
+        if bar is not None:
+            bar.close()
+    parts = [np.load(p) for p in paths]
+    arrays = {k: np.concatenate([p[k] for p in parts]) for k in Results.FIELDS}
+    return Results(e, **arrays)
+
+
+def _atomic_write_text(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    with os.fdopen(fd, "w") as f:
+        f.write(text)
+    os.replace(tmp, path)

@@ -1,0 +1,130 @@
+"""Interactive 3-D scene of the urban deployment with meshcat, exported as one static HTML file (no server).
+
+Buildings as boxes, BS masts as cylinders with a sphere on top, the UE, its links coloured LoS (green) / NLoS
+(orange), and the DPE correlogram of the example fix as a surface above the UE.  meshcat's ``Visualizer`` normally
+talks to a ZeroMQ server; here it talks to ``_Recorder``, which keeps the packed commands, and ``html`` wraps them
+with meshcat's bundled viewer JavaScript into a page that works offline (the same page meshcat's server would give
+for ``static_html()``).
+"""
+
+from __future__ import annotations
+
+import base64
+from pathlib import Path
+
+import numpy as np
+
+#: scene colours (0xRRGGBB)
+COLOURS = {"building": 0x9aa4b1, "mast": 0x444444, "bs": 0xd62728, "ue": 0x1f77b4, "los": 0x2ca02c,
+           "nlos": 0xff7f0e, "ground": 0xe8e8e0}
+#: metres → viewer units (the region becomes about 2.9 units wide)
+SCALE = 0.006
+#: camera position in the viewer's y-up frame: south-west of the region, above it, looking at its centre
+CAMERA = [-1.6, 2.4, 2.6]
+
+
+class _Recorder:
+    """Stands in for meshcat's ViewerWindow: records each command, packed exactly as the server would store it."""
+
+    def __init__(self):
+        self.commands: list[bytes] = []
+
+    def send(self, command) -> None:
+        import umsgpack
+
+        self.commands.append(umsgpack.packb(command.lower()))
+
+
+def _visualizer():
+    import meshcat
+
+    rec = _Recorder()
+    return meshcat.Visualizer(window=rec), rec
+
+
+def _translation(x, y, z):
+    t = np.eye(4)
+    t[:3, 3] = [x, y, z]
+    return t
+
+
+def build(payload7: dict, payload8: dict):
+    """Build the scene from the Fig. 7 payload (deployment, example UE, links) and the Fig. 8 payload (correlogram
+    of the example fix).  Coordinates: local ENU metres, the region's centre moved to the origin.  Returns the
+    recorder holding the commands."""
+    import meshcat.geometry as g
+
+    top, rec = _visualizer()
+    vis = top["urban"]
+    vis.set_transform(np.diag([SCALE, SCALE, SCALE, 1.0]))
+    top["/Grid"].set_property("visible", False)
+    top["/Cameras/default/rotated/<object>"].set_property("position", CAMERA)
+    d7, d8 = payload7["data"], payload8["data"]
+    x0, y0, x1, y1 = d7["region"]
+    cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
+
+    def mat(colour, opacity=1.0):
+        return g.MeshLambertMaterial(color=colour, opacity=opacity, transparent=opacity < 1.0)
+
+    vis["ground"].set_object(g.Box([x1 - x0, y1 - y0, 0.2]), mat(COLOURS["ground"]))
+    vis["ground"].set_transform(_translation(0.0, 0.0, -0.1))
+    for i, (bx0, by0, bx1, by1, h) in enumerate(d7["buildings"]):
+        node = vis["buildings"][f"b{i:03d}"]
+        node.set_object(g.Box([bx1 - bx0, by1 - by0, h]), mat(COLOURS["building"], 0.55))
+        node.set_transform(_translation(0.5 * (bx0 + bx1) - cx, 0.5 * (by0 + by1) - cy, 0.5 * h))
+    rot_z_up = np.array([[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]], dtype=float)  # cylinder y → z
+    for bid, (bx, by, bz) in zip(d7["bs_ids"], d7["bs_xyz"]):
+        mast = vis["bs"][bid]["mast"]
+        mast.set_object(g.Cylinder(bz, 1.5), mat(COLOURS["mast"]))
+        mast.set_transform(_translation(bx - cx, by - cy, 0.5 * bz) @ rot_z_up)
+        head = vis["bs"][bid]["antenna"]
+        head.set_object(g.Sphere(5.0), mat(COLOURS["bs"]))
+        head.set_transform(_translation(bx - cx, by - cy, bz))
+    ue = d7["ue_xyz"]
+    vis["ue"].set_object(g.Sphere(7.0), mat(COLOURS["ue"]))
+    vis["ue"].set_transform(_translation(ue[0] - cx, ue[1] - cy, ue[2]))
+    for j, (b, los) in enumerate(zip(d7["link_bs_xyz"], d7["link_los"])):
+        pts = np.array([[ue[0] - cx, ue[1] - cy, ue[2]], [b[0] - cx, b[1] - cy, b[2]]], dtype=np.float32).T
+        colour = COLOURS["los"] if los else COLOURS["nlos"]
+        vis["links"][f"l{j:02d}"].set_object(g.Line(g.PointsGeometry(pts), g.LineBasicMaterial(color=colour,
+                                                                                              linewidth=3)))
+    # the correlogram of the example fix as a height field above the roofs over the UE, its ±10 m drawn ×5 wide
+    xs, ys = np.asarray(d8["x_m"]), np.asarray(d8["y_m"])
+    c = np.asarray(d8["cost_norm"])
+    step = max(1, len(xs) // 60)
+    xs, ys, c = xs[::step], ys[::step], c[::step, ::step]
+    gx, gy = np.meshgrid(xs, ys)
+    scale, lift = 5.0, 100.0
+    verts = np.stack([(gx - ue[0]) * scale + ue[0] - cx, (gy - ue[1]) * scale + ue[1] - cy, lift + 40.0 * c],
+                     axis=-1).reshape(-1, 3)
+    ny, nx = c.shape
+    ii = np.arange(ny - 1)[:, None] * nx + np.arange(nx - 1)[None, :]
+    faces = np.concatenate([np.stack([ii, ii + 1, ii + nx + 1], -1).reshape(-1, 3),
+                            np.stack([ii, ii + nx + 1, ii + nx], -1).reshape(-1, 3)])
+    vis["correlogram"].set_object(g.TriangularMeshGeometry(verts.astype(np.float32), faces.astype(np.uint32)),
+                                  g.MeshLambertMaterial(color=0x6a3d9a, opacity=0.85, transparent=True))
+    return rec
+
+
+def html(rec: _Recorder) -> str:
+    """The standalone page: meshcat's viewer JavaScript (bundled with the package) replaying the commands."""
+    import meshcat
+
+    js = (Path(meshcat.__file__).parent / "viewer" / "dist" / "main.min.js").read_text()
+    cmds = "".join(
+        'fetch("data:application/octet-binary;base64,{}").then(r => r.arrayBuffer())'
+        ".then(b => viewer.handle_command_bytearray(new Uint8Array(b)));\n".format(base64.b64encode(c).decode())
+        for c in rec.commands)
+    return ("<!DOCTYPE html>\n<html><head><meta charset=utf-8><title>dpe5g: urban deployment (meshcat)</title>\n"
+            "<style>body{margin:0} #meshcat-pane{width:100vw;height:100vh;overflow:hidden}</style></head>\n"
+            "<body><div id=\"meshcat-pane\"></div>\n<script>" + js + "</script>\n<script>\n"
+            "var viewer = new MeshCat.Viewer(document.getElementById(\"meshcat-pane\"));\n" + cmds
+            + "</script></body></html>\n")
+
+
+def export(payload7: dict, payload8: dict, path) -> Path:
+    """Write the scene's static HTML to ``path``; returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(html(build(payload7, payload8)))
+    return path

@@ -1,0 +1,102 @@
+import os
+import signal as os_signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import numpy as np
+import pytest
+
+from dpe5g import dpe, montecarlo
+
+SMALL = dict(name="test", n_trials=6, seed=1, snrs_db=(15.0, 30.0), m_values=(4, 6),
+             search=dpe.SearchConfig(half_width_m=3.0, bias_half_width_m=3.0))
+
+
+def test_results_do_not_depend_on_chunking_or_batching(tmp_path):
+    a = montecarlo.run(montecarlo.Experiment(chunk_trials=6, **SMALL), cache=tmp_path / "a", progress=False,
+                       batch_size=3)
+    b = montecarlo.run(montecarlo.Experiment(chunk_trials=2, **SMALL), cache=tmp_path / "b", progress=False,
+                       batch_size=1)
+    for f in montecarlo.Results.FIELDS:
+        np.testing.assert_allclose(getattr(a, f), getattr(b, f), rtol=0, atol=1e-9, err_msg=f)
+    assert a.error_m.shape == (6, 2, 2) and a.los.shape == (6, 6)
+    # a longer run reuses nothing it should not: its first trials equal the short run's
+    c = montecarlo.run(montecarlo.Experiment(chunk_trials=2, **{**SMALL, "n_trials": 8}), cache=tmp_path / "b",
+                       progress=False)
+    np.testing.assert_allclose(c.error_m[:6], b.error_m, atol=1e-9)
+
+
+def test_cache_is_keyed_by_config(tmp_path):
+    e1 = montecarlo.Experiment(**SMALL)
+    e2 = montecarlo.Experiment(**{**SMALL, "seed": 2})
+    assert e1.key() != e2.key()
+    assert e1.key() == montecarlo.Experiment(**{**SMALL, "n_trials": 60, "chunk_trials": 7}).key()
+
+
+def test_interrupted_run_resumes_to_identical_results(tmp_path):
+    """Start a run in a subprocess, SIGKILL it after its first chunk is on disk, resume, compare."""
+    cache = tmp_path / "killed"
+    cfg = dict(SMALL, n_trials=10)
+    plain = {k: v for k, v in cfg.items() if k != "search"}
+    script = textwrap.dedent(f"""
+        from dpe5g import dpe, montecarlo
+        e = montecarlo.Experiment(chunk_trials=1, search=dpe.SearchConfig(half_width_m=3.0, bias_half_width_m=3.0),
+                                  **{plain!r})
+        montecarlo.run(e, cache={str(cache)!r}, progress=False, batch_size=1)
+    """)
+    err = tmp_path / "stderr.txt"
+    with open(err, "wb") as f:
+        proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.DEVNULL, stderr=f)
+    e = montecarlo.Experiment(chunk_trials=1, **cfg)
+    d = montecarlo.cache_dir(e, cache)
+    t0 = time.time()
+    while time.time() - t0 < 240:
+        if d.exists() and len(list(d.glob("trials-*.npz"))) >= 2:
+            break
+        if proc.poll() is not None:
+            pytest.fail(f"the run ended before it could be killed: {err.read_text()[-500:]}")
+        time.sleep(0.05)
+    proc.send_signal(os_signal.SIGKILL)
+    proc.wait()
+    done = sorted(d.glob("trials-*.npz"))
+    assert 2 <= len(done) < 10, f"{len(done)} chunks on disk when killed"
+    mtimes = {p.name: p.stat().st_mtime_ns for p in done}
+    resumed = montecarlo.run(e, cache=cache, progress=False, batch_size=1)
+    assert all(p.stat().st_mtime_ns == mtimes[p.name] for p in done)  # finished chunks were loaded, not redone
+    fresh = montecarlo.run(e, cache=tmp_path / "fresh", progress=False, batch_size=1)
+    for f in montecarlo.Results.FIELDS:
+        np.testing.assert_array_equal(getattr(resumed, f), getattr(fresh, f), err_msg=f)
+
+
+def test_two_of_four_and_link_budget_modes(tmp_path):
+    e = montecarlo.Experiment(name="t4", n_trials=4, seed=3, snr_mode="link_budget", snrs_db=(), m_values=(4,),
+                              los_mode="two_of_four", search=dpe.SearchConfig(half_width_m=3.0))
+    r = montecarlo.run(e, cache=tmp_path, progress=False)
+    assert np.all(r.los.sum(axis=1) == 2)
+    assert r.link_snr_db.shape == (4, 1, 4) and np.all(np.isfinite(r.link_snr_db))
+    rows = r.table()
+    assert len(rows) == 4 and {"trial", "snr_db", "m", "error_m", "n_los"} <= set(rows[0])
+    r.write_csv(tmp_path / "t.csv")
+    assert (tmp_path / "t.csv").read_text().count("\n") == 5
+
+
+@pytest.mark.parametrize("kwargs, needle", [
+    (dict(snrs_db=(float("nan"),)), "snr_db must be finite"),
+    (dict(m_values=(12, 6)), "increasing"),
+    (dict(m_values=(2,)), "m_values entry"),
+    (dict(los_mode="two_of_four"), "must end in 4"),
+    (dict(snr_mode="link_budget"), "must be empty"),
+    (dict(delay_spread_s=65.0), "nanoseconds"),
+    (dict(los_mode="sometimes"), "los_mode must be one of"),
+    (dict(n_trials=0), "n_trials"),
+])
+def test_bad_experiments(kwargs, needle):
+    with pytest.raises(ValueError, match=needle):
+        montecarlo.Experiment(**kwargs)
+
+
+def test_too_many_bs_for_the_deployment():
+    with pytest.raises(ValueError, match="must not exceed"):
+        montecarlo.Experiment(m_values=(6, 30)).load_deployment()

@@ -1,0 +1,115 @@
+import json
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from dpe5g import scenario
+
+
+def test_packaged_deployment_has_the_papers_numbers():
+    dep = scenario.tst()
+    assert dep.n_bs == 26
+    assert dep.area_m2 == pytest.approx(227_360.0, rel=1e-5)
+    x0, y0, x1, y1 = dep.region
+    assert x1 - x0 == pytest.approx(y1 - y0)  # a square
+    assert np.all(dep.bs_xyz[:, 2] == 10.0) and np.all(dep.power_dbm == 24.0)
+    assert dep.ue_height_m == 2.0 and len(dep.buildings) > 0
+    assert all(x0 <= b[0] <= x1 and y0 <= b[1] <= y1 for b in dep.bs_xyz)
+
+
+def test_los_probability_eq9():
+    d = np.array([0.0, 10.0, 18.0, 36.0, 100.0])
+    p = np.asarray(scenario.los_probability(d))
+    assert np.all(p[:3] == 1.0)
+    assert p[3] == pytest.approx(0.5 + 0.5 * np.exp(-1.0))
+    assert p[4] == pytest.approx(0.18 + 0.82 * np.exp(-100 / 36))
+
+
+@given(st.floats(18.0, 5000.0), st.floats(0.0, 100.0))
+def test_los_probability_decreases_and_is_a_probability(d, dd):
+    p1, p2 = np.asarray(scenario.los_probability(np.array([d, d + dd])))
+    assert 0.0 <= p2 <= p1 <= 1.0
+
+
+def test_umi_path_loss_values_and_breakpoint():
+    # hand evaluation of TR 38.901 Table 7.4.1-1 at fc = 3 GHz, h_BS = 10 m, h_UT = 2 m (d'BP = 360 m)
+    d3 = np.hypot(100.0, 8.0)
+    pl_los = 32.4 + 21 * np.log10(d3) + 20 * np.log10(3.0)
+    pl_nlos = max(pl_los, 35.3 * np.log10(d3) + 22.4 + 21.3 * np.log10(3.0) - 0.3 * 0.5)
+    assert float(scenario.path_loss_umi_db(100.0, 10.0, 2.0, 3e9, True)) == pytest.approx(pl_los, abs=1e-9)
+    assert float(scenario.path_loss_umi_db(100.0, 10.0, 2.0, 3e9, False)) == pytest.approx(pl_nlos, abs=1e-9)
+    # PL1 and PL2 meet at the breakpoint (continuity of the LoS formula)
+    below = float(scenario.path_loss_umi_db(360.0 - 1e-6, 10.0, 2.0, 3e9, True))
+    above = float(scenario.path_loss_umi_db(360.0 + 1e-6, 10.0, 2.0, 3e9, True))
+    assert above == pytest.approx(below, abs=1e-3)
+
+
+@given(st.floats(10.0, 5000.0))
+def test_nlos_path_loss_never_below_los(d):
+    assert float(scenario.path_loss_umi_db(d, 10.0, 2.0, 3e9, False)) >= float(
+        scenario.path_loss_umi_db(d, 10.0, 2.0, 3e9, True))
+
+
+def test_link_budget():
+    lb = scenario.LinkBudget()
+    assert lb.noise_dbm == pytest.approx(-85.0)
+    assert float(lb.snr_db(24.0, 100.0, 2.0)) == pytest.approx(24.0 - 100.0 - 2.0 + 85.0)
+    assert float(lb.model_snr_db(10.0)) == pytest.approx(10.0 - 10 * np.log10(4096 * 30e3 / 100e6))
+    with pytest.raises(ValueError, match="noise_figure_db"):
+        scenario.LinkBudget(noise_figure_db=float("nan"))
+
+
+def test_clock_bias_is_truncated():
+    import jax
+
+    b = np.asarray(scenario.clock_bias(jax.random.PRNGKey(0), 5e-9, 3.0, (20000,)))
+    assert np.all(np.abs(b) <= 15e-9 + 1e-18)
+    assert np.std(b) == pytest.approx(5e-9 * 0.986, rel=0.03)  # σ of a ±3σ-truncated Gaussian is 0.986 σ
+
+
+def test_ue_outside_region_is_an_error():
+    dep = scenario.tst()
+    with pytest.raises(ValueError, match="inside the region"):
+        dep.check_ue([600.0, 10.0])
+    with pytest.raises(ValueError, match="finite"):
+        dep.check_ue([np.nan, 10.0])
+
+
+def _write(tmp_path, name, text):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+@pytest.mark.parametrize("name, text, needle", [
+    ("d.csv", "id,x_m,y_m,height_m,power_dbm\nA,0,0,10,24\nB,100,0,10,24\n", "at least 3 base stations"),
+    ("d.csv", "id,x_m,y_m,height_m,power_dbm\nA,0,0,10,24\nB,100,0,ten,24\nC,0,100,10,24\n", "height_m must be"),
+    ("d.csv", "id,x_m,y_m,height_m,power_dbm\nA,0,0,10,24\nB,100,0,10,240\nC,0,100,10,24\n", "power_dbm must be"),
+    ("d.csv", "id,x_m,y_m,height_m\nA,0,0,10\nB,100,0,10\nC,0,100,10\n", "missing power_dbm"),
+    ("d.csv", "id,x_m,y_m,height_m,power_dbm\nA,0,0,10,24\nA,100,0,10,24\nC,0,100,10,24\n", "duplicate id"),
+    ("d.csv", "id,x_m,y_m,height_m,power_dbm\nA,0,0,10,24\nB,100,nan,10,24\nC,0,100,10,24\n", "y_m must be"),
+    ("d.json", "{not json", "not valid JSON"),
+    ("d.json", json.dumps({"base_stations": [{"x_m": 0, "y_m": 0, "height_m": 10, "power_dbm": 24}] * 3}),
+     "less than 0.5 m apart"),
+    ("d.json", json.dumps({"base_stations": [{"x_m": i * 50, "y_m": 0, "height_m": 10, "power_dbm": 24}
+                                             for i in range(3)]}), "needs a region"),
+    ("d.json", json.dumps({"base_stations": [{"x_m": i * 50, "y_m": 0, "height_m": 10, "power_dbm": 24}
+                                             for i in range(3)],
+                           "region": {"x_min_m": 0, "y_min_m": 0, "x_max_m": 60, "y_max_m": 60}}),
+     "outside the region"),
+    ("d.txt", "x", "must end in .json or .csv"),
+])
+def test_malformed_deployment_files(tmp_path, name, text, needle):
+    with pytest.raises(ValueError, match=needle):
+        scenario.load_deployment(_write(tmp_path, name, text))
+
+
+def test_csv_deployment_loads(tmp_path):
+    p = _write(tmp_path, "mine.csv", "id,x_m,y_m,height_m,power_dbm\nA,0,0,10,24\nB,100,0,12,20\nC,0,100,10,24\n")
+    dep = scenario.load_deployment(p)
+    assert dep.bs_ids == ("A", "B", "C")
+    assert dep.bs_xyz[1].tolist() == [100.0, 0.0, 12.0] and dep.power_dbm[1] == 20.0
+    assert dep.region == (-10.0, -10.0, 110.0, 110.0)
+    assert list(dep.nearest([90.0, 5.0], 2)) == [1, 0]
