@@ -19,7 +19,7 @@ def _figures(args) -> int:
         figures.get(fig_id)  # validate every id before spending time
     for fig_id in ids:
         t0 = time.perf_counter()
-        png, js = figures.write(fig_id, args.out)
+        png, js = figures.write(fig_id, args.out, progress=True)
         print(f"{fig_id}: {png} {js} ({time.perf_counter() - t0:.1f} s)", flush=True)
     return 0
 

@@ -9,6 +9,7 @@ Payload layout: ``{"id", "paper_ref", "caption", "seed", "config": {...}, "data"
 
 from __future__ import annotations
 
+import inspect
 import json
 import math
 import os
@@ -70,10 +71,14 @@ def get(fig_id: str) -> FigureSpec:
     return REGISTRY[fig_id]
 
 
-def compute(fig_id: str) -> dict:
-    """Run the producer of ``fig_id`` and return its JSON-able payload."""
+def compute(fig_id: str, progress: bool = False) -> dict:
+    """Run the producer of ``fig_id`` and return its JSON-able payload.
+
+    progress : show a progress bar (stderr) where the producer runs a long Monte Carlo (the CLI turns it on).
+    """
     spec = get(fig_id)
-    payload = spec.compute()
+    takes_progress = "progress" in inspect.signature(spec.compute).parameters
+    payload = spec.compute(progress=progress) if takes_progress else spec.compute()
     payload = {"id": spec.id, "paper_ref": spec.paper_ref, "caption": spec.caption, **payload}
     return _jsonable(payload)
 
@@ -91,10 +96,10 @@ def _atomic_write(path: Path, data: bytes) -> None:
     os.replace(tmp, path)
 
 
-def write(fig_id: str, out_dir) -> tuple[Path, Path]:
+def write(fig_id: str, out_dir, progress: bool = False) -> tuple[Path, Path]:
     """Compute and draw ``fig_id``; write ``out_dir/<id>.png`` and ``out_dir/data/<id>.json``."""
     out = Path(out_dir)
-    payload = compute(fig_id)
+    payload = compute(fig_id, progress=progress)
     js = out / "data" / f"{fig_id}.json"
     _atomic_write(js, (json.dumps(payload, indent=1, sort_keys=True) + "\n").encode())
     fig = render(payload)
@@ -326,12 +331,12 @@ def urban_correlogram_payload() -> dict:
     }
 
 
-def rmse_payload(e) -> dict:
+def rmse_payload(e, progress: bool = False) -> dict:
     """Fig. 9 from an experiment's results (run or loaded from the cache): RMSE, median and 90 % error per
     (SNR, M), and the LoS share of the links."""
     from . import montecarlo
 
-    res = montecarlo.run(e)
+    res = montecarlo.run(e, progress=progress)
     err = res.error_m
     return {
         "seed": e.seed,
@@ -352,4 +357,4 @@ register("fig08_urban_correlogram", "Fig. 8",
          plots.plot_urban_correlogram)(urban_correlogram_payload)
 register("fig09_rmse_vs_snr", "Fig. 9",
          "DPE RMSE against SNR for M = 6, 12, 18, 24 nearest BSs, 5000 trials per point.",
-         plots.plot_rmse_vs_snr)(lambda: rmse_payload(urban_experiment()))
+         plots.plot_rmse_vs_snr)(lambda progress=False: rmse_payload(urban_experiment(), progress))

@@ -348,7 +348,7 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
     fn = None
     bar = None
     if todo and progress:
-        from tqdm.auto import tqdm
+        from tqdm import tqdm
 
         done = e.n_trials - sum(min(s + e.chunk_trials, e.n_trials) - s for s in (starts[i] for i in todo))
         bar = tqdm(total=e.n_trials, initial=done, desc=f"{e.name} trials", unit="trial", file=sys.stderr,

@@ -120,7 +120,7 @@ def plot_deployment(payload: dict):
     d = payload["data"]
     x0, y0, x1, y1 = d["region"]
     with style():
-        fig = Figure(figsize=(6.4, 6.0), layout="constrained")
+        fig = Figure(figsize=(6.4, 6.6), layout="constrained")
         ax = fig.subplots()
         ax.set_facecolor("#f4f4f0")
         heights = [b[4] for b in d["buildings"]]
@@ -156,7 +156,7 @@ def plot_deployment(payload: dict):
         ax.grid(False)
         ax.set_xlabel("east (m)")
         ax.set_ylabel("north (m)")
-        ax.legend(fontsize=7, loc="lower right", framealpha=0.9)
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.09), ncol=4, frameon=False)
         c = payload["config"]
         ax.set_title(f"{c['n_bs']} BSs over {c['area_m2']:,.0f} m², example UE with its {c['m']} nearest links")
     return fig
@@ -169,10 +169,10 @@ def plot_urban_correlogram(payload: dict):
     x, y = np.asarray(d["x_m"]), np.asarray(d["y_m"])
     ue, est = d["ue_xyz"], d["est_xyz"]
     with style():
-        fig = Figure(figsize=(5.6, 4.6), layout="constrained")
+        fig = Figure(figsize=(6.2, 4.8), layout="constrained")
         ax = fig.subplots()
-        im = ax.pcolormesh(x - ue[0], y - ue[1], np.asarray(d["cost_norm"]), shading="nearest", cmap="viridis",
-                           vmin=0, vmax=1)
+        cost = np.asarray(d["cost_norm"])
+        im = ax.pcolormesh(x - ue[0], y - ue[1], cost, shading="nearest", cmap="viridis", vmin=cost.min(), vmax=1)
         fig.colorbar(im, ax=ax, label="normalized cost, eq. (8)")
         ax.plot(0, 0, "r+", markersize=14, mew=2, label="ground truth")
         ax.plot(est[0] - ue[0], est[1] - ue[1], "wx", markersize=9, mew=2,

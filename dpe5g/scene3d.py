@@ -122,6 +122,13 @@ def html(rec: _Recorder) -> str:
             + "</script></body></html>\n")
 
 
+def iframe(payload7: dict, payload8: dict, height_px: int = 520) -> str:
+    """The scene as an ``<iframe srcdoc=...>`` element, self-contained, for embedding in a notebook or page."""
+    page = html(build(payload7, payload8)).replace("&", "&amp;").replace('"', "&quot;")
+    return (f'<iframe class="dpe5g-scene3d" title="3-D scene of the urban deployment" srcdoc="{page}" '
+            f'style="width:100%;height:{height_px}px;border:1px solid #ccc"></iframe>')
+
+
 def export(payload7: dict, payload8: dict, path) -> Path:
     """Write the scene's static HTML to ``path``; returns the path."""
     path = Path(path)

@@ -25,6 +25,19 @@ def test_bad_input_is_one_line_exit_2(args, needle):
     assert len(lines) == 1 and needle in lines[0], r.stderr
 
 
+def test_bad_deployment_file_is_one_line_exit_2(tmp_path):
+    bad = tmp_path / "mine.csv"
+    bad.write_text("id,x_m,y_m,height_m,power_dbm\nA,0,0,10,24\nB,100,0,10,24\nC,0,100,10000,24\n")
+    r = run("deployment", str(bad))
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and "height_m must be in [1.5, 150] m" in r.stderr
+
+
+def test_deployment_summary():
+    r = run("deployment")
+    assert r.returncode == 0 and "26 BSs" in r.stdout and "227,360 m2" in r.stdout
+
+
 def test_profile_prints_table():
     r = run("profile", "D")
     assert r.returncode == 0

@@ -4,6 +4,10 @@ Data (figures/data/<id>.json): every number within |a - e| <= DATA_ATOL + DATA_R
 Image (figures/<id>.png): matplotlib's compare_images RMS over pixels (0–255 scale) <= IMAGE_RMS_TOL.
 On failure the message names the figure and the largest difference, and a diff image is written to
 ``figure-diff/<id>-failed-diff.png`` in the repository.
+
+The Monte Carlo figures read ``dpe5g.montecarlo``'s cache when it holds the experiment for the current code (the
+cache key hashes the config and the source of every module the numbers depend on); on a fresh clone the first
+build computes it, so ``make test`` there regenerates Fig. 9 from its seed.
 """
 
 import json
