@@ -122,9 +122,11 @@ def _correlogram(y, prs, n_taps, upsample):
     shifts = np.exp(2j * np.pi * np.outer(np.arange(upsample) / upsample, k) / n)  # (U, N), a compile-time constant
     h = jnp.fft.ifft(g[:, None, :] * shifts[None], axis=-1)  # (M, U, N): ĥ(n + u/U) / √N
     e = (h.real**2 + h.imag**2) * n
-    # circular window sum over l = 0 … L-1 as a product of spectra (real FFTs of length N)
-    box = np.fft.rfft(((k == 0) | (k > n - n_taps)).astype(np.float64))  # e[j] + e[j+1] + … + e[j+L-1]
-    w = jnp.fft.irfft(jnp.fft.rfft(e, axis=-1) * box, n=n, axis=-1)
+    if n_taps == 1:
+        w = e
+    else:  # circular window sum over l = 0 … L-1 as a product of spectra (real FFTs of length N)
+        box = np.fft.rfft(((k == 0) | (k > n - n_taps)).astype(np.float64))  # e[j] + e[j+1] + … + e[j+L-1]
+        w = jnp.fft.irfft(jnp.fft.rfft(e, axis=-1) * box, n=n, axis=-1)
     return jnp.transpose(w, (0, 2, 1)).reshape(m, n * upsample)
 
 

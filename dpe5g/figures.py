@@ -358,3 +358,50 @@ register("fig08_urban_correlogram", "Fig. 8",
 register("fig09_rmse_vs_snr", "Fig. 9",
          "DPE RMSE against SNR for M = 6, 12, 18, 24 nearest BSs, 5000 trials per point.",
          plots.plot_rmse_vs_snr)(lambda progress=False: rmse_payload(urban_experiment(), progress))
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Fig. 10: DPE against OTDoA with the 4 nearest BSs (Section IV-B).
+
+FIG10_SEED = 10
+FIG10_CASES = ("two_of_four", "eq9")
+CDF_GRID_M = np.logspace(-2, 3, 251)  # error axis of the stored CDFs, 1 cm … 1 km
+
+
+def otdoa_experiments(n_trials: int = URBAN_TRIALS) -> dict:
+    """The two Fig. 10 experiments: the paper's stated case (two of the four nearest links LoS, two NLoS) and LoS
+    drawn from eq. (9).  SNR of each link from the UMi path loss; DPE and OTDoA on the same received signals."""
+    from . import montecarlo
+
+    base = dict(n_trials=n_trials, seed=FIG10_SEED, snr_mode="link_budget", snrs_db=(), m_values=(4,), otdoa=True)
+    return {case: montecarlo.Experiment(name=f"fig10-{case.replace('_', '-')}", los_mode=case, **base)
+            for case in FIG10_CASES}
+
+
+def cdf_payload(experiments: dict, progress: bool = False) -> dict:
+    """Fig. 10 from the experiments' results: error CDFs of DPE and OTDoA, their 50/90/99 % points, the share of
+    flagged OTDoA fixes, and the improvement 1 − p90(DPE)/p90(OTDoA) as the paper computes it."""
+    from . import montecarlo
+
+    data, config = {}, {}
+    for case, e in experiments.items():
+        res = montecarlo.run(e, progress=progress)
+        dpe_err, ot_err = res.error_m[:, 0, 0], res.otdoa_error_m[:, 0, 0]
+        q = {name: np.quantile(err, [0.5, 0.9, 0.99]) for name, err in (("dpe", dpe_err), ("otdoa", ot_err))}
+        data[case] = {
+            "dpe_cdf": np.searchsorted(np.sort(dpe_err), CDF_GRID_M, side="right") / dpe_err.size,
+            "otdoa_cdf": np.searchsorted(np.sort(ot_err), CDF_GRID_M, side="right") / ot_err.size,
+            "dpe_p50_p90_p99_m": q["dpe"], "otdoa_p50_p90_p99_m": q["otdoa"],
+            "improvement_p90": 1.0 - q["dpe"][1] / q["otdoa"][1],
+            "otdoa_flagged_share": float(np.mean(~res.otdoa_ok[:, 0, 0])),
+            "los_share": res.los_share(4),
+            "median_link_snr_db": float(np.median(res.link_snr_db)),
+        }
+        config[case] = {"name": e.name, "los_mode": e.los_mode, "n_trials": e.n_trials, "seed": e.seed,
+                        "m": 4, "toa_method": e.toa_method, "noise_figure_db": e.link.noise_figure_db}
+    return {"seed": FIG10_SEED, "config": {"cases": config, "error_grid_m": CDF_GRID_M}, "data": data}
+
+
+register("fig10_cdf_dpe_vs_otdoa", "Fig. 10",
+         "CDF of the position error of DPE and OTDoA with the 4 nearest BSs, SNR per link from the UMi path loss, "
+         "5000 trials per case.", plots.plot_cdf)(lambda progress=False: cdf_payload(otdoa_experiments(), progress))

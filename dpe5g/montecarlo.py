@@ -28,15 +28,19 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _checks, channel, dpe, nr, scenario, signal
+from . import _checks, channel, dpe, nr, otdoa, scenario, signal
 from .nr import C, PAPER
 
 #: default cache directory: ``.cache/montecarlo`` next to the package (the repository root for an editable install);
 #: the environment variable DPE5G_CACHE overrides it.
 DEFAULT_CACHE = Path(__file__).resolve().parent.parent / ".cache" / "montecarlo"
-_SOURCES = ("channel.py", "dpe.py", "montecarlo.py", "nr.py", "scenario.py", "signal.py")
+_SOURCES = ("channel.py", "dpe.py", "montecarlo.py", "nr.py", "otdoa.py", "scenario.py", "signal.py")
 
 LOS_MODES = ("eq9", "two_of_four")
+#: OTDoA ToA detector settings used by the engine (``dpe5g.otdoa.toa``'s defaults)
+OTDOA_UPSAMPLE = 8
+OTDOA_THRESHOLD_DB = -10.0
+OTDOA_MAX_LEAD = 64
 SNR_MODES = ("fixed", "link_budget")
 CENTRINGS = ("truth",)
 
@@ -55,6 +59,8 @@ class Experiment:
     delay_spread_s, k_factor_db : TDL-C (NLoS) / TDL-D (LoS) at this RMS delay spread; TDL-D's K.
     clock_sigma_s, clock_bound_sigmas : UE clock bias, Gaussian σ truncated at ± bound · σ.
     search : the DPE search; link : the link budget; deployment : "tst" or a path to a JSON/CSV deployment.
+    otdoa : also run the OTDoA baseline (``dpe5g.otdoa``) on the same received signals, for every SNR and M;
+    toa_method : its ToA detector, "peak" or "first_path".
     chunk_trials : trials per cache file (results do not depend on it; resuming needs the same value).
     """
 
@@ -73,6 +79,8 @@ class Experiment:
     search: dpe.SearchConfig = field(default_factory=dpe.SearchConfig)
     link: scenario.LinkBudget = field(default_factory=scenario.LinkBudget)
     deployment: str = "tst"
+    otdoa: bool = False
+    toa_method: str = "peak"
     chunk_trials: int = 100
 
     def __post_init__(self):
@@ -82,6 +90,7 @@ class Experiment:
         _checks.one_of("snr_mode", self.snr_mode, SNR_MODES)
         _checks.one_of("los_mode", self.los_mode, LOS_MODES)
         _checks.one_of("centring", self.centring, CENTRINGS)
+        _checks.one_of("toa_method", self.toa_method, otdoa.TOA_METHODS)
         if self.snr_mode == "fixed":
             if len(self.snrs_db) == 0:
                 raise ValueError("snrs_db must list at least one SNR (dB) when snr_mode is 'fixed'")
@@ -137,7 +146,8 @@ class Results:
 
     ue_xyz (T, 3) m; clock_bias_s (T,); bs_index (T, I) deployment index of the i-th nearest BS; los (T, I) bool;
     link_snr_db (T, S, I) per-sample SNR of each link; est_xyz (T, S, J, 3) m; est_bias_s (T, S, J);
-    error_m (T, S, J) horizontal error.
+    error_m (T, S, J) horizontal error.  With ``otdoa``: otdoa_toa_s (T, S, I) the estimated ToAs (clock bias
+    included), otdoa_xyz (T, S, J, 3), otdoa_error_m (T, S, J), otdoa_ok (T, S, J) False where the fix is flagged.
     """
 
     experiment: Experiment
@@ -149,8 +159,13 @@ class Results:
     est_xyz: np.ndarray
     est_bias_s: np.ndarray
     error_m: np.ndarray
+    otdoa_toa_s: np.ndarray | None = None
+    otdoa_xyz: np.ndarray | None = None
+    otdoa_error_m: np.ndarray | None = None
+    otdoa_ok: np.ndarray | None = None
 
     FIELDS = ("ue_xyz", "clock_bias_s", "bs_index", "los", "link_snr_db", "est_xyz", "est_bias_s", "error_m")
+    OTDOA_FIELDS = ("otdoa_toa_s", "otdoa_xyz", "otdoa_error_m", "otdoa_ok")
 
     def rmse_m(self) -> np.ndarray:
         """(S, J) RMSE of the horizontal error over trials."""
@@ -172,6 +187,9 @@ class Results:
                                  "est_x_m": float(self.est_xyz[t, s, j, 0]), "est_y_m": float(self.est_xyz[t, s, j, 1]),
                                  "true_x_m": float(self.ue_xyz[t, 0]), "true_y_m": float(self.ue_xyz[t, 1]),
                                  "n_los": int(self.los[t, :m].sum())})
+                    if self.otdoa_error_m is not None:
+                        rows[-1].update({"otdoa_error_m": float(self.otdoa_error_m[t, s, j]),
+                                         "otdoa_ok": bool(self.otdoa_ok[t, s, j])})
         return rows
 
     def write_csv(self, path) -> None:
@@ -261,12 +279,17 @@ def _trial_fn(e: Experiment, dep: scenario.Deployment):
             corr = dpe._correlogram(y, prs, cfg.n_taps, cfg.upsample)  # once for all M: the M nearest are nested
             qs = [dpe.search(corr[:m], y[:m], prs[:m], bs[:m], center, cfg, PAPER.n_fft, PAPER.scs_hz,
                              with_cost=False) for m in e.m_values]
-            return jnp.stack(qs)  # (J, 4)
+            toas = (otdoa._toa(y, prs, e.toa_method, OTDOA_UPSAMPLE, OTDOA_THRESHOLD_DB, OTDOA_MAX_LEAD,
+                               PAPER.sample_period_s) if e.otdoa else jnp.zeros(y.shape[0]))
+            return jnp.stack(qs), toas  # (J, 4), (I,)
 
-        q = jax.lax.map(per_snr, jnp.arange(d["link_snr"].shape[0]))  # (S, J, 4)
+        q, toas = jax.lax.map(per_snr, jnp.arange(d["link_snr"].shape[0]))  # (S, J, 4), (S, I)
         err = jnp.linalg.norm(q[..., :2] - d["ue"][:2], axis=-1)
-        return {"ue_xyz": d["ue"], "clock_bias_s": d["bias"], "bs_index": d["idx"], "los": d["los"],
-                "link_snr_db": d["link_snr"], "est_xyz": q[..., :3], "est_bias_s": q[..., 3] / C, "error_m": err}
+        out = {"ue_xyz": d["ue"], "clock_bias_s": d["bias"], "bs_index": d["idx"], "los": d["los"],
+               "link_snr_db": d["link_snr"], "est_xyz": q[..., :3], "est_bias_s": q[..., 3] / C, "error_m": err}
+        if e.otdoa:
+            out["otdoa_toa_s"] = toas
+        return out
 
     return one
 
@@ -347,6 +370,7 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
     todo = [i for i, p in enumerate(paths) if not p.exists()]
     fn = None
     bar = None
+    solvers = {}
     if todo and progress:
         from tqdm import tqdm
 
@@ -360,15 +384,36 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
             s = starts[i]
             stop = min(s + e.chunk_trials, e.n_trials)
             out = _run_chunk(jnp.arange(s, stop), fn, min(batch_size, stop - s))
-            _atomic_savez(paths[i], {k: np.asarray(v) for k, v in out.items()})
+            out = {k: np.asarray(v) for k, v in out.items()}
+            if e.otdoa:
+                out.update(_otdoa_fixes(e, dep, out, solvers))
+            _atomic_savez(paths[i], out)
             if bar is not None:
                 bar.update(stop - s)
     finally:
         if bar is not None:
             bar.close()
     parts = [np.load(p) for p in paths]
-    arrays = {k: np.concatenate([p[k] for p in parts]) for k in Results.FIELDS}
+    names = Results.FIELDS + (Results.OTDOA_FIELDS if e.otdoa else ())
+    arrays = {k: np.concatenate([p[k] for p in parts]) for k in names}
     return Results(e, **arrays)
+
+
+def _otdoa_fixes(e: Experiment, dep: scenario.Deployment, out: dict, solvers: dict) -> dict:
+    """OTDoA fixes (cvxpy, one compiled problem per M) from the chunk's estimated ToAs; flagged, never dropped."""
+    toas, bs_index, ue = out["otdoa_toa_s"], out["bs_index"], out["ue_xyz"]
+    n_t, n_s = toas.shape[:2]
+    xyz = np.full((n_t, n_s, len(e.m_values), 3), np.nan)
+    ok = np.zeros((n_t, n_s, len(e.m_values)), dtype=bool)
+    for j, m in enumerate(e.m_values):
+        solver = solvers.setdefault(m, otdoa.Solver(m))
+        for t in range(n_t):
+            bs = dep.bs_xyz[bs_index[t, :m]]
+            for s in range(n_s):
+                fix = solver.solve(bs, toas[t, s, :m], float(ue[t, 2]))
+                xyz[t, s, j], ok[t, s, j] = fix.xyz, fix.ok
+    err = np.linalg.norm(xyz[..., :2] - ue[:, None, None, :2], axis=-1)
+    return {"otdoa_xyz": xyz, "otdoa_error_m": err, "otdoa_ok": ok}
 
 
 def _atomic_write_text(path: Path, text: str) -> None:

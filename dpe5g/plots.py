@@ -204,3 +204,29 @@ def plot_rmse_vs_snr(payload: dict):
         ax.grid(True, which="both", alpha=0.3)
         ax.set_title(f"{c['n_trials']} trials per point, {100 * d['los_share_all']:.0f} % of links LoS")
     return fig
+
+
+def plot_cdf(payload: dict):
+    """Fig. 10: error CDFs of DPE and OTDoA, solid for the paper's case (2 of 4 links LoS), dashed for eq. (9)."""
+    grid = np.asarray(payload["config"]["error_grid_m"])
+    labels = {"two_of_four": "2 of 4 LoS (paper)", "eq9": "LoS from eq. (9)"}
+    with style():
+        fig = Figure(figsize=(6.4, 4.2), layout="constrained")
+        ax = fig.subplots()
+        for case, ls in (("two_of_four", "-"), ("eq9", "--")):
+            d = payload["data"][case]
+            p_d, p_o = d["dpe_p50_p90_p99_m"], d["otdoa_p50_p90_p99_m"]
+            ax.step(grid, d["dpe_cdf"], ls, where="post", color="#1f77b4",
+                    label=f"DPE, {labels[case]}: 90 % {p_d[1]:.1f} m, 99 % {p_d[2]:.1f} m")
+            ax.step(grid, d["otdoa_cdf"], ls, where="post", color="#d62728",
+                    label=f"OTDoA, {labels[case]}: 90 % {p_o[1]:.1f} m, 99 % {p_o[2]:.0f} m")
+        for lev in (0.9, 0.99):
+            ax.axhline(lev, color="0.5", lw=0.7, ls=":")
+        ax.set_xscale("log")
+        ax.set_xlim(0.03, 1000)
+        ax.set_ylim(0, 1.0)
+        ax.set_xlabel("horizontal position error (m)")
+        ax.set_ylabel("CDF")
+        ax.legend(fontsize=7, loc="lower right")
+        ax.set_title("4 nearest BSs, SNR per link from the UMi path loss")
+    return fig

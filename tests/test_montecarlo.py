@@ -72,12 +72,17 @@ def test_interrupted_run_resumes_to_identical_results(tmp_path):
 
 def test_two_of_four_and_link_budget_modes(tmp_path):
     e = montecarlo.Experiment(name="t4", n_trials=4, seed=3, snr_mode="link_budget", snrs_db=(), m_values=(4,),
-                              los_mode="two_of_four", search=dpe.SearchConfig(half_width_m=3.0))
+                              los_mode="two_of_four", search=dpe.SearchConfig(half_width_m=3.0), otdoa=True)
     r = montecarlo.run(e, cache=tmp_path, progress=False)
     assert np.all(r.los.sum(axis=1) == 2)
+    assert r.otdoa_xyz.shape == (4, 1, 1, 3) and r.otdoa_ok.dtype == bool
+    assert np.all(np.isfinite(r.otdoa_error_m))
+    # the estimated ToAs carry the common clock bias and are within a few samples of the geometric ones
+    geo = np.linalg.norm(r.ue_xyz[:, None, :] - montecarlo.scenario.tst().bs_xyz[r.bs_index], axis=-1) / 3e8
+    assert np.all(np.abs(r.otdoa_toa_s[:, 0, :] - r.clock_bias_s[:, None] - geo) < 40 * 8.14e-9)
     assert r.link_snr_db.shape == (4, 1, 4) and np.all(np.isfinite(r.link_snr_db))
     rows = r.table()
-    assert len(rows) == 4 and {"trial", "snr_db", "m", "error_m", "n_los"} <= set(rows[0])
+    assert len(rows) == 4 and {"trial", "snr_db", "m", "error_m", "n_los", "otdoa_error_m"} <= set(rows[0])
     r.write_csv(tmp_path / "t.csv")
     assert (tmp_path / "t.csv").read_text().count("\n") == 5
 
@@ -91,6 +96,7 @@ def test_two_of_four_and_link_budget_modes(tmp_path):
     (dict(delay_spread_s=65.0), "nanoseconds"),
     (dict(los_mode="sometimes"), "los_mode must be one of"),
     (dict(n_trials=0), "n_trials"),
+    (dict(toa_method="strongest"), "toa_method must be one of"),
 ])
 def test_bad_experiments(kwargs, needle):
     with pytest.raises(ValueError, match=needle):

@@ -1,0 +1,90 @@
+import numpy as np
+import pytest
+from hypothesis import assume, given
+from hypothesis import strategies as st
+
+from dpe5g import nr, otdoa, scenario, signal
+from dpe5g.nr import C, PAPER
+
+
+def _brute_force(bs, t, ue_z, centre, half=300.0):
+    """Least squares of the range-difference residuals by nested grid search (no solver), to 1 mm."""
+    best = np.asarray(centre, dtype=float)
+    step = 2.0
+    while step >= 0.001:
+        ax = np.arange(-half, half + step / 2, step)
+        gx, gy = np.meshgrid(best[0] + ax, best[1] + ax, indexing="ij")
+        p = np.stack([gx, gy, np.full_like(gx, ue_z)], axis=-1)
+        d = np.linalg.norm(p[..., None, :] - bs, axis=-1)
+        r = (d[..., 1:] - d[..., :1]) - C * (t[1:] - t[0])
+        cost = np.sum(r**2, axis=-1)
+        i = np.unravel_index(np.argmin(cost), cost.shape)
+        best = np.array([gx[i], gy[i]])
+        half, step = 5 * step, step / 5
+    return best
+
+
+def test_cvxpy_equals_brute_force_least_squares_noise_free():
+    dep = scenario.tst()
+    rng = np.random.default_rng(4)
+    solver = otdoa.Solver(4)
+    assert solver.problem.is_dpp()
+    for _ in range(5):
+        ue = np.array([*rng.uniform(50, 420, 2), 2.0])
+        bs = dep.bs_xyz[dep.nearest(ue[:2], 4)]
+        t = np.linalg.norm(ue - bs, axis=1) / C + rng.normal() * 5e-9  # a common clock bias cancels in TDoA
+        fix = solver.solve(bs, t, 2.0, polish=False)
+        brute = _brute_force(bs, t, 2.0, np.mean(bs[:, :2], axis=0))
+        assert fix.ok and abs(fix.gap_m) < 0.01
+        assert np.linalg.norm(fix.xyz[:2] - brute) <= 0.01
+        assert np.linalg.norm(fix.xyz - ue) <= 0.01
+
+
+@given(st.integers(0, 2**32 - 1), st.integers(4, 8))
+def test_noise_free_fix_is_exact(seed, m):
+    rng = np.random.default_rng(seed)
+    bs = np.column_stack([rng.uniform(-300, 300, (m, 2)), rng.uniform(5, 40, m)])
+    d = bs[1:, :2] - bs[0, :2]
+    s = np.linalg.svd(d, compute_uv=False)
+    assume(s[-1] > 0.2 * s[0])  # well-spread geometry
+    ue = np.array([*rng.uniform(-100, 100, 2), 1.5])
+    t = np.linalg.norm(ue - bs, axis=1) / C
+    fix = otdoa.solve(bs, t, 1.5)
+    assert fix.ok and np.linalg.norm(fix.xyz - ue) <= 0.01
+
+
+def test_bad_inputs():
+    bs = np.array([[0.0, 0.0, 10.0], [100.0, 0.0, 10.0], [0.0, 100.0, 10.0], [80.0, 90.0, 10.0]])
+    t = np.full(4, 1e-7)
+    with pytest.raises(ValueError, match="at least 3 base stations"):
+        otdoa.solve(bs[:2], t[:2], 2.0)
+    with pytest.raises(ValueError, match="collinear"):
+        otdoa.solve(np.array([[0.0, 0, 10], [50, 50, 10], [100, 100, 10], [150, 150, 10]]), t, 2.0)
+    with pytest.raises(ValueError, match="toa_s must be finite"):
+        otdoa.solve(bs, [1e-7, np.nan, 1e-7, 1e-7], 2.0)
+    with pytest.raises(ValueError, match="method must be one of"):
+        otdoa.toa(np.zeros((2, 4096), complex), nr.prs_matrix([1, 2]), method="strongest")
+
+
+def test_toa_peak_and_first_path():
+    prs = nr.prs_matrix([3])
+    ts = PAPER.sample_period_s
+    tau = 0.4123e-6
+    # a weak first path and a stronger one 3 samples later
+    y = signal.received_noiseless(prs, np.array([[0.6, 1.0]]), np.array([[0.0, 3 * ts]]), np.array([tau]))
+    peak = float(otdoa.toa(y, prs, "peak")[0])
+    first = float(otdoa.toa(y, prs, "first_path", threshold_db=-10.0)[0])
+    assert abs(peak - (tau + 3 * ts)) * C < 0.3  # the strongest path, 3 samples (7.3 m) late
+    assert abs(first - tau) * C < 0.5  # the first path (its estimate pulled 0.3 m by the second path's tail)
+    y1 = signal.received_noiseless(prs, np.array([[1.0]]), np.array([[0.0]]), np.array([tau]))
+    assert abs(float(otdoa.toa(y1, prs)[0]) - tau) * C < 0.05  # single path: parabola on the T_s/8 grid
+
+
+def test_runaway_polish_is_flagged_not_silent():
+    bs = np.array([[0.0, 0.0, 10.0], [100.0, 0.0, 10.0], [0.0, 100.0, 10.0], [100.0, 100.0, 10.0]])
+    t = np.array([0.0, 400.0, -400.0, 390.0]) / C  # range differences no position can produce
+    fix = otdoa.solve(bs, t, 2.0)
+    assert np.all(np.isfinite(fix.xyz))
+    if not fix.ok:
+        assert fix.reason
+    assert fix.residual_m > 1.0
