@@ -176,7 +176,8 @@ class Results:
         return float(np.mean(self.los if m is None else self.los[:, :m]))
 
     def table(self) -> list[dict]:
-        """Tidy rows: one per (trial, SNR, M) with the error, the estimate and the LoS count of the links used."""
+        """Tidy rows: one per (trial, SNR, M) with the error, the estimate, the LoS count of the links used and their
+        LoS flags nearest first ("L" LoS, "N" NLoS)."""
         e = self.experiment
         snrs = e.snrs_db if e.snr_mode == "fixed" else ("link",)
         rows = []
@@ -186,13 +187,15 @@ class Results:
                     rows.append({"trial": t, "snr_db": snr, "m": m, "error_m": float(self.error_m[t, s, j]),
                                  "est_x_m": float(self.est_xyz[t, s, j, 0]), "est_y_m": float(self.est_xyz[t, s, j, 1]),
                                  "true_x_m": float(self.ue_xyz[t, 0]), "true_y_m": float(self.ue_xyz[t, 1]),
-                                 "n_los": int(self.los[t, :m].sum())})
+                                 "n_los": int(self.los[t, :m].sum()),
+                                 "los_flags": "".join("L" if f else "N" for f in self.los[t, :m])})
                     if self.otdoa_error_m is not None:
                         rows[-1].update({"otdoa_error_m": float(self.otdoa_error_m[t, s, j]),
                                          "otdoa_ok": bool(self.otdoa_ok[t, s, j])})
         return rows
 
     def write_csv(self, path) -> None:
+        """The tidy table as CSV."""
         import csv
 
         rows = self.table()
@@ -200,6 +203,11 @@ class Results:
             w = csv.DictWriter(f, fieldnames=list(rows[0]))
             w.writeheader()
             w.writerows(rows)
+
+    def write_json(self, path) -> None:
+        """The tidy table as JSON, with the experiment's config beside it."""
+        doc = {"experiment": json.loads(json.dumps(self.experiment.to_dict(), default=str)), "rows": self.table()}
+        Path(path).write_text(json.dumps(doc, indent=1) + "\n")
 
 
 def _profiles(e: Experiment):

@@ -1,3 +1,4 @@
+import json
 import os
 import signal as os_signal
 import subprocess
@@ -85,6 +86,10 @@ def test_two_of_four_and_link_budget_modes(tmp_path):
     assert len(rows) == 4 and {"trial", "snr_db", "m", "error_m", "n_los", "otdoa_error_m"} <= set(rows[0])
     r.write_csv(tmp_path / "t.csv")
     assert (tmp_path / "t.csv").read_text().count("\n") == 5
+    assert sorted(rows[0]["los_flags"]) == ["L", "L", "N", "N"]
+    r.write_json(tmp_path / "t.json")
+    doc = json.loads((tmp_path / "t.json").read_text())
+    assert doc["experiment"]["los_mode"] == "two_of_four" and len(doc["rows"]) == 4
 
 
 @pytest.mark.parametrize("kwargs, needle", [
