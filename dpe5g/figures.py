@@ -13,7 +13,6 @@ import inspect
 import json
 import math
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -22,6 +21,7 @@ import jax
 import numpy as np
 
 from . import channel, plots
+from ._io import atomic_write
 from .nr import PAPER
 
 
@@ -88,20 +88,12 @@ def render(payload: dict):
     return get(payload["id"]).plot(payload)
 
 
-def _atomic_write(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    with os.fdopen(fd, "wb") as f:
-        f.write(data)
-    os.replace(tmp, path)
-
-
 def write(fig_id: str, out_dir, progress: bool = False) -> tuple[Path, Path]:
     """Compute and draw ``fig_id``; write ``out_dir/<id>.png`` and ``out_dir/data/<id>.json``."""
     out = Path(out_dir)
     payload = compute(fig_id, progress=progress)
     js = out / "data" / f"{fig_id}.json"
-    _atomic_write(js, (json.dumps(payload, indent=1, sort_keys=True) + "\n").encode())
+    atomic_write(js, (json.dumps(payload, indent=1, sort_keys=True) + "\n").encode())
     fig = render(payload)
     png = out / f"{fig_id}.png"
     png.parent.mkdir(parents=True, exist_ok=True)

@@ -16,10 +16,10 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import io
 import json
 import os
 import sys
-import tempfile
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _checks, channel, dpe, nr, otdoa, scenario, signal
+from ._io import atomic_write
 from .nr import C, PAPER
 
 #: default cache directory: ``.cache/montecarlo`` next to the package (the repository root for an editable install);
@@ -338,18 +339,6 @@ def _run_chunk(trials, fn, batch_size):
     return jax.lax.map(fn, trials, batch_size=batch_size)
 
 
-def _atomic_savez(path: Path, arrays: dict) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
 def cache_dir(e: Experiment, cache: str | os.PathLike | None = None) -> Path:
     root = Path(cache or os.environ.get("DPE5G_CACHE") or DEFAULT_CACHE)
     return root / f"{e.name}-{e.key()}"
@@ -372,7 +361,8 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
         d_meta = e.to_dict()
         d_meta.pop("n_trials")
         d_meta.pop("chunk_trials")
-        _atomic_write_text(meta, json.dumps({"key": e.key(), "experiment": d_meta}, indent=1, default=str))
+        atomic_write(meta, json.dumps({"key": d.name.rsplit("-", 1)[1], "experiment": d_meta}, indent=1,
+                                      default=str).encode())
     starts = list(range(0, e.n_trials, e.chunk_trials))
     paths = [d / f"trials-{s:07d}-{min(s + e.chunk_trials, e.n_trials):07d}.npz" for s in starts]
     todo = [i for i, p in enumerate(paths) if not p.exists()]
@@ -395,7 +385,9 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
             out = {k: np.asarray(v) for k, v in out.items()}
             if e.otdoa:
                 out.update(_otdoa_fixes(e, dep, out, solvers))
-            _atomic_savez(paths[i], out)
+            buf = io.BytesIO()
+            np.savez(buf, **out)
+            atomic_write(paths[i], buf.getvalue())
             if bar is not None:
                 bar.update(stop - s)
     finally:
@@ -422,10 +414,3 @@ def _otdoa_fixes(e: Experiment, dep: scenario.Deployment, out: dict, solvers: di
                 xyz[t, s, j], ok[t, s, j] = fix.xyz, fix.ok
     err = np.linalg.norm(xyz[..., :2] - ue[:, None, None, :2], axis=-1)
     return {"otdoa_xyz": xyz, "otdoa_error_m": err, "otdoa_ok": ok}
-
-
-def _atomic_write_text(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        f.write(text)
-    os.replace(tmp, path)

@@ -9,7 +9,6 @@ for ``static_html()``).
 
 from __future__ import annotations
 
-import base64
 from pathlib import Path
 
 import numpy as np
@@ -109,12 +108,10 @@ def build(payload7: dict, payload8: dict):
 def html(rec: _Recorder) -> str:
     """The standalone page: meshcat's viewer JavaScript (bundled with the package) replaying the commands."""
     import meshcat
+    from meshcat.servers.zmqserver import create_command  # what meshcat's own server emits for each command
 
     js = (Path(meshcat.__file__).parent / "viewer" / "dist" / "main.min.js").read_text()
-    cmds = "".join(
-        'fetch("data:application/octet-binary;base64,{}").then(r => r.arrayBuffer())'
-        ".then(b => viewer.handle_command_bytearray(new Uint8Array(b)));\n".format(base64.b64encode(c).decode())
-        for c in rec.commands)
+    cmds = "".join(create_command(c) for c in rec.commands)
     return ("<!DOCTYPE html>\n<html><head><meta charset=utf-8><title>dpe5g: urban deployment (meshcat)</title>\n"
             "<style>body{margin:0} #meshcat-pane{width:100vw;height:100vh;overflow:hidden}</style></head>\n"
             "<body><div id=\"meshcat-pane\"></div>\n<script>" + js + "</script>\n<script>\n"
@@ -124,7 +121,9 @@ def html(rec: _Recorder) -> str:
 
 def iframe(payload7: dict, payload8: dict, height_px: int = 520) -> str:
     """The scene as an ``<iframe srcdoc=...>`` element, self-contained, for embedding in a notebook or page."""
-    page = html(build(payload7, payload8)).replace("&", "&amp;").replace('"', "&quot;")
+    from meshcat.visualizer import srcdoc_escape
+
+    page = srcdoc_escape(html(build(payload7, payload8)))
     return (f'<iframe class="dpe5g-scene3d" title="3-D scene of the urban deployment" srcdoc="{page}" '
             f'style="width:100%;height:{height_px}px;border:1px solid #ccc"></iframe>')
 
