@@ -34,6 +34,7 @@ from .nr import C, PAPER, Numerology
 #: against 2.20 m for L = 8, 3.40 m for L = 16 and 5.85 m for L = 32.  Shorter windows lock onto the strongest
 #: cluster of some links; longer ones flatten the peak (the TDL-C excess delay is 69 samples).
 DEFAULT_TAPS = 12
+SEARCH_METHODS = ("grid", "bnb")
 
 
 def _check_inputs(y, prs, n_taps):
@@ -175,6 +176,15 @@ class SearchConfig:
     polish : after the grid, Newton steps on the exact ``ml_cost`` with JAX autodiff (accepted only if the cost rises).
         Off by default, as in the paper, whose search ends on the grid: on Chapter 3's ring study it moves fixes by
         4 cm (median, 13 cm at most) and costs about as much as the grid search.
+    method : "grid" — the coarse-to-fine grid above (the paper's divide-and-conquer search; no guarantee);
+        "bnb" — ``certified_search``: branch-and-bound over (x, y, c δt) boxes that returns the global maximum of
+        eq. (8) (cubic-spline form) inside the window with a certified gap.  The fields below apply to "bnb" only,
+        which searches (x, y, c δt) at the known UE height (``z_half_width_m`` must be 0).
+    spline_upsample : T_s / spline_upsample is the knot spacing of the spline form of eq. (8) (8 → 0.305 m).
+    box_m : side of the first boxes in x and y (the c δt window is split into ``bias_boxes`` boxes).
+    box_final_m : boxes are halved until their x, y side is ≤ this (m).
+    capacity : boxes kept per level; a box dropped for lack of room makes the fix uncertified (counted, not hidden).
+    gap_tol : a fix is certified when its upper bound exceeds its cost by at most gap_tol × cost.
     """
 
     n_taps: int = DEFAULT_TAPS
@@ -186,6 +196,13 @@ class SearchConfig:
     final_step_m: float = 0.1
     polish: bool = False
     polish_iters: int = 2
+    method: str = "grid"
+    spline_upsample: int = 8
+    box_m: float = 4.0
+    bias_boxes: int = 3
+    box_final_m: float = 0.05
+    capacity: int = 256
+    gap_tol: float = 1e-4
 
     def __post_init__(self):
         _checks.integer("n_taps", self.n_taps, 1, 4096)
@@ -196,6 +213,17 @@ class SearchConfig:
         _checks.in_range("coarse_step_m", self.coarse_step_m, 0.01, 100.0, "m")
         _checks.in_range("final_step_m", self.final_step_m, 1e-4, self.coarse_step_m, "m")
         _checks.integer("polish_iters", self.polish_iters, 0, 20)
+        _checks.one_of("method", self.method, SEARCH_METHODS)
+        _checks.integer("spline_upsample", self.spline_upsample, 2, 64)
+        if self.spline_upsample % 2:
+            raise ValueError(f"spline_upsample must be an even integer in [2, 64], got {self.spline_upsample!r}")
+        _checks.in_range("box_m", self.box_m, 0.1, 100.0, "m")
+        _checks.integer("bias_boxes", self.bias_boxes, 1, 64)
+        _checks.in_range("box_final_m", self.box_final_m, 1e-3, self.box_m, "m")
+        _checks.integer("capacity", self.capacity, 8, 1 << 16)
+        _checks.in_range("gap_tol", self.gap_tol, 0.0, 1.0)
+        if self.method == "bnb" and self.z_half_width_m > 0:
+            raise ValueError("z_half_width_m must be 0 with method 'bnb' (it searches x, y, c δt at the known height)")
 
     def steps(self) -> tuple[float, ...]:
         """Grid step of each level in metres."""
@@ -281,19 +309,285 @@ def search(corr, y, prs, bs_xyz, center, cfg: SearchConfig, n_fft: int, scs_hz: 
     return q, _ml_cost(y, prs, _tau_of(q, bs_xyz), cfg.n_taps, scs_hz)
 
 
-@partial(jax.jit, static_argnames=("cfg", "n_fft"))
-def _estimate_one(y, prs, bs_xyz, center, cfg: SearchConfig, n_fft: int, scs_hz: float):
-    corr = _correlogram(y, prs, cfg.n_taps, cfg.upsample)
-    return search(corr, y, prs, bs_xyz, center, cfg, n_fft, scs_hz)
+# ---- the certified search ------------------------------------------------------------------------------------------
+
+def spline_correlogram(y, prs, n_taps: int, upsample: int = 8) -> jax.Array:
+    """Cubic B-spline coefficients of the per-BS terms of eq. (8) on knots T_s/upsample apart.
+
+    The windowed energy c_m(τ) = ‖S_m(τ)^H y_m‖² is a real trigonometric polynomial in τ with harmonics of Δf up to
+    N − 1 (it is |Σ_k g_k e^{j2πkΔfτ}|² summed over L shifts), so its 2N samples at T_s/2 determine it exactly.  This
+    function takes those samples (two FFTs per BS), their real FFT, multiplies by the L-tap window and by the
+    inverse of the cubic B-spline's sampled kernel (the interpolation prefilter), and returns, by one zero-padded real
+    inverse FFT, coefficients c_j such that Σ_j c_j β³(τ/(T_s/U) − j) equals c_m(τ) at every knot exactly.
+    Between knots the spline differs from eq. (8) by ≤ 2e-5 of the peak at U = 8 (Chapter 3 measures it).
+
+    y, prs : complex (M, N); n_taps : L; upsample : U, even.  Returns real (M, N·U).
+    """
+    y, prs = _check_inputs(y, prs, n_taps)
+    _checks.integer("upsample", upsample, 2, 64)
+    if upsample % 2:
+        raise ValueError(f"upsample must be an even integer in [2, 64], got {upsample!r}")
+    return _spline_correlogram(jnp.asarray(y), jnp.asarray(prs), n_taps, upsample)
+
+
+@partial(jax.jit, static_argnames=("n_taps", "upsample"))
+def _spline_correlogram(y, prs, n_taps, upsample):
+    m, n = y.shape
+    g = jnp.conj(prs) * jnp.fft.fft(y, axis=-1, norm="ortho")
+    k = np.arange(n)
+    h0 = jnp.fft.ifft(g, axis=-1)
+    h1 = jnp.fft.ifft(g * np.exp(1j * np.pi * k / n), axis=-1)  # ĥ half a sample later
+    e2 = jnp.stack([h0.real**2 + h0.imag**2, h1.real**2 + h1.imag**2], axis=-1).reshape(m, 2 * n) * n
+    q = np.arange(n + 1)
+    window = np.exp(2j * np.pi * np.outer(q, np.arange(n_taps)) / n).sum(axis=1)  # e(τ) + … + e(τ + (L-1)T_s)
+    window[n] = 0.0  # no harmonic N: the Nyquist bin of the 2N samples is zero
+    prefilter = 6.0 / (4.0 + 2.0 * np.cos(2 * np.pi * q / (n * upsample)))  # 1 / DFT of (1/6, 4/6, 1/6)
+    spec = jnp.fft.rfft(e2, axis=-1) * (window * prefilter)
+    pad = jnp.zeros((m, n * upsample // 2 + 1), dtype=spec.dtype).at[:, : n + 1].set(spec)
+    return jnp.fft.irfft(pad, n=n * upsample, axis=-1) * (upsample / 2)
+
+
+def spline_values(coef, pos) -> jax.Array:
+    """Σ_m s_m(pos_m): the spline of ``spline_correlogram`` at positions pos (..., M) in knot units (periodic)."""
+    m, j = coef.shape
+    f = jnp.floor(pos)
+    i0 = f.astype(jnp.int64)
+    c = [coef[jnp.arange(m), jnp.mod(i0 + d, j)] for d in (-1, 0, 1, 2)]
+    return jnp.sum(_horner(_cell_poly(*c), pos - f), axis=-1)
+
+
+def _cell_poly(c0, c1, c2, c3):
+    """Power-basis coefficients (a0, a1, a2, a3) of the cubic B-spline on the cell between knots 1 and 2 of c0…c3."""
+    return (c0 + 4 * c1 + c2) / 6, (c2 - c0) / 2, (c0 - 2 * c1 + c2) / 2, (-c0 + 3 * c1 - 3 * c2 + c3) / 6
+
+
+def _horner(a, t):
+    return a[0] + t * (a[1] + t * (a[2] + t * a[3]))
+
+
+def _cubic_max(a, lo, hi):
+    """max over t ∈ [lo, hi] of a0 + a1 t + a2 t² + a3 t³ (element-wise): the ends and the stationary points."""
+    v = jnp.maximum(_horner(a, lo), _horner(a, hi))
+    qa, qb, qc = 3 * a[3], 2 * a[2], a[1]
+    disc = qb * qb - 4 * qa * qc
+    sq = jnp.sqrt(jnp.maximum(disc, 0.0))
+    lin = jnp.abs(qa) <= 1e-12 * (jnp.abs(qb) + jnp.abs(qc))
+    safe_a = jnp.where(lin, 1.0, 2 * qa)
+    r_lin = -qc / jnp.where(qb == 0, 1.0, qb)
+    for r in ((-qb + sq) / safe_a, (-qb - sq) / safe_a):
+        r = jnp.where(lin, r_lin, r)
+        ok = (disc >= 0) & (r > lo) & (r < hi)
+        v = jnp.where(ok, jnp.maximum(v, _horner(a, jnp.clip(r, lo, hi))), v)
+    return v
+
+
+def _range_max_table(x):
+    """Sparse table for range maxima along the last axis: t[k, ..., j] = max(x[..., j : j + 2^k])."""
+    levels = [x]
+    n = x.shape[-1]
+    while (1 << len(levels)) <= n:
+        prev, sh = levels[-1], 1 << (len(levels) - 1)
+        tail = jnp.full(prev.shape[:-1] + (sh,), -jnp.inf)
+        levels.append(jnp.maximum(prev, jnp.concatenate([prev[..., sh:], tail], axis=-1)))
+    return jnp.stack(levels)
+
+
+def _range_max(table, rows, a, b):
+    """max over cells a … b (inclusive, b ≥ a) of each row; -inf where b < a."""
+    w = b - a + 1
+    k = jnp.floor(jnp.log2(jnp.maximum(w, 1).astype(jnp.float64))).astype(jnp.int64)
+    n = table.shape[-1]
+    v = jnp.maximum(table[k, rows, jnp.clip(a, 0, n - 1)], table[k, rows, jnp.clip(b - (1 << k) + 1, 0, n - 1)])
+    return jnp.where(w > 0, v, -jnp.inf)
+
+
+def slice_cells(cfg: SearchConfig, num: Numerology = PAPER) -> int:
+    """Static number of spline cells per BS that any ToA inside the search window can reach (a power of two)."""
+    cell_m = C * num.sample_period_s / cfg.spline_upsample
+    span = 2 * np.sqrt(2) * cfg.half_width_m + 2 * cfg.bias_half_width_m
+    return int(2 ** np.ceil(np.log2(span / cell_m + 8)))
+
+
+def certified_search(coef, bs_xyz, center, cfg: SearchConfig, num: Numerology = PAPER) -> dict:
+    """Global maximum of eq. (8) (its spline form, ``spline_correlogram``) over the window by branch and bound.
+
+    The window is centre ± ``half_width_m`` in x and y and centre ± ``bias_half_width_m`` in c δt, at the centre's
+    height.  The cost is separable, C(p) = Σ_m s_m(u_m(p)) with u_m = (‖p − b_m‖ + c δt) / (c T_s / U) the ToA in
+    knot units.  Over a box every u_m spans an exact interval [lo_m, hi_m] (nearest and farthest point of the box),
+    so two upper bounds hold for every point of the box:
+
+    * UB1 = Σ_m max_{u ∈ [lo_m, hi_m]} s_m(u) — the maximum of each cubic piece, exact at the two partial cells at
+      the ends and read from a range-maximum table of per-cell maxima in between;
+    * UB2 = C(centre) + |g|·h + Σ_m ½ K_m Δu_m² + Σ_m max(s_m', 0) h_xy² / (d_m c T_s / U), a second-order bound:
+      g is the gradient of C at the centre, h the box's half sizes, K_m ≥ 0 bounds s_m'' on [lo_m, hi_m], Δu_m the
+      interval's half width around the centre's ToA, and the last term bounds the curvature of the distance
+      (the Hessian of ‖p − b_m‖ has eigenvalues ≤ 1/d_m, d_m the box's nearest distance).
+
+    Level 0 tiles the window with boxes of ``box_m`` × ``box_m`` × (2 ``bias_half_width_m`` / ``bias_boxes``); each
+    level keeps the ``capacity`` boxes of highest min(UB1, UB2) that exceed the best cost found at a box centre
+    (the others cannot hold the maximum, or are dropped for lack of room and make the result uncertified), and
+    halves them in x, y and c δt, until the x, y side is ≤ ``box_final_m``.  The result is the best box centre
+    found; ``gap`` = (largest upper bound left − cost) / cost bounds how far the true maximum of the spline cost in
+    the window can lie above it.
+
+    coef : (M, N·U) from ``spline_correlogram``; bs_xyz : (M, 3) m; center : (4,) = [x, y, z, c δt] in METRES.
+    Returns a dict: q (4,) = (x, y, z, c δt) m, cost (spline), gap (relative), certified (gap ≤ gap_tol, no
+    box dropped), edge (the fix lies within one final box of the window's boundary in x, y or c δt).
+    Traceable (jit, vmap); shapes are static given ``cfg``.
+    """
+    m, n_knots = coef.shape
+    u_scale = cfg.spline_upsample
+    cell_m = C * num.sample_period_s / u_scale
+    n_cells = slice_cells(cfg, num)
+    half, half_b = cfg.half_width_m, cfg.bias_half_width_m
+    bs = jnp.asarray(bs_xyz)
+    dz2 = (center[2] - bs[:, 2]) ** 2
+    bx, by = bs[None, :, 0], bs[None, :, 1]
+    rows = jnp.arange(m)[None, :]
+
+    def dist_bounds(cx, cy, hx):
+        xl, xh, yl, yh = cx - hx, cx + hx, cy - hx, cy + hx
+        dxn = jnp.maximum(jnp.maximum(xl - bx, bx - xh), 0.0)
+        dyn = jnp.maximum(jnp.maximum(yl - by, by - yh), 0.0)
+        dxx = jnp.maximum(jnp.abs(xl - bx), jnp.abs(xh - bx))
+        dyx = jnp.maximum(jnp.abs(yl - by), jnp.abs(yh - by))
+        return jnp.sqrt(dxn**2 + dyn**2 + dz2), jnp.sqrt(dxx**2 + dyx**2 + dz2)
+
+    # the part of each BS's spline the window can reach: cells 0 … n_cells-1 from `base` (knot units)
+    dmin_w, _ = dist_bounds(center[None, 0:1], center[None, 1:2], half)
+    start = jnp.floor((dmin_w[0] + center[3] - half_b) / cell_m).astype(jnp.int64) - 2
+    idx = jnp.mod(start[:, None] + jnp.arange(n_cells + 3)[None], n_knots)
+    sl = jnp.take_along_axis(coef, idx, axis=1)  # cell r spans knot units [start+1+r, start+2+r)
+    base = (start + 1).astype(jnp.float64)[None, :]
+    cells = _cell_poly(sl[:, :-3], sl[:, 1:-2], sl[:, 2:-1], sl[:, 3:])
+    poly = jnp.stack(cells, axis=-1)  # (M, n_cells, 4)
+    t_max = _range_max_table(_cubic_max(cells, 0.0, 1.0))
+    t_d2 = _range_max_table(2 * cells[2])  # s'' at the start of each cell (continuous for a cubic B-spline)
+
+    def evaluate(cx, cy, cb, hx, hb):
+        cx, cy, cb = cx[:, None], cy[:, None], cb[:, None]
+        dmin, dmax = dist_bounds(cx, cy, hx)
+        lo = (dmin + cb - hb) / cell_m - base
+        hi = (dmax + cb + hb) / cell_m - base
+        jl = jnp.clip(jnp.floor(lo).astype(jnp.int64), 0, n_cells - 1)
+        jh = jnp.clip(jnp.floor(hi).astype(jnp.int64), 0, n_cells - 1)
+        tl, th = lo - jl, hi - jh
+        al, ah = jnp.moveaxis(poly[rows, jl], -1, 0), jnp.moveaxis(poly[rows, jh], -1, 0)
+        same = jl == jh
+        ends = jnp.maximum(_cubic_max(al, tl, jnp.where(same, th, 1.0)), jnp.where(same, -jnp.inf, _cubic_max(ah, 0.0, th)))
+        ub1 = jnp.sum(jnp.maximum(ends, _range_max(t_max, rows, jl + 1, jh - 1)), axis=-1)
+        d = jnp.sqrt((cx - bx) ** 2 + (cy - by) ** 2 + dz2)
+        u = (d + cb) / cell_m - base
+        jc = jnp.clip(jnp.floor(u).astype(jnp.int64), 0, n_cells - 1)
+        ac = jnp.moveaxis(poly[rows, jc], -1, 0)
+        tc = u - jc
+        val = _horner(ac, tc)
+        d1 = ac[1] + tc * (2 * ac[2] + 3 * ac[3] * tc)  # s_m' per knot unit
+        k2 = jnp.maximum(2 * al[2] + 6 * al[3] * tl, 2 * ah[2] + 6 * ah[3] * th)
+        k2 = jnp.maximum(jnp.maximum(k2, _range_max(t_d2, rows, jl + 1, jh)), 0.0)
+        g = jnp.stack([jnp.sum(d1 * (cx - bx) / d, -1), jnp.sum(d1 * (cy - by) / d, -1), jnp.sum(d1, -1)]) / cell_m
+        lin = (jnp.abs(g[0]) + jnp.abs(g[1])) * hx + jnp.abs(g[2]) * hb
+        curv = jnp.sum(jnp.maximum(d1, 0.0) * hx**2 / (jnp.maximum(dmin, 1e-3) * cell_m), -1)
+        quad = jnp.sum(0.5 * k2 * jnp.maximum(hi - u, u - lo) ** 2, -1)
+        cost = jnp.sum(val, -1)
+        return jnp.minimum(ub1, cost + lin + curv + quad), cost
+
+    n0 = max(int(np.ceil(2 * half / cfg.box_m - 1e-9)), 1)
+    nb0 = cfg.bias_boxes if half_b > 0 else 1
+    hx, hb = half / n0, half_b / nb0
+    ax = -half + hx * (2 * np.arange(n0) + 1)
+    ab = -half_b + hb * (2 * np.arange(nb0) + 1)
+    gx, gy, gb = (a.ravel() for a in np.meshgrid(ax, ax, ab, indexing="ij"))
+    cx, cy, cb = center[0] + gx, center[1] + gy, center[3] + gb
+    ub, lb = evaluate(cx, cy, cb, hx, hb)
+    i = jnp.argmax(lb)
+    best, bq = lb[i], jnp.stack([cx[i], cy[i], cb[i]])
+    dropped = -jnp.inf
+    sx = np.array([-1.0, 1, -1, 1, -1, 1, -1, 1])
+    sy = np.array([-1.0, -1, 1, 1, -1, -1, 1, 1])
+    sb = np.array([-1.0, -1, -1, -1, 1, 1, 1, 1])
+    k_keep = min(cfg.capacity, int(ub.shape[0]))
+    while 2 * hx > cfg.box_final_m + 1e-12:
+        alive = jnp.where(ub > best, ub, -jnp.inf)
+        if int(alive.shape[0]) > k_keep:
+            vals, ix = jax.lax.top_k(alive, k_keep + 1)
+            dropped = jnp.maximum(dropped, vals[k_keep])
+            vals, ix = vals[:k_keep], ix[:k_keep]
+        else:
+            vals, ix = alive, jnp.arange(alive.shape[0])
+        hx, hb = hx / 2, hb / 2
+        cx = (cx[ix][:, None] + sx * hx).ravel()
+        cy = (cy[ix][:, None] + sy * hx).ravel()
+        cb = (cb[ix][:, None] + sb * hb).ravel()
+        ub, lb = evaluate(cx, cy, cb, hx, hb)
+        live = jnp.repeat(vals > -jnp.inf, 8)
+        ub, lb = jnp.where(live, ub, -jnp.inf), jnp.where(live, lb, -jnp.inf)
+        i = jnp.argmax(lb)
+        better = lb[i] > best
+        bq = jnp.where(better, jnp.stack([cx[i], cy[i], cb[i]]), bq)
+        best = jnp.maximum(best, lb[i])
+        k_keep = cfg.capacity
+    top = jnp.maximum(jnp.max(ub), dropped)
+    gap = jnp.maximum(top - best, 0.0) / best
+    off = bq - jnp.stack([center[0], center[1], center[3]])
+    edge = (jnp.abs(off[0]) >= half - 2 * hx) | (jnp.abs(off[1]) >= half - 2 * hx)
+    if half_b > 0:
+        edge = edge | (jnp.abs(off[2]) >= half_b - 2 * hb)
+    q = jnp.stack([bq[0], bq[1], center[2], bq[2]])
+    return {"q": q, "cost": best, "gap": gap, "certified": (gap <= cfg.gap_tol) & ~(dropped > best), "edge": edge}
+
+
+def grid_edge(q, center_m, cfg: SearchConfig):
+    """Whether a ``search`` fix q (4,) lies on the boundary of its grid window (centre (4,) in metres)."""
+    tol = 1.5 * cfg.final_step_m
+    off = jnp.abs(q - center_m)
+    edge = (off[0] >= cfg.half_width_m - tol) | (off[1] >= cfg.half_width_m - tol)
+    if cfg.bias_half_width_m > 0:
+        edge = edge | (off[3] >= cfg.bias_half_width_m - tol)
+    return edge
+
+
+def fix(y, prs, bs_xyz, center_m, cfg: SearchConfig, num: Numerology = PAPER, corr=None) -> dict:
+    """One DPE fix with either search (traceable): y, prs (M, N); bs_xyz (M, 3) m; center_m (4,) = [x, y, z, c δt]
+    in metres.  corr : precomputed ``_correlogram`` (grid) or ``_spline_correlogram`` (bnb) of y, or None.
+    Returns a dict: q (4,) m, gap (relative; NaN for the grid, which certifies nothing), certified, edge."""
+    if cfg.method == "bnb":
+        coef = _spline_correlogram(y, prs, cfg.n_taps, cfg.spline_upsample) if corr is None else corr
+        r = certified_search(coef, bs_xyz, center_m, cfg, num)
+        return {"q": r["q"], "gap": r["gap"], "certified": r["certified"], "edge": r["edge"]}
+    corr = _correlogram(y, prs, cfg.n_taps, cfg.upsample) if corr is None else corr
+    center = center_m.at[3].divide(C)
+    q = search(corr, y, prs, bs_xyz, center, cfg, num.n_fft, num.scs_hz, with_cost=False)
+    return {"q": q, "gap": jnp.asarray(jnp.nan), "certified": jnp.asarray(False), "edge": grid_edge(q, center_m, cfg)}
+
+
+def receiver_correlogram(y, prs, cfg: SearchConfig):
+    """The per-BS correlograms the chosen search reads (traceable): ``_correlogram`` values on T_s/upsample for
+    "grid", ``_spline_correlogram`` coefficients for "bnb".  Rows are per BS, so the M nearest of them serve any M."""
+    if cfg.method == "bnb":
+        return _spline_correlogram(y, prs, cfg.n_taps, cfg.spline_upsample)
+    return _correlogram(y, prs, cfg.n_taps, cfg.upsample)
+
+
+@partial(jax.jit, static_argnames=("cfg", "num"))
+def _estimate_one(y, prs, bs_xyz, center, cfg: SearchConfig, num: Numerology):
+    r = fix(y, prs, bs_xyz, center.at[3].multiply(C), cfg, num)
+    cost = _ml_cost(y, prs, _tau_of(r["q"], bs_xyz), cfg.n_taps, num.scs_hz)
+    return r["q"], cost, r["gap"], r["certified"], r["edge"]
 
 
 @dataclass(frozen=True)
 class Estimate:
-    """Result of ``estimate``: xyz (..., 3) metres, clock_bias_s (...), cost (...) = eq. (8) at the estimate."""
+    """Result of ``estimate``: xyz (..., 3) metres, clock_bias_s (...), cost (...) = eq. (8) at the estimate;
+    gap (...) relative certified gap (NaN for the grid search), certified (...), edge (...) fix on the window's
+    boundary."""
 
     xyz: np.ndarray
     clock_bias_s: np.ndarray
     cost: np.ndarray
+    gap: np.ndarray
+    certified: np.ndarray
+    edge: np.ndarray
 
 
 def estimate(
@@ -318,15 +612,14 @@ def estimate(
     if not bool(jnp.all(jnp.isfinite(center))) or not bool(jnp.all(jnp.isfinite(bs_xyz))):
         raise ValueError("center and bs_xyz must be finite")
     batch_size = _checks.integer("batch_size", batch_size, 1, 1 << 16)
-    fn = partial(_estimate_one, cfg=cfg, n_fft=num.n_fft, scs_hz=num.scs_hz)
+    fn = partial(_estimate_one, cfg=cfg, num=num)
     lead = y.shape[:-2]
     if lead:
         # trials in vmapped chunks of `batch_size` (bounded memory); each trial's result is independent of chunking
         flat = [a.reshape((-1,) + a.shape[len(lead):]) for a in (y, prs, bs_xyz, center)]
-        q, cost = jax.lax.map(lambda a: fn(*a), tuple(flat), batch_size=batch_size)
-        q, cost = q.reshape(lead + (4,)), cost.reshape(lead)
+        out = jax.lax.map(lambda a: fn(*a), tuple(flat), batch_size=batch_size)
+        out = [o.reshape(lead + o.shape[1:]) for o in out]
     else:
-        q, cost = fn(y, prs, bs_xyz, center)
-    q = np.asarray(q)
-    q = np.asarray(q)
-    return Estimate(q[..., :3], q[..., 3] / C, np.asarray(cost))
+        out = fn(y, prs, bs_xyz, center)
+    q, cost, gap, certified, edge = (np.asarray(o) for o in out)
+    return Estimate(q[..., :3], q[..., 3] / C, cost, gap, certified, edge)
