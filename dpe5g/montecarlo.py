@@ -43,7 +43,10 @@ OTDOA_UPSAMPLE = 8
 OTDOA_THRESHOLD_DB = -10.0
 OTDOA_MAX_LEAD = 64
 SNR_MODES = ("fixed", "link_budget")
-CENTRINGS = ("truth",)
+CENTRINGS = ("truth", "prior", "otdoa")
+PRIOR_KINDS = ("gaussian", "disc")
+#: both OTDoA ToA detectors run on the same signals; the first is the main baseline, the second the naive one
+OTDOA_DETECTORS = ("first_path", "peak")
 
 
 @dataclass(frozen=True)
@@ -56,12 +59,20 @@ class Experiment:
     m_values : numbers of nearest BSs used by the DPE (each ≤ the deployment's BS count).
     los_mode : "eq9" — each link LoS with the probability of eq. (9); "two_of_four" — the paper's stated case for
         Fig. 10: of the four nearest links, two (chosen at random) LoS and two NLoS (needs max(m_values) = 4).
-    centring : "truth" — the search grid is centred on the true position and clock bias (the paper's set-up).
+    centring : where the receiver centres its search window.  "truth" — on the true position and clock bias (the
+        paper's set-up, a labelled comparison only: the window's position and grid phase then carry the truth);
+        "prior" — on truth + an error drawn from the stated prior (``prior_kind``, ``prior_scale_m``), keyed per trial;
+        "otdoa" — on that trial's OTDoA fix (detector ``toa_method``; needs ``otdoa``).  In "prior" and "otdoa" the
+        clock-bias window is centred on 0 and spans the clock model's support, ± clock_bound_sigmas · clock_sigma_s
+        · c (``receiver_search``), so nothing about the truth reaches the search.
+    prior_kind, prior_scale_m : "gaussian" — an isotropic horizontal error with σ = prior_scale_m per axis;
+        "disc" — uniform over a disc of radius prior_scale_m.
     delay_spread_s, k_factor_db : TDL-C (NLoS) / TDL-D (LoS) at this RMS delay spread; TDL-D's K.
     clock_sigma_s, clock_bound_sigmas : UE clock bias, Gaussian σ truncated at ± bound · σ.
     search : the DPE search; link : the link budget; deployment : "tst" or a path to a JSON/CSV deployment.
-    otdoa : also run the OTDoA baseline (``dpe5g.otdoa``) on the same received signals, for every SNR and M;
-    toa_method : its ToA detector, "peak" or "first_path".
+    otdoa : also run the OTDoA baseline (``dpe5g.otdoa``) on the same received signals, for every SNR and M, with
+        both ToA detectors of ``OTDOA_DETECTORS``;
+    toa_method : the detector whose OTDoA fix centres the search in centring "otdoa".
     chunk_trials : trials per cache file (results do not depend on it; resuming needs the same value).
     """
 
@@ -73,6 +84,8 @@ class Experiment:
     m_values: tuple[int, ...] = (6, 12, 18, 24)
     los_mode: str = "eq9"
     centring: str = "truth"
+    prior_kind: str = "gaussian"
+    prior_scale_m: float = 5.0
     delay_spread_s: float = 65e-9
     k_factor_db: float = 13.3
     clock_sigma_s: float = 5e-9
@@ -81,7 +94,7 @@ class Experiment:
     link: scenario.LinkBudget = field(default_factory=scenario.LinkBudget)
     deployment: str = "tst"
     otdoa: bool = False
-    toa_method: str = "peak"
+    toa_method: str = "first_path"
     chunk_trials: int = 100
 
     def __post_init__(self):
@@ -92,6 +105,10 @@ class Experiment:
         _checks.one_of("los_mode", self.los_mode, LOS_MODES)
         _checks.one_of("centring", self.centring, CENTRINGS)
         _checks.one_of("toa_method", self.toa_method, otdoa.TOA_METHODS)
+        _checks.one_of("prior_kind", self.prior_kind, PRIOR_KINDS)
+        _checks.in_range("prior_scale_m", self.prior_scale_m, 0.0, 1000.0, "m")
+        if self.centring == "otdoa" and not self.otdoa:
+            raise ValueError("centring 'otdoa' centres the search on the OTDoA fix; set otdoa=True")
         if self.snr_mode == "fixed":
             if len(self.snrs_db) == 0:
                 raise ValueError("snrs_db must list at least one SNR (dB) when snr_mode is 'fixed'")
@@ -110,6 +127,13 @@ class Experiment:
         _checks.in_range("k_factor_db", self.k_factor_db, -30.0, 60.0, "dB")
         _checks.in_range("clock_sigma_s", self.clock_sigma_s, 0.0, 1e-6, "s")
         _checks.in_range("clock_bound_sigmas", self.clock_bound_sigmas, 0.1, 10.0, "σ")
+
+    def receiver_search(self) -> dpe.SearchConfig:
+        """The search the receiver runs: ``search`` as given for centring "truth"; otherwise with the clock-bias
+        window set from the clock model (± clock_bound_sigmas · clock_sigma_s · c, centred on 0)."""
+        if self.centring == "truth":
+            return self.search
+        return dataclasses.replace(self.search, bias_half_width_m=self.clock_bound_sigmas * self.clock_sigma_s * C)
 
     @property
     def n_snr(self) -> int:
@@ -147,8 +171,11 @@ class Results:
 
     ue_xyz (T, 3) m; clock_bias_s (T,); bs_index (T, I) deployment index of the i-th nearest BS; los (T, I) bool;
     link_snr_db (T, S, I) per-sample SNR of each link; est_xyz (T, S, J, 3) m; est_bias_s (T, S, J);
-    error_m (T, S, J) horizontal error.  With ``otdoa``: otdoa_toa_s (T, S, I) the estimated ToAs (clock bias
-    included), otdoa_xyz (T, S, J, 3), otdoa_error_m (T, S, J), otdoa_ok (T, S, J) False where the fix is flagged.
+    error_m (T, S, J) horizontal error; center_xyz (T, S, J, 3) the search window's centre; edge (T, S, J) the fix
+    lies on the window's boundary (flagged); gap (T, S, J) the certified relative gap (NaN for the grid search);
+    certified (T, S, J).  With ``otdoa``, per detector d of ``OTDOA_DETECTORS``: otdoa_toa_s (T, S, D, I) the
+    estimated ToAs (clock bias included), otdoa_xyz (T, S, D, J, 3), otdoa_error_m (T, S, D, J), otdoa_ok
+    (T, S, D, J) False where the fix is flagged.
     """
 
     experiment: Experiment
@@ -160,12 +187,17 @@ class Results:
     est_xyz: np.ndarray
     est_bias_s: np.ndarray
     error_m: np.ndarray
+    center_xyz: np.ndarray
+    edge: np.ndarray
+    gap: np.ndarray
+    certified: np.ndarray
     otdoa_toa_s: np.ndarray | None = None
     otdoa_xyz: np.ndarray | None = None
     otdoa_error_m: np.ndarray | None = None
     otdoa_ok: np.ndarray | None = None
 
-    FIELDS = ("ue_xyz", "clock_bias_s", "bs_index", "los", "link_snr_db", "est_xyz", "est_bias_s", "error_m")
+    FIELDS = ("ue_xyz", "clock_bias_s", "bs_index", "los", "link_snr_db", "est_xyz", "est_bias_s", "error_m",
+              "center_xyz", "edge", "gap", "certified")
     OTDOA_FIELDS = ("otdoa_toa_s", "otdoa_xyz", "otdoa_error_m", "otdoa_ok")
 
     def rmse_m(self) -> np.ndarray:
@@ -189,10 +221,12 @@ class Results:
                                  "est_x_m": float(self.est_xyz[t, s, j, 0]), "est_y_m": float(self.est_xyz[t, s, j, 1]),
                                  "true_x_m": float(self.ue_xyz[t, 0]), "true_y_m": float(self.ue_xyz[t, 1]),
                                  "n_los": int(self.los[t, :m].sum()),
-                                 "los_flags": "".join("L" if f else "N" for f in self.los[t, :m])})
+                                 "los_flags": "".join("L" if f else "N" for f in self.los[t, :m]),
+                                 "edge": bool(self.edge[t, s, j]), "certified": bool(self.certified[t, s, j])})
                     if self.otdoa_error_m is not None:
-                        rows[-1].update({"otdoa_error_m": float(self.otdoa_error_m[t, s, j]),
-                                         "otdoa_ok": bool(self.otdoa_ok[t, s, j])})
+                        for d, name in enumerate(OTDOA_DETECTORS):
+                            rows[-1].update({f"otdoa_{name}_error_m": float(self.otdoa_error_m[t, s, d, j]),
+                                             f"otdoa_{name}_ok": bool(self.otdoa_ok[t, s, d, j])})
         return rows
 
     def write_csv(self, path) -> None:
@@ -273,32 +307,69 @@ def _noisy(d, s):
     return d["y0"] + noise
 
 
-def _trial_fn(e: Experiment, dep: scenario.Deployment):
-    """Build the traceable per-trial function t → result dict (closed over constants of the experiment)."""
+def _prior_center(e: Experiment, d: dict, t) -> jax.Array:
+    """Centring "prior": truth + a horizontal error from the stated prior, keyed by fold_in(trial key, 1000) so the
+    trial's other draws are unchanged; the height is the known UE height and c δt is 0.  Returns (4,) metres."""
+    key = jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(e.seed), t), 1000)
+    if e.prior_kind == "gaussian":
+        err = e.prior_scale_m * jax.random.normal(key, (2,))
+    else:
+        k_r, k_a = jax.random.split(key)
+        r = e.prior_scale_m * jnp.sqrt(jax.random.uniform(k_r))
+        a = 2 * jnp.pi * jax.random.uniform(k_a)
+        err = r * jnp.stack([jnp.cos(a), jnp.sin(a)])
+    return jnp.concatenate([d["ue"][:2] + err, d["ue"][2:3], jnp.zeros(1)])
+
+
+def _toa_fn(e: Experiment, dep: scenario.Deployment):
+    """Traceable t → (ToAs (S, D, I) of every link with each detector of ``OTDOA_DETECTORS`` (OTDoA step 1),
+    the true UE position (3,) (to score the fixes), the indices (I,) of the nearest BSs)."""
     draw = _draw_fn(e, dep)
-    cfg = e.search
 
     def one(t):
         d = draw(t)
-        center = jnp.concatenate([d["ue"], d["bias"][None]])
+
+        def per_snr(s):
+            y = _noisy(d, s)
+            return jnp.stack([otdoa._toa(y, d["prs"], meth, OTDOA_UPSAMPLE, OTDOA_THRESHOLD_DB, OTDOA_MAX_LEAD,
+                                         PAPER.sample_period_s) for meth in OTDOA_DETECTORS])
+
+        return jax.lax.map(per_snr, jnp.arange(d["link_snr"].shape[0])), d["ue"], d["idx"]
+
+    return one
+
+
+def _trial_fn(e: Experiment, dep: scenario.Deployment):
+    """Build the traceable per-trial function (t, ext_center (S, J, 4)) → result dict.  ext_center (metres) is read
+    only in centring "otdoa", where it holds the trial's OTDoA fixes."""
+    draw = _draw_fn(e, dep)
+    cfg = e.receiver_search()
+
+    def one(t, ext_center):
+        d = draw(t)
+        if e.centring == "truth":
+            c0 = jnp.concatenate([d["ue"], d["bias"][None] * C])
+        elif e.centring == "prior":
+            c0 = _prior_center(e, d, t)
         bs, prs = d["bs"], d["prs"]
 
         def per_snr(s):
             y = _noisy(d, s)
-            corr = dpe._correlogram(y, prs, cfg.n_taps, cfg.upsample)  # once for all M: the M nearest are nested
-            qs = [dpe.search(corr[:m], y[:m], prs[:m], bs[:m], center, cfg, PAPER.n_fft, PAPER.scs_hz,
-                             with_cost=False) for m in e.m_values]
-            toas = (otdoa._toa(y, prs, e.toa_method, OTDOA_UPSAMPLE, OTDOA_THRESHOLD_DB, OTDOA_MAX_LEAD,
-                               PAPER.sample_period_s) if e.otdoa else jnp.zeros(y.shape[0]))
-            return jnp.stack(qs), toas  # (J, 4), (I,)
+            corr = dpe.receiver_correlogram(y, prs, cfg)  # once for all M: the M nearest are nested
+            fixes, centers = [], []
+            for j, m in enumerate(e.m_values):
+                c = ext_center[s, j] if e.centring == "otdoa" else c0
+                fixes.append(dpe.fix(y[:m], prs[:m], bs[:m], c, cfg, PAPER, corr=corr[:m]))
+                centers.append(c)
+            return ({k: jnp.stack([f[k] for f in fixes]) for k in ("q", "gap", "certified", "edge")},
+                    jnp.stack(centers))
 
-        q, toas = jax.lax.map(per_snr, jnp.arange(d["link_snr"].shape[0]))  # (S, J, 4), (S, I)
+        r, centers = jax.lax.map(per_snr, jnp.arange(d["link_snr"].shape[0]))  # (S, J, ...)
+        q = r["q"]
         err = jnp.linalg.norm(q[..., :2] - d["ue"][:2], axis=-1)
-        out = {"ue_xyz": d["ue"], "clock_bias_s": d["bias"], "bs_index": d["idx"], "los": d["los"],
-               "link_snr_db": d["link_snr"], "est_xyz": q[..., :3], "est_bias_s": q[..., 3] / C, "error_m": err}
-        if e.otdoa:
-            out["otdoa_toa_s"] = toas
-        return out
+        return {"ue_xyz": d["ue"], "clock_bias_s": d["bias"], "bs_index": d["idx"], "los": d["los"],
+                "link_snr_db": d["link_snr"], "est_xyz": q[..., :3], "est_bias_s": q[..., 3] / C, "error_m": err,
+                "center_xyz": centers[..., :3], "edge": r["edge"], "gap": r["gap"], "certified": r["certified"]}
 
     return one
 
@@ -335,8 +406,8 @@ def draw_links(e: Experiment, n_trials: int) -> dict:
 
 
 @partial(jax.jit, static_argnames=("fn", "batch_size"))
-def _run_chunk(trials, fn, batch_size):
-    return jax.lax.map(fn, trials, batch_size=batch_size)
+def _run_chunk(args, fn, batch_size):
+    return jax.lax.map(lambda a: fn(*a), args, batch_size=batch_size)
 
 
 def cache_dir(e: Experiment, cache: str | os.PathLike | None = None) -> Path:
@@ -366,7 +437,7 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
     starts = list(range(0, e.n_trials, e.chunk_trials))
     paths = [d / f"trials-{s:07d}-{min(s + e.chunk_trials, e.n_trials):07d}.npz" for s in starts]
     todo = [i for i, p in enumerate(paths) if not p.exists()]
-    fn = None
+    fn = toa_fn = None
     bar = None
     solvers = {}
     if todo and progress:
@@ -378,13 +449,20 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
     try:
         for i in todo:
             if fn is None:
-                fn = _trial_fn(e, dep)
+                fn, toa_fn = _trial_fn(e, dep), (_toa_fn(e, dep) if e.otdoa else None)
             s = starts[i]
             stop = min(s + e.chunk_trials, e.n_trials)
-            out = _run_chunk(jnp.arange(s, stop), fn, min(batch_size, stop - s))
+            trials, bsz = jnp.arange(s, stop), min(batch_size, stop - s)
+            ext = np.zeros((stop - s, e.n_snr, len(e.m_values), 4))
+            ot = {}
+            if e.otdoa:  # step 1 on the same signals (regenerated from the same keys), then the convex fixes
+                toas, ue, idx = (np.asarray(a) for a in _run_chunk((trials,), toa_fn, bsz))
+                ot = _otdoa_fixes(e, dep, toas, ue, idx)
+                if e.centring == "otdoa":
+                    ext = _otdoa_centers(e, dep, ot, idx)
+            out = _run_chunk((trials, jnp.asarray(ext)), fn, bsz)
             out = {k: np.asarray(v) for k, v in out.items()}
-            if e.otdoa:
-                out.update(_otdoa_fixes(e, dep, out, solvers))
+            out.update(ot)
             buf = io.BytesIO()
             np.savez(buf, **out)
             atomic_write(paths[i], buf.getvalue())
@@ -399,18 +477,34 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
     return Results(e, **arrays)
 
 
-def _otdoa_fixes(e: Experiment, dep: scenario.Deployment, out: dict, solvers: dict) -> dict:
-    """OTDoA fixes (cvxpy, one compiled problem per M) from the chunk's estimated ToAs; flagged, never dropped."""
-    toas, bs_index, ue = out["otdoa_toa_s"], out["bs_index"], out["ue_xyz"]
-    n_t, n_s = toas.shape[:2]
-    xyz = np.full((n_t, n_s, len(e.m_values), 3), np.nan)
-    ok = np.zeros((n_t, n_s, len(e.m_values)), dtype=bool)
-    for j, m in enumerate(e.m_values):
-        solver = solvers.setdefault(m, otdoa.Solver(m))
-        for t in range(n_t):
-            bs = dep.bs_xyz[bs_index[t, :m]]
+def _otdoa_fixes(e: Experiment, dep: scenario.Deployment, toas: np.ndarray, ue: np.ndarray, idx: np.ndarray) -> dict:
+    """OTDoA fixes (cvxpy, one compiled problem per M) from the chunk's ToAs (T, S, D, I) of every detector, the
+    true UE positions (T, 3) (for the error only) and the nearest BSs' indices (T, I); flagged, never dropped."""
+    n_t, n_s, n_d = toas.shape[:3]
+    xyz = np.full((n_t, n_s, n_d, len(e.m_values), 3), np.nan)
+    ok = np.zeros((n_t, n_s, n_d, len(e.m_values)), dtype=bool)
+    solvers = {m: otdoa.Solver(m) for m in e.m_values}
+    for t in range(n_t):
+        for j, m in enumerate(e.m_values):
+            bs = dep.bs_xyz[idx[t, :m]]
             for s in range(n_s):
-                fix = solver.solve(bs, toas[t, s, :m], float(ue[t, 2]))
-                xyz[t, s, j], ok[t, s, j] = fix.xyz, fix.ok
-    err = np.linalg.norm(xyz[..., :2] - ue[:, None, None, :2], axis=-1)
-    return {"otdoa_xyz": xyz, "otdoa_error_m": err, "otdoa_ok": ok}
+                for k in range(n_d):
+                    f = solvers[m].solve(bs, toas[t, s, k, :m], float(ue[t, 2]))
+                    xyz[t, s, k, j], ok[t, s, k, j] = f.xyz, f.ok
+    err = np.linalg.norm(xyz[..., :2] - ue[:, None, None, None, :2], axis=-1)
+    return {"otdoa_toa_s": toas, "otdoa_xyz": xyz, "otdoa_error_m": err, "otdoa_ok": ok}
+
+
+def _otdoa_centers(e: Experiment, dep: scenario.Deployment, ot: dict, idx: np.ndarray) -> np.ndarray:
+    """Centring "otdoa": the window centre of each (trial, SNR, M) is the OTDoA fix of detector ``toa_method`` at
+    the known UE height with c δt = 0; where that fix is not finite (solver failure), the centroid of the M BSs
+    used (known to the receiver).  Returns (T, S, J, 4) metres."""
+    k = OTDOA_DETECTORS.index(e.toa_method)
+    xyz = ot["otdoa_xyz"][:, :, k]  # (T, S, J, 3)
+    out = np.zeros(xyz.shape[:3] + (4,))
+    out[..., :3] = xyz
+    out[..., 2] = dep.ue_height_m
+    bad = ~np.all(np.isfinite(xyz), axis=-1)
+    for t, s, j in zip(*np.nonzero(bad)):
+        out[t, s, j, :2] = dep.bs_xyz[idx[t, : e.m_values[j]], :2].mean(axis=0)
+    return out

@@ -1,0 +1,110 @@
+"""The certified search (``dpe.certified_search``) against an exhaustive evaluation of the same window."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from dpe5g import dpe, montecarlo
+from dpe5g.nr import C, PAPER
+
+N_TRIALS = 50
+CFG = dpe.SearchConfig(method="bnb", half_width_m=8.0, bias_half_width_m=3 * 5e-9 * C)
+
+
+def _exhaustive_max(coef, bs, center, cfg, step=0.1):
+    """max of the spline cost over a 0.1 m grid of the whole window (x, y, c δt), by brute force."""
+    cell_m = C * PAPER.sample_period_s / cfg.spline_upsample
+    ax = np.arange(-cfg.half_width_m, cfg.half_width_m + 1e-9, step)
+    ab = np.arange(-cfg.bias_half_width_m, cfg.bias_half_width_m + 1e-9, step)
+
+    @jax.jit
+    def row(x):
+        xy = jnp.stack([jnp.full(ax.shape, center[0] + x), center[1] + ax], -1)  # one column of the grid
+        d = jnp.sqrt(jnp.sum((xy[:, None, :] - bs[None, :, :2]) ** 2, -1) + (center[2] - bs[None, :, 2]) ** 2)
+        pos = (d[:, None, :] + center[3] + ab[None, :, None]) / cell_m  # (XY, B, M)
+        return jnp.max(dpe.spline_values(coef, pos))
+
+    return max(float(row(jnp.asarray(x))) for x in ax)
+
+
+@pytest.fixture(scope="module")
+def trials():
+    e = montecarlo.Experiment(name="t", n_trials=N_TRIALS, seed=10, snr_mode="link_budget", snrs_db=(), m_values=(4,),
+                              centring="prior", search=CFG)
+    out = []
+    for t in range(N_TRIALS):
+        ex = montecarlo.example(e, t)
+        rng = np.random.default_rng(t)
+        center = np.array([*(ex["ue"][:2] + rng.normal(0, 3.0, 2)), ex["ue"][2], 0.0])
+        out.append((ex, center))
+    return e, out
+
+
+def test_certified_search_finds_the_exhaustive_maximum(trials):
+    e, items = trials
+    search = jax.jit(lambda coef, bs, c: dpe.certified_search(coef, bs, c, CFG))
+    worst, n_cert = np.inf, 0
+    for ex, center in items:
+        coef = dpe.spline_correlogram(ex["y"], ex["prs"], CFG.n_taps, CFG.spline_upsample)
+        r = search(coef, jnp.asarray(ex["bs"]), jnp.asarray(center))
+        best = _exhaustive_max(coef, jnp.asarray(ex["bs"]), jnp.asarray(center), CFG)
+        # the returned cost is the spline at the returned point, and no grid point beats it by more than 1e-4
+        q = np.asarray(r["q"])
+        pos = (np.linalg.norm(q[:3] - ex["bs"], axis=1) + q[3]) / (C * PAPER.sample_period_s / CFG.spline_upsample)
+        assert float(dpe.spline_values(coef, jnp.asarray(pos))) == pytest.approx(float(r["cost"]), rel=1e-12)
+        worst = min(worst, float(r["cost"]) / best)
+        n_cert += bool(r["certified"])
+        if bool(r["certified"]):  # a certified fix bounds the maximum of the whole window, grid or not
+            assert best <= float(r["cost"]) * (1 + CFG.gap_tol) * (1 + 1e-12)
+    assert worst >= 1 - 1e-4, worst
+    assert n_cert >= N_TRIALS // 2
+
+
+def test_certified_search_does_not_depend_on_the_grid_phase(trials):
+    """Shifting the window by a fraction of a cell moves the fix by at most the resolution, except between points
+    whose costs tie within the certified tolerance (a flat multipath cost: both are maxima).  Fixes on the edge of
+    either window are left out: there the two windows hold different points."""
+    e, items = trials
+    search = jax.jit(lambda coef, bs, c: dpe.certified_search(coef, bs, c, CFG))
+    moved = compared = 0
+    for ex, center in items:
+        coef = dpe.spline_correlogram(ex["y"], ex["prs"], CFG.n_taps, CFG.spline_upsample)
+        bs = jnp.asarray(ex["bs"])
+        a = search(coef, bs, jnp.asarray(center))
+        b = search(coef, bs, jnp.asarray(center + np.array([0.37, -0.21, 0.0, 0.13])))
+        if bool(a["edge"]) or bool(b["edge"]):
+            continue
+        compared += 1
+        if np.linalg.norm(np.asarray(a["q"]) - np.asarray(b["q"])) > 2 * CFG.box_final_m:
+            moved += 1
+            tol = (float(a["gap"]) + float(b["gap"]) + 1e-9) * float(a["cost"])
+            assert abs(float(a["cost"]) - float(b["cost"])) <= tol
+    assert compared >= 0.8 * N_TRIALS and moved <= compared // 5, (compared, moved)
+
+
+def test_spline_correlogram_is_exact_at_the_knots():
+    ex = montecarlo.example(montecarlo.Experiment(n_trials=1, m_values=(6,), snrs_db=(20.0,)), 0)
+    coef = dpe.spline_correlogram(ex["y"], ex["prs"], 12, 8)
+    ref = np.asarray(dpe.correlogram(ex["y"], ex["prs"], 12, 8))
+    vals = (np.roll(coef, 1, -1) + 4 * np.asarray(coef) + np.roll(coef, -1, -1)) / 6
+    assert np.max(np.abs(vals - ref)) <= 1e-10 * ref.max()
+    tau = np.asarray(dpe.toa(ex["ue"], ex["bs"], float(ex["bias"])))[None] + np.linspace(-30e-9, 30e-9, 41)[:, None]
+    exact = np.asarray(dpe.ml_cost(ex["y"], ex["prs"], tau, 12, PAPER.scs_hz))
+    spl = np.asarray(dpe.spline_values(coef, jnp.asarray(tau / PAPER.sample_period_s * 8)))
+    assert np.max(np.abs(spl - exact)) <= 1e-4 * exact.max()
+
+
+def test_bnb_config_rejects_bad_input():
+    with pytest.raises(ValueError, match="spline_upsample"):
+        dpe.SearchConfig(method="bnb", spline_upsample=3)
+    with pytest.raises(ValueError, match="method"):
+        dpe.SearchConfig(method="exhaustive")
+    with pytest.raises(ValueError, match="z_half_width_m"):
+        dpe.SearchConfig(method="bnb", z_half_width_m=2.0)
+    with pytest.raises(ValueError, match="otdoa"):
+        montecarlo.Experiment(centring="otdoa")
+    with pytest.raises(ValueError, match="prior_kind"):
+        montecarlo.Experiment(centring="prior", prior_kind="cauchy")
