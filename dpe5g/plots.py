@@ -185,48 +185,73 @@ def plot_urban_correlogram(payload: dict):
     return fig
 
 
+COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b")
+
+
 def plot_rmse_vs_snr(payload: dict):
-    """Fig. 9: RMSE of the horizontal error against the per-link SNR, one curve per M."""
+    """Fig. 9: RMSE of the horizontal error against the per-sample SNR, one colour per M; solid: the honest
+    receiver (window on a prior, certified search), dashed: the paper's truth-centred grid.  A payload with one
+    receiver only (the chapters' studies) is drawn solid."""
     d = payload["data"]
     c = payload["config"]
     snr = np.asarray(c["snrs_db"])
-    rmse = np.asarray(d["rmse_m"])
+    recv = [r for r in ("honest", "truth") if r in d]
+    style_of = {"honest": ("-", "honest: prior-centred, certified"), "truth": ("--", "paper's set-up: truth-centred")}
     with style():
-        fig = Figure(figsize=(6.0, 4.0), layout="constrained")
+        fig = Figure(figsize=(7.4, 4.2), layout="constrained")
         ax = fig.subplots()
-        for j, (m, marker) in enumerate(zip(c["m_values"], "osd^v<>")):
-            ax.plot(snr, rmse[:, j], marker=marker, label=f"M = {m}")
+        for r in recv:
+            ls, lab = style_of[r] if len(recv) > 1 else ("-", "")
+            rmse = np.asarray(d[r]["rmse_m"])
+            for j, (m, marker, col) in enumerate(zip(c["m_values"], "osd^v<>", COLORS)):
+                ax.plot(snr, rmse[:, j], ls, marker=marker, color=col, mfc="none" if ls == "--" else col,
+                        label=f"M = {m}" if r == recv[0] else None)
+        for r in recv if len(recv) > 1 else ():
+            ax.plot([], [], style_of[r][0], color="0.3",
+                    label=f"{style_of[r][1]} ({c['receivers'][r]['n_trials']} trials)")
         ax.set_yscale("log")
-        ax.set_xlabel("SNR per link (dB)")
+        from matplotlib.ticker import FormatStrFormatter, LogLocator
+
+        ax.yaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+        ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))
+        ax.yaxis.set_minor_locator(LogLocator(subs=(3.0, 4.0, 6.0, 7.0, 8.0, 9.0)))
+        ax.yaxis.set_minor_formatter(FormatStrFormatter("%g"))
+        ax.tick_params(axis="y", which="minor", labelsize=7)
+        ax.set_xlabel("SNR per sample (dB)")
         ax.set_ylabel("RMSE (m)")
         ax.set_xticks(snr)
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False)
         ax.grid(True, which="both", alpha=0.3)
-        ax.set_title(f"{c['n_trials']} trials per point, {100 * d['los_share_all']:.0f} % of links LoS")
+        ax.set_title(f"{100 * d['los_share_all']:.0f} % of links LoS")
     return fig
 
 
 def plot_cdf(payload: dict):
-    """Fig. 10: error CDFs of DPE and OTDoA, solid for the paper's case (2 of 4 links LoS), dashed for eq. (9)."""
+    """Fig. 10: error CDFs of the DPE receivers and of OTDoA; left the paper's case (2 of 4 links LoS), right LoS
+    from eq. (9)."""
     grid = np.asarray(payload["config"]["error_grid_m"])
-    labels = {"two_of_four": "2 of 4 LoS (paper)", "eq9": "LoS from eq. (9)"}
+    titles = {"two_of_four": "(a) 2 of 4 links LoS (paper's case)", "eq9": "(b) LoS from eq. (9)"}
+    curves = [("dpe_otdoa", "DPE centred on OTDoA fix", "#1f77b4", "-"),
+              ("dpe_prior", "DPE centred on 5 m prior", "#2ca02c", "-"),
+              ("dpe_truth", "DPE centred on truth (paper)", "0.45", "--"),
+              ("otdoa_first_path", "OTDoA, first-path ToA", "#d62728", "-"),
+              ("otdoa_peak", "OTDoA, peak ToA (naive)", "#ff7f0e", ":")]
     with style():
-        fig = Figure(figsize=(6.4, 4.2), layout="constrained")
-        ax = fig.subplots()
-        for case, ls in (("two_of_four", "-"), ("eq9", "--")):
+        fig = Figure(figsize=(10.0, 4.4), layout="constrained")
+        axes = fig.subplots(1, 2, sharey=True)
+        for ax, case in zip(axes, ("two_of_four", "eq9")):
             d = payload["data"][case]
-            p_d, p_o = d["dpe_p50_p90_p99_m"], d["otdoa_p50_p90_p99_m"]
-            ax.step(grid, d["dpe_cdf"], ls, where="post", color="#1f77b4",
-                    label=f"DPE, {labels[case]}: 90 % {p_d[1]:.1f} m, 99 % {p_d[2]:.1f} m")
-            ax.step(grid, d["otdoa_cdf"], ls, where="post", color="#d62728",
-                    label=f"OTDoA, {labels[case]}: 90 % {p_o[1]:.1f} m, 99 % {p_o[2]:.0f} m")
-        for lev in (0.9, 0.99):
-            ax.axhline(lev, color="0.5", lw=0.7, ls=":")
-        ax.set_xscale("log")
-        ax.set_xlim(0.03, 1000)
-        ax.set_ylim(0, 1.0)
-        ax.set_xlabel("horizontal position error (m)")
-        ax.set_ylabel("CDF")
-        ax.legend(fontsize=7, loc="lower right")
-        ax.set_title("4 nearest BSs, SNR per link from the UMi path loss")
+            for key, lab, col, ls in curves:
+                q = d[key]["p50_p90_p99_m"]
+                ax.step(grid, d[key]["cdf"], ls, where="post", color=col, label=f"{lab}: 90 % {q[1]:.1f} m")
+            for lev in (0.9, 0.99):
+                ax.axhline(lev, color="0.5", lw=0.7, ls=":")
+            ax.plot([2.0, 42.0], [0.9, 0.9], "k*", markersize=9, label="paper: DPE 2 m, OTDoA 42 m at 90 %")
+            ax.set_xscale("log")
+            ax.set_xlim(0.03, 1000)
+            ax.set_ylim(0, 1.0)
+            ax.set_xlabel("horizontal position error (m)")
+            ax.set_title(titles[case], fontsize=9)
+            ax.legend(fontsize=6.5, loc="upper left", bbox_to_anchor=(0.0, -0.14), frameon=False)
+        axes[0].set_ylabel("CDF")
     return fig
