@@ -76,14 +76,17 @@ def test_two_of_four_and_link_budget_modes(tmp_path):
                               los_mode="two_of_four", search=dpe.SearchConfig(half_width_m=3.0), otdoa=True)
     r = montecarlo.run(e, cache=tmp_path, progress=False)
     assert np.all(r.los.sum(axis=1) == 2)
-    assert r.otdoa_xyz.shape == (4, 1, 1, 3) and r.otdoa_ok.dtype == bool
+    n_det = len(montecarlo.OTDOA_DETECTORS)
+    assert r.otdoa_xyz.shape == (4, 1, n_det, 1, 3) and r.otdoa_ok.dtype == bool
     assert np.all(np.isfinite(r.otdoa_error_m))
     # the estimated ToAs carry the common clock bias and are within a few samples of the geometric ones
     geo = np.linalg.norm(r.ue_xyz[:, None, :] - montecarlo.scenario.tst().bs_xyz[r.bs_index], axis=-1) / 3e8
-    assert np.all(np.abs(r.otdoa_toa_s[:, 0, :] - r.clock_bias_s[:, None] - geo) < 40 * 8.14e-9)
+    for k in range(n_det):
+        assert np.all(np.abs(r.otdoa_toa_s[:, 0, k, :] - r.clock_bias_s[:, None] - geo) < 40 * 8.14e-9)
     assert r.link_snr_db.shape == (4, 1, 4) and np.all(np.isfinite(r.link_snr_db))
     rows = r.table()
-    assert len(rows) == 4 and {"trial", "snr_db", "m", "error_m", "n_los", "otdoa_error_m"} <= set(rows[0])
+    assert len(rows) == 4 and {"trial", "snr_db", "m", "error_m", "n_los", "edge", "otdoa_first_path_error_m",
+                              "otdoa_peak_ok"} <= set(rows[0])
     r.write_csv(tmp_path / "t.csv")
     assert (tmp_path / "t.csv").read_text().count("\n") == 5
     assert sorted(rows[0]["los_flags"]) == ["L", "L", "N", "N"]
@@ -102,6 +105,9 @@ def test_two_of_four_and_link_budget_modes(tmp_path):
     (dict(los_mode="sometimes"), "los_mode must be one of"),
     (dict(n_trials=0), "n_trials"),
     (dict(toa_method="strongest"), "toa_method must be one of"),
+    (dict(centring="oracle"), "centring must be one of"),
+    (dict(centring="otdoa"), "set otdoa=True"),
+    (dict(prior_scale_m=-1.0), "prior_scale_m"),
 ])
 def test_bad_experiments(kwargs, needle):
     with pytest.raises(ValueError, match=needle):
@@ -111,3 +117,20 @@ def test_bad_experiments(kwargs, needle):
 def test_too_many_bs_for_the_deployment():
     with pytest.raises(ValueError, match="must not exceed"):
         montecarlo.Experiment(m_values=(6, 30)).load_deployment()
+
+
+def test_honest_centrings_see_no_truth(tmp_path):
+    """Prior and OTDoA centring: the window's centre is not the truth (prior) or is the OTDoA fix, and the
+    clock-bias window is centred on 0 and sized from the clock model."""
+    bnb = dpe.SearchConfig(method="bnb", half_width_m=6.0)
+    base = dict(n_trials=4, seed=3, snr_mode="link_budget", snrs_db=(), m_values=(4,), search=bnb, chunk_trials=2)
+    pr = montecarlo.run(montecarlo.Experiment(name="p", centring="prior", **base), cache=tmp_path, progress=False)
+    off = np.linalg.norm(pr.center_xyz[:, 0, 0, :2] - pr.ue_xyz[:, :2], axis=-1)
+    assert np.all(off > 1e-3) and np.all(pr.center_xyz[:, 0, 0, 2] == pr.ue_xyz[:, 2])
+    e = montecarlo.Experiment(name="p", centring="prior", **base)
+    assert e.receiver_search().bias_half_width_m == pytest.approx(3 * 5e-9 * 299_792_458.0)
+    ot = montecarlo.run(montecarlo.Experiment(name="o", centring="otdoa", otdoa=True, **base), cache=tmp_path,
+                        progress=False)
+    k = montecarlo.OTDOA_DETECTORS.index("first_path")
+    np.testing.assert_allclose(ot.center_xyz[:, 0, 0, :2], ot.otdoa_xyz[:, 0, k, 0, :2])
+    assert np.all(np.isfinite(ot.gap)) and np.all(ot.est_bias_s * 299_792_458.0 <= 4.5)
