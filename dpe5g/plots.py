@@ -209,14 +209,19 @@ def plot_rmse_vs_snr(payload: dict):
         for r in recv if len(recv) > 1 else ():
             ax.plot([], [], style_of[r][0], color="0.3",
                     label=f"{style_of[r][1]} ({c['receivers'][r]['n_trials']} trials)")
-        ax.set_yscale("log")
-        from matplotlib.ticker import FormatStrFormatter, LogLocator
+        from matplotlib.ticker import FormatStrFormatter, LogLocator, MultipleLocator
 
-        ax.yaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
-        ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))
-        ax.yaxis.set_minor_locator(LogLocator(subs=(3.0, 4.0, 6.0, 7.0, 8.0, 9.0)))
-        ax.yaxis.set_minor_formatter(FormatStrFormatter("%g"))
-        ax.tick_params(axis="y", which="minor", labelsize=7)
+        vals = np.concatenate([np.asarray(d[r]["rmse_m"]).ravel() for r in recv])
+        if vals.max() / vals.min() < 4:  # a narrow range: linear axis, labelled every 0.1 m
+            ax.yaxis.set_major_locator(MultipleLocator(0.1))
+            ax.yaxis.set_major_formatter(FormatStrFormatter("%.1f"))
+        else:  # a wide range: log axis, labelled at 1, 2, 5 and the values between
+            ax.set_yscale("log")
+            ax.yaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+            ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))
+            ax.yaxis.set_minor_locator(LogLocator(subs=(3.0, 4.0, 6.0, 7.0, 8.0, 9.0)))
+            ax.yaxis.set_minor_formatter(FormatStrFormatter("%g"))
+            ax.tick_params(axis="y", which="minor", labelsize=7)
         ax.set_xlabel("SNR per sample (dB)")
         ax.set_ylabel("RMSE (m)")
         ax.set_xticks(snr)
