@@ -29,10 +29,11 @@ import numpy as np
 from . import _checks
 from .nr import C, PAPER, Numerology
 
-#: Default receiver window L (taps), chosen from the study in Chapter 3 (8 BSs on a 150 m ring, every link TDL-C at
-#: 65 ns, 20 dB, 5 ns clock bias, 200 trials, grid centred on the truth): L = 12 gave the smallest RMSE, 1.03 m,
-#: against 2.20 m for L = 8, 3.40 m for L = 16 and 5.85 m for L = 32.  Shorter windows lock onto the strongest
-#: cluster of some links; longer ones flatten the peak (the TDL-C excess delay is 69 samples).
+#: Default receiver window L (taps).  First chosen in Chapter 3 on 8 NLoS (TDL-C) links on a 150 m ring with the grid
+#: on the truth, where L = 12 gave the smallest RMSE; chosen again on the urban scenario (mixed LoS/NLoS, Figs. 9 and
+#: 10 set-ups) with the honest receiver (prior-centred window, certified search; ``studies.urban_window_experiments``,
+#: Chapter 5), where the rule of ``studies.choose_window`` picks L = 12 again.  Shorter windows lock onto the strongest
+#: cluster of NLoS links; longer ones widen the LoS plateau and flatten the peak (the TDL-C excess delay is 69 samples).
 DEFAULT_TAPS = 12
 SEARCH_METHODS = ("grid", "bnb")
 
@@ -330,8 +331,25 @@ def spline_correlogram(y, prs, n_taps: int, upsample: int = 8) -> jax.Array:
     return _spline_correlogram(jnp.asarray(y), jnp.asarray(prs), n_taps, upsample)
 
 
+def window_spectrum(n_taps: int, n_fft: int) -> np.ndarray:
+    """The L-tap window sum e(τ) + e(τ + T_s) + … + e(τ + (L−1)T_s) as a multiplier on the real FFT of the 2N
+    half-sample energies (harmonics q = 0 … N of Δf): Σ_{l<L} e^{j2πql/N}, with the Nyquist bin q = N set to 0.
+    Returns complex (N + 1,).  ``receiver_correlogram`` takes it as an input, so one compiled Monte Carlo serves
+    every L."""
+    _checks.integer("n_taps", n_taps, 1, n_fft)
+    q = np.arange(n_fft + 1)
+    window = np.exp(2j * np.pi * np.outer(q, np.arange(n_taps)) / n_fft).sum(axis=1)
+    window[n_fft] = 0.0  # no harmonic N: the Nyquist bin of the 2N samples is zero
+    return window
+
+
 @partial(jax.jit, static_argnames=("n_taps", "upsample"))
 def _spline_correlogram(y, prs, n_taps, upsample):
+    return _spline_from_window(y, prs, window_spectrum(n_taps, y.shape[1]), upsample)
+
+
+def _spline_from_window(y, prs, window, upsample):
+    """``_spline_correlogram`` with the window given as its spectrum (``window_spectrum``; traceable)."""
     m, n = y.shape
     g = jnp.conj(prs) * jnp.fft.fft(y, axis=-1, norm="ortho")
     k = np.arange(n)
@@ -339,8 +357,6 @@ def _spline_correlogram(y, prs, n_taps, upsample):
     h1 = jnp.fft.ifft(g * np.exp(1j * np.pi * k / n), axis=-1)  # ĥ half a sample later
     e2 = jnp.stack([h0.real**2 + h0.imag**2, h1.real**2 + h1.imag**2], axis=-1).reshape(m, 2 * n) * n
     q = np.arange(n + 1)
-    window = np.exp(2j * np.pi * np.outer(q, np.arange(n_taps)) / n).sum(axis=1)  # e(τ) + … + e(τ + (L-1)T_s)
-    window[n] = 0.0  # no harmonic N: the Nyquist bin of the 2N samples is zero
     prefilter = 6.0 / (4.0 + 2.0 * np.cos(2 * np.pi * q / (n * upsample)))  # 1 / DFT of (1/6, 4/6, 1/6)
     spec = jnp.fft.rfft(e2, axis=-1) * (window * prefilter)
     pad = jnp.zeros((m, n * upsample // 2 + 1), dtype=spec.dtype).at[:, : n + 1].set(spec)
@@ -561,10 +577,14 @@ def fix(y, prs, bs_xyz, center_m, cfg: SearchConfig, num: Numerology = PAPER, co
     return {"q": q, "gap": jnp.asarray(jnp.nan), "certified": jnp.asarray(False), "edge": grid_edge(q, center_m, cfg)}
 
 
-def receiver_correlogram(y, prs, cfg: SearchConfig):
+def receiver_correlogram(y, prs, cfg: SearchConfig, window=None):
     """The per-BS correlograms the chosen search reads (traceable): ``_correlogram`` values on T_s/upsample for
-    "grid", ``_spline_correlogram`` coefficients for "bnb".  Rows are per BS, so the M nearest of them serve any M."""
+    "grid", ``_spline_correlogram`` coefficients for "bnb".  Rows are per BS, so the M nearest of them serve any M.
+    window : for "bnb", ``window_spectrum(cfg.n_taps, N)`` passed as an array (then ``cfg.n_taps`` is not read, and
+    a compiled caller serves every L); None computes it from ``cfg.n_taps``."""
     if cfg.method == "bnb":
+        if window is not None:
+            return _spline_from_window(y, prs, window, cfg.spline_upsample)
         return _spline_correlogram(y, prs, cfg.n_taps, cfg.spline_upsample)
     return _correlogram(y, prs, cfg.n_taps, cfg.upsample)
 

@@ -21,7 +21,7 @@ import json
 import os
 import sys
 from dataclasses import dataclass, field
-from functools import partial
+from functools import lru_cache, partial
 from pathlib import Path
 
 import jax
@@ -160,8 +160,7 @@ class Experiment:
         here = Path(__file__).resolve().parent
         for name in _SOURCES:
             h.update((here / name).read_bytes())
-        dep = scenario.TST_FILE if self.deployment == "tst" else Path(self.deployment)
-        h.update(dep.read_bytes())
+        h.update(_deployment_digest(self).encode())
         return h.hexdigest()[:16]
 
 
@@ -339,13 +338,34 @@ def _toa_fn(e: Experiment, dep: scenario.Deployment):
     return one
 
 
+def _window_free(e: Experiment) -> Experiment:
+    """``e`` without what the per-trial function does not read: the name, the trial and chunk counts, and, for the
+    "bnb" search, the receiver window L (it enters as ``dpe.window_spectrum``, an input).  Experiments that differ
+    only in these share one compiled function."""
+    search = dataclasses.replace(e.search, n_taps=1) if e.search.method == "bnb" else e.search
+    return dataclasses.replace(e, name="", n_trials=1, chunk_trials=1, search=search)
+
+
+@lru_cache(maxsize=8)
+def _compiled_trial_fn(e: Experiment, deployment_digest: str):
+    """One per-trial function per window-free experiment (``_window_free``) and deployment file content: the same
+    object for every L, so the jitted chunk runner compiles it once per process."""
+    return _trial_fn(e, e.load_deployment())
+
+
+def _deployment_digest(e: Experiment) -> str:
+    dep = scenario.TST_FILE if e.deployment == "tst" else Path(e.deployment)
+    return hashlib.sha256(dep.read_bytes()).hexdigest()
+
+
 def _trial_fn(e: Experiment, dep: scenario.Deployment):
-    """Build the traceable per-trial function (t, ext_center (S, J, 4)) → result dict.  ext_center (metres) is read
-    only in centring "otdoa", where it holds the trial's OTDoA fixes."""
+    """Build the traceable per-trial function (t, ext_center (S, J, 4), window) → result dict.  ext_center (metres)
+    is read only in centring "otdoa", where it holds the trial's OTDoA fixes; window is ``dpe.window_spectrum`` of
+    the receiver's L for the "bnb" search (read by nothing else)."""
     draw = _draw_fn(e, dep)
     cfg = e.receiver_search()
 
-    def one(t, ext_center):
+    def one(t, ext_center, window):
         d = draw(t)
         if e.centring == "truth":
             c0 = jnp.concatenate([d["ue"], d["bias"][None] * C])
@@ -355,7 +375,7 @@ def _trial_fn(e: Experiment, dep: scenario.Deployment):
 
         def per_snr(s):
             y = _noisy(d, s)
-            corr = dpe.receiver_correlogram(y, prs, cfg)  # once for all M: the M nearest are nested
+            corr = dpe.receiver_correlogram(y, prs, cfg, window if cfg.method == "bnb" else None)  # once for all M
             fixes, centers = [], []
             for j, m in enumerate(e.m_values):
                 c = ext_center[s, j] if e.centring == "otdoa" else c0
@@ -406,8 +426,9 @@ def draw_links(e: Experiment, n_trials: int) -> dict:
 
 
 @partial(jax.jit, static_argnames=("fn", "batch_size"))
-def _run_chunk(args, fn, batch_size):
-    return jax.lax.map(lambda a: fn(*a), args, batch_size=batch_size)
+def _run_chunk(args, fn, batch_size, shared=()):
+    """fn(*a, *shared) for each a of ``args`` mapped over its leading axis; ``shared`` goes to every call."""
+    return jax.lax.map(lambda a: fn(*a, *shared), args, batch_size=batch_size)
 
 
 def cache_dir(e: Experiment, cache: str | os.PathLike | None = None) -> Path:
@@ -449,7 +470,10 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
     try:
         for i in todo:
             if fn is None:
-                fn, toa_fn = _trial_fn(e, dep), (_toa_fn(e, dep) if e.otdoa else None)
+                fn, toa_fn = _compiled_trial_fn(_window_free(e), _deployment_digest(e)), (_toa_fn(e, dep) if e.otdoa else None)
+                cfg = e.receiver_search()
+                window = jnp.asarray(dpe.window_spectrum(cfg.n_taps, PAPER.n_fft) if cfg.method == "bnb"
+                                     else np.zeros(1, dtype=complex))
             s = starts[i]
             stop = min(s + e.chunk_trials, e.n_trials)
             trials, bsz = jnp.arange(s, stop), min(batch_size, stop - s)
@@ -460,7 +484,7 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
                 ot = _otdoa_fixes(e, dep, toas, ue, idx)
                 if e.centring == "otdoa":
                     ext = _otdoa_centers(e, dep, ot, idx)
-            out = _run_chunk((trials, jnp.asarray(ext)), fn, bsz)
+            out = _run_chunk((trials, jnp.asarray(ext)), fn, bsz, (window,))
             out = {k: np.asarray(v) for k, v in out.items()}
             out.update(ot)
             buf = io.BytesIO()

@@ -260,3 +260,62 @@ def plot_cdf(payload: dict):
             ax.legend(fontsize=6.5, loc="upper left", bbox_to_anchor=(0.0, -0.14), frameon=False)
         axes[0].set_ylabel("CDF")
     return fig
+
+
+def plot_plateau(payload: dict):
+    """Chapter 3: one BS term of eq. (8) against the candidate ToA offset c (τ − τ₀) for a TDL-D (LoS) and a TDL-C
+    (NLoS) link and several windows L (``studies.plateau_payload``), with the link's sampled CIR power as grey
+    stems.  A window of L taps sums the CIR power over [τ, τ + (L − 1) T_s], so where one tap holds the energy the
+    cost is flat for (L − 1) T_s before the first path and falls off a cliff after it."""
+    d, c = payload["data"], payload["config"]
+    x = np.asarray(d["offset_m"])
+    titles = {"TDL-D": "TDL-D (LoS, K = {:g} dB)".format(c["k_factor_db"]), "TDL-C": "TDL-C (NLoS)"}
+    with style():
+        fig = Figure(figsize=(9.0, 4.0), layout="constrained")
+        axes = fig.subplots(1, 2, sharey=True)
+        for ax, name in zip(axes, ("TDL-D", "TDL-C")):
+            p = d[name]
+            keep = np.asarray(p["cir_offset_m"]) <= x.max()
+            ax.vlines(np.asarray(p["cir_offset_m"])[keep], 0, np.asarray(p["cir_power"])[keep], color="0.6", lw=2.5,
+                      label="sampled CIR power |h[n]|²")
+            for n, col in zip(c["taps"], COLORS):
+                plateau = (n - 1) * c["sample_m"]
+                lab = f"L = {n}" + (f" (plateau {plateau:.1f} m)" if n > 1 else "")
+                ax.plot(x, d[name]["cost"][str(n)], color=col, lw=1.4, label=lab)
+            ax.axvline(0.0, color="k", lw=0.8, ls=":")
+            ax.set_xlim(x.min(), x.max())
+            ax.set_ylim(0, 1.05)
+            ax.set_xlabel("candidate ToA offset c(τ − τ₀) (m)")
+            ax.set_title(titles[name], fontsize=9)
+            ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2, frameon=False)
+        axes[0].set_ylabel("cost of one link / its maximum")
+    return fig
+
+
+def plot_window_study(rows: list[dict]):
+    """Chapter 5: RMSE (left) and 90 % error (right) of the honest receiver against the receiver window L, one line
+    per (set-up, M) of ``studies.urban_window_table``."""
+    cols = sorted({(r["setup"], r["m"]) for r in rows})
+    with style():
+        fig = Figure(figsize=(9.0, 3.8), layout="constrained")
+        axes = fig.subplots(1, 2)
+        for (setup, m), col, marker in zip(cols, COLORS, "osd^v<>"):
+            sel = sorted((r for r in rows if (r["setup"], r["m"]) == (setup, m)), key=lambda r: r["n_taps"])
+            taps = [r["n_taps"] for r in sel]
+            for ax, key in zip(axes, ("rmse_m", "p90_m")):
+                ax.plot(taps, [r[key] for r in sel], marker=marker, color=col, label=f"{setup}, M = {m}")
+        for ax, lab in zip(axes, ("RMSE (m)", "90 % error (m)")):
+            ax.set_xscale("log", base=2)
+            ax.set_yscale("log")
+            ax.set_xticks(sorted({r["n_taps"] for r in rows}))
+            ax.set_xticklabels([str(n) for n in sorted({r["n_taps"] for r in rows})])
+            from matplotlib.ticker import FormatStrFormatter, LogLocator
+
+            ax.yaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+            ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))
+            ax.yaxis.set_minor_formatter(FormatStrFormatter(""))
+            ax.grid(True, which="both", alpha=0.3)
+            ax.set_xlabel("receiver window L (taps)")
+            ax.set_ylabel(lab)
+        axes[1].legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False)
+    return fig

@@ -94,3 +94,102 @@ def coarse_prior(sc: RingScenario, y, prs, cfg: dpe.SearchConfig) -> np.ndarray:
     center0 = np.tile([0.0, 0.0, sc.ue_height_m, 0.0], (t, 1))
     est = run_estimates(sc, y, prs, center0, coarse)
     return np.concatenate([est.xyz, est.clock_bias_s[:, None]], axis=-1)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The plateau of eq. (8) for one link, and the receiver window L re-selected on the urban scenario.
+
+PLATEAU_TAPS = (1, 4, 12)
+PLATEAU_UPSAMPLE = 8
+PLATEAU_CIR_SAMPLES = 40
+
+
+def plateau_payload(seed: int = 5, delay_spread_s: float = 65e-9, k_factor_db: float = 13.3,
+                    span_m: tuple[float, float] = (-40.0, 15.0)) -> dict:
+    """One BS term of eq. (8), ‖S_m(τ)^H y_m‖², against the candidate ToA for a TDL-D (LoS) and a TDL-C (NLoS)
+    link, noise-free, for the windows L of ``PLATEAU_TAPS``.
+
+    Each link is one draw of its profile's tap gains (key ``fold_in(PRNGKey(seed), i)``, i = 0 TDL-D, 1 TDL-C) at
+    the given RMS delay spread; its first path arrives at τ₀ = 0.  Returns a payload: offset_m (K,) the candidate
+    c (τ − τ₀) in metres over ``span_m``; per profile and L the cost normalised to its maximum over the whole
+    correlogram, and the realised CIR power |h[n]|² on the first ``PLATEAU_CIR_SAMPLES`` samples (normalised).
+    """
+    num = nr.PAPER
+    prs = nr.prs_matrix([1])
+    ts = num.sample_period_s
+    j = np.arange(num.n_fft * PLATEAU_UPSAMPLE)
+    off = np.where(j < j.size // 2, j, j - j.size) * ts / PLATEAU_UPSAMPLE * C  # periodic: negative offsets wrap
+    keep = (off >= span_m[0]) & (off <= span_m[1])
+    order = np.argsort(off[keep])
+    data = {"offset_m": off[keep][order]}
+    for i, (name, k_db) in enumerate((("D", k_factor_db), ("C", None))):
+        prof = channel.tdl_profile(name, delay_spread_s, k_db)
+        g = channel.draw_gains(prof, jax.random.fold_in(jax.random.PRNGKey(seed), i))[None]
+        y = signal.received_noiseless(prs, g, prof.delays_s[None], np.zeros(1))
+        cir = np.abs(np.asarray(channel.sampled_cir(g[0], prof.delays_s))[:PLATEAU_CIR_SAMPLES]) ** 2
+        cost = {}
+        for n in PLATEAU_TAPS:
+            c = np.asarray(dpe.correlogram(y, prs, n, PLATEAU_UPSAMPLE))[0]
+            cost[str(n)] = c[keep][order] / c.max()
+        data[f"TDL-{name}"] = {"cost": cost, "cir_offset_m": np.arange(cir.size) * ts * C,
+                               "cir_power": cir / cir.max()}
+    return {"config": {"seed": seed, "delay_spread_s": delay_spread_s, "k_factor_db": k_factor_db,
+                       "taps": PLATEAU_TAPS, "upsample": PLATEAU_UPSAMPLE, "sample_m": ts * C}, "data": data}
+
+
+#: windows compared on the urban scenario, and the set-ups they are compared on (Fig. 9's at one SNR, Fig. 10's
+#: two LoS cases).  The seeds differ from the figures' (9 and 10), so L is not chosen on the trials it is scored on.
+URBAN_WINDOW_TAPS = (1, 2, 4, 8, 12, 16, 24)
+URBAN_WINDOW_SETUPS = ("fig9_20db", "fig10_eq9", "fig10_two_of_four")
+URBAN_WINDOW_SEEDS = {"fig9_20db": 31, "fig10_eq9": 32, "fig10_two_of_four": 33}
+#: trials per (set-up, L): enough to rank windows whose RMSEs differ by more than ~10 % (the Monte Carlo standard
+#: error of an RMSE over n trials is about RMSE / √(2n) for a light tail; the urban tail is heavier)
+URBAN_WINDOW_TRIALS = 200
+
+
+def urban_window_experiments(search: dpe.SearchConfig, taps=URBAN_WINDOW_TAPS, n_trials: int = 200,
+                             prior_sigma_m: float = 5.0) -> dict:
+    """The receiver-window study on the urban scenario with an honest receiver: window centred on truth + a
+    Gaussian prior error (σ = ``prior_sigma_m`` per axis), the bias window from the clock model, ``search`` (the
+    honest search of the figures) with each L of ``taps``.  Set-ups: Fig. 9's (every link at 20 dB per sample,
+    M = 6 and 24, LoS from eq. (9)) and Fig. 10's (M = 4, SNR per link from the path loss, LoS from eq. (9) or two
+    of four).  Returns {(setup, L): Experiment}."""
+    from . import montecarlo
+
+    base = dict(n_trials=n_trials, centring="prior", prior_kind="gaussian", prior_scale_m=prior_sigma_m)
+    setups = {"fig9_20db": dict(snr_mode="fixed", snrs_db=(20.0,), m_values=(6, 24), los_mode="eq9"),
+              "fig10_eq9": dict(snr_mode="link_budget", snrs_db=(), m_values=(4,), los_mode="eq9"),
+              "fig10_two_of_four": dict(snr_mode="link_budget", snrs_db=(), m_values=(4,), los_mode="two_of_four")}
+    return {(name, int(n)): montecarlo.Experiment(name=f"window-{name.replace('_', '-')}-L{int(n)}",
+                                                  seed=URBAN_WINDOW_SEEDS[name],
+                                                  search=replace(search, n_taps=int(n)), **base, **kw)
+            for name, kw in setups.items() for n in taps}
+
+
+def urban_window_table(experiments: dict, progress: bool = False) -> list[dict]:
+    """Run (or load) ``urban_window_experiments`` and score every (set-up, M, L): RMSE, median, 90 % error, edge
+    and certified shares, and the median certified gap (how far, relative, the window's maximum can lie above the
+    fix's cost).  Adds ``rmse_rel``: the RMSE over the smallest RMSE of the same (set-up, M) column."""
+    from . import montecarlo
+
+    rows = []
+    for (name, n), e in experiments.items():
+        res = montecarlo.run(e, progress=progress)
+        for j, m in enumerate(e.m_values):
+            err = res.error_m[:, 0, j]
+            rows.append({"setup": name, "m": m, "n_taps": n, "n_trials": e.n_trials, **summary(err),
+                         "edge_share": float(np.mean(res.edge[:, 0, j])),
+                         "certified_share": float(np.mean(res.certified[:, 0, j])),
+                         "gap_median": float(np.median(res.gap[:, 0, j]))})
+    for r in rows:
+        best = min(o["rmse_m"] for o in rows if (o["setup"], o["m"]) == (r["setup"], r["m"]))
+        r["rmse_rel"] = r["rmse_m"] / best
+    return rows
+
+
+def choose_window(rows: list[dict]) -> int:
+    """The rule fixed before the study ran: the L with the smallest mean of ``rmse_rel`` over all (set-up, M)
+    columns, i.e. the window that is closest to the best in every set-up at once."""
+    taps = sorted({r["n_taps"] for r in rows})
+    score = {n: np.mean([r["rmse_rel"] for r in rows if r["n_taps"] == n]) for n in taps}
+    return min(taps, key=lambda n: score[n])
