@@ -22,10 +22,11 @@ $(STAMP): environment.txt pyproject.toml
 	$(BIN)/python -m pip install --quiet -r environment.txt
 	touch $@
 
-# Regenerate the committed figure baselines (PNG + data JSON) of every registered figure.  Deliberately not a
+# Regenerate the committed figure baselines (PNG + data JSON) of every registered figure, then README's tables.  Deliberately not a
 # dependency of `book` or `test`: the figure-diff in `make test` compares fresh output against what is committed.
 figures: $(STAMP)
 	$(BIN)/python -m dpe5g figures --out figures
+	$(BIN)/python scripts/readme_tables.py
 
 # Build the HTML book; chapters are re-executed only when they or the package changed (jupyter-cache),
 # and warnings are errors.

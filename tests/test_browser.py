@@ -90,6 +90,14 @@ def test_page_renders_offline(server, browser, page_path):
     broken = page.evaluate(
         "Array.from(document.images).filter(i => !(i.complete && i.naturalWidth > 0)).map(i => i.src)")
     assert not broken, f"{page_path}: images not loaded: {broken}"
+    # computed tables (Markdown outputs) render as tables, never as raw pipe text
+    prose = page.evaluate("""() => {
+        const root = document.querySelector('main') || document.body, out = [];
+        const w = document.createTreeWalker(root, NodeFilter.SHOW_TEXT);
+        for (let n = w.nextNode(); n; n = w.nextNode())
+            if (!n.parentElement.closest('pre, code, .highlight, script, style')) out.push(n.textContent);
+        return out.join(''); }""")  # rendered text outside code blocks
+    assert "|---" not in prose and "---|" not in prose, f"{page_path}: a table left as raw pipe text"
     outside = [u for u in requests if not u.startswith(server) and not u.startswith("data:")]
     assert not outside, f"{page_path}: requests left localhost: {outside[:5]}"
     assert not failed, f"{page_path}: failed requests: {failed[:5]}"
@@ -103,6 +111,20 @@ def test_chapters_have_figures_and_math(server, browser):
     page.evaluate("() => MathJax.startup.promise")
     assert page.evaluate("document.querySelectorAll('mjx-container').length") >= 2
     assert page.evaluate("Array.from(document.images).filter(i => i.naturalWidth > 0).length") >= 5
+    page.close()
+
+
+#: pages whose computed tables a reader must see as HTML tables, and how many at least
+TABLES = {"chapters/01_tdl_channel.html": 1, "chapters/03_dpe.html": 2, "chapters/05_rmse_vs_snr.html": 5,
+          "chapters/06_otdoa.html": 2, "chapters/07_reproduction.html": 2}
+
+
+@pytest.mark.parametrize("page_path", list(TABLES))
+def test_computed_tables_render_as_tables(server, browser, page_path):
+    page = browser.new_page()
+    page.goto(f"{server}/{page_path}", wait_until="load")
+    n = page.evaluate("document.querySelectorAll('main table, article table').length")
+    assert n >= TABLES[page_path], f"{page_path}: {n} HTML tables, expected at least {TABLES[page_path]}"
     page.close()
 
 
