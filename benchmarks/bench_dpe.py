@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from dpe5g import dpe, nr, signal
+from dpe5g import correlogram, dpe, nr, signal
 from dpe5g.nr import PAPER
 
 
@@ -55,7 +55,7 @@ def main(argv=None):
     t_fast = median_time(lambda: dpe.ml_cost(y, prs, tau, n_taps, PAPER.scs_hz), 20)
     # the same number on the correlogram grid (exact there): U FFTs per BS give N * U candidate ToAs at once
     cfg = dpe.SearchConfig()
-    t_corr = median_time(lambda: dpe.correlogram(y, prs, n_taps, cfg.upsample), 20)
+    t_corr = median_time(lambda: correlogram.correlogram(y, prs, n_taps, cfg.upsample), 20)
 
     # 2. one DPE fix, M = 24, TDL-free unit channel at 20 dB (the search cost does not depend on the channel)
     m = 24
@@ -69,13 +69,13 @@ def main(argv=None):
     t_fix = median_time(lambda: dpe.estimate(y24, prs24, bs, center, cfg).cost, 20)
     cfg_pol = dataclasses.replace(cfg, polish=True)
     t_fix_pol = median_time(lambda: dpe.estimate(y24, prs24, bs, center, cfg_pol).cost, 20)
-    t_c24 = median_time(lambda: dpe.correlogram(y24, prs24, n_taps, cfg.upsample), 20)
+    t_c24 = median_time(lambda: correlogram.correlogram(y24, prs24, n_taps, cfg.upsample), 20)
     # the honest fix: certified branch and bound over ±30 m x ±30 m and the clock model's c·δt window (±4.5 m),
     # centred 3 m off the UE and on c·δt = 0, spline correlograms included
     honest = dpe.SearchConfig(method="bnb", half_width_m=30.0, bias_half_width_m=3 * 5e-9 * nr.C)
     off_center = np.array([3.0, -2.0, 2.0, 0.0])
     t_honest = median_time(lambda: dpe.estimate(y24, prs24, bs, off_center, honest).cost, 20)
-    t_spline = median_time(lambda: dpe.spline_correlogram(y24, prs24, n_taps, honest.spline_upsample), 20)
+    t_spline = median_time(lambda: correlogram.spline_correlogram(y24, prs24, n_taps, honest.spline_upsample), 20)
 
     # 3. the floor: one 4096-point complex FFT
     x = jnp.asarray(y24[0])

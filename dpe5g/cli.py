@@ -39,9 +39,9 @@ def _profile(args) -> int:
 def _deployment(args) -> int:
     import numpy as np
 
-    from . import scenario
+    from . import deployment
 
-    dep = scenario.tst() if args.path == "tst" else scenario.load_deployment(args.path)
+    dep = deployment.tst() if args.path == "tst" else deployment.load_deployment(args.path)
     x0, y0, x1, y1 = dep.region
     d = np.linalg.norm(dep.bs_xyz[:, None, :2] - dep.bs_xyz[None, :, :2], axis=-1) + np.eye(dep.n_bs) * 1e9
     print(f"{dep.name}: {dep.n_bs} BSs, region {x1 - x0:.1f} m x {y1 - y0:.1f} m = {dep.area_m2:,.0f} m2, "

@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _checks
+from . import _checks, correlogram, signal
 from .nr import C, PAPER, Numerology
 
 #: Default receiver window L (taps).  First chosen in Chapter 3 on 8 NLoS (TDL-C) links on a 150 m ring with the grid
@@ -38,15 +38,6 @@ DEFAULT_TAPS = 12
 SEARCH_METHODS = ("grid", "bnb")
 
 
-def _check_inputs(y, prs, n_taps):
-    y = np.asarray(y)
-    prs = np.asarray(prs)
-    if y.ndim != 2 or prs.shape != y.shape:
-        raise ValueError(f"y and prs must both be complex (M, N) arrays of equal shape, got {y.shape} and {prs.shape}")
-    _checks.integer("n_taps", n_taps, 1, y.shape[1])
-    return y, prs
-
-
 def ml_cost_literal(y, prs, tau, n_taps: int, scs_hz: float) -> np.ndarray:
     """Eq. (8) evaluated literally: Σ_m ‖S_m(τ_m)^H y_m‖² with S_m = F D_m Γ_m(τ_m) F_L built as matrices.
 
@@ -55,7 +46,7 @@ def ml_cost_literal(y, prs, tau, n_taps: int, scs_hz: float) -> np.ndarray:
     F is a dense N × N matrix; D_m and Γ_m are diagonal and applied as row scalings (the same product).
     NumPy, O(N² L) per candidate: for checking ``ml_cost`` on small N.
     """
-    y, prs = _check_inputs(y, prs, n_taps)
+    y, prs = correlogram.check_inputs(y, prs, n_taps)
     n_bs, n = y.shape
     tau = np.asarray(tau, dtype=np.float64)
     if tau.shape[-1:] != (n_bs,):
@@ -74,10 +65,9 @@ def ml_cost_literal(y, prs, tau, n_taps: int, scs_hz: float) -> np.ndarray:
     return out
 
 
-def _ml_cost_terms(y, prs, tau, n_taps, scs_hz):
-    """Per-BS terms of eq. (8): ‖S_m(τ_m)^H y_m‖², shape (..., M)."""
-    n = y.shape[-1]
-    g = jnp.conj(prs) * jnp.fft.fft(y, axis=-1, norm="ortho")  # D^H F^H y, (M, N)
+def _ml_cost_terms(g, tau, n_taps, scs_hz):
+    """Per-BS terms of eq. (8): ‖S_m(τ_m)^H y_m‖², shape (..., M); g = D^H F^H y (M, N), ``ls_spectrum``."""
+    n = g.shape[-1]
     k = jnp.arange(n)
     z = g * jnp.exp(2j * jnp.pi * scs_hz * tau[..., None] * k)  # Γ^H D^H F^H y, (..., M, N)
     h = jnp.fft.ifft(z, axis=-1)[..., :n_taps] * jnp.sqrt(n)  # F_L^H (...): windowed CIR estimate
@@ -85,8 +75,8 @@ def _ml_cost_terms(y, prs, tau, n_taps, scs_hz):
 
 
 @partial(jax.jit, static_argnames=("n_taps",))
-def _ml_cost(y, prs, tau, n_taps, scs_hz):
-    return jnp.sum(_ml_cost_terms(y, prs, tau, n_taps, scs_hz), axis=-1)
+def _ml_cost(g, tau, n_taps, scs_hz):
+    return jnp.sum(_ml_cost_terms(g, tau, n_taps, scs_hz), axis=-1)
 
 
 def ml_cost(y, prs, tau, n_taps: int, scs_hz: float) -> jax.Array:
@@ -97,43 +87,15 @@ def ml_cost(y, prs, tau, n_taps: int, scs_hz: float) -> jax.Array:
     Same arguments and values as ``ml_cost_literal`` (agreement ≤ 1e-9 relative is tested), one FFT per BS and
     candidate instead of N × N matrices.  Differentiable in ``tau`` (used by the autodiff polish).
     """
-    y, prs = _check_inputs(y, prs, n_taps)
+    y, prs = correlogram.check_inputs(y, prs, n_taps)
     tau = jnp.asarray(tau, dtype=jnp.float64)
     if tau.shape[-1:] != (y.shape[0],):
         raise ValueError(f"tau must have shape (..., M) with M = {y.shape[0]}, got {tau.shape}")
-    return _ml_cost(jnp.asarray(y), jnp.asarray(prs), tau, n_taps, float(scs_hz))
-
-
-def correlogram(y, prs, n_taps: int, upsample: int) -> jax.Array:
-    """Per-BS correlograms: the windowed energy of eq. (8) for every candidate ToA on a grid of T_s/upsample.
-
-    Returns real (M, N·upsample); entry j of row m is the BS-m term of ``ml_cost`` at τ = j T_s / upsample,
-    exactly (one FFT per fractional offset, U per BS, instead of one per candidate).  The cost is periodic in τ
-    with period N T_s = 1/Δf, so the grid covers every τ modulo that period.
-    """
-    y, prs = _check_inputs(y, prs, n_taps)
-    _checks.integer("upsample", upsample, 1, 256)
-    return _correlogram(jnp.asarray(y), jnp.asarray(prs), n_taps, upsample)
-
-
-@partial(jax.jit, static_argnames=("n_taps", "upsample"))
-def _correlogram(y, prs, n_taps, upsample):
-    m, n = y.shape
-    g = jnp.conj(prs) * jnp.fft.fft(y, axis=-1, norm="ortho")
-    k = np.arange(n)
-    shifts = np.exp(2j * np.pi * np.outer(np.arange(upsample) / upsample, k) / n)  # (U, N), a compile-time constant
-    h = jnp.fft.ifft(g[:, None, :] * shifts[None], axis=-1)  # (M, U, N): ĥ(n + u/U) / √N
-    e = (h.real**2 + h.imag**2) * n
-    if n_taps == 1:
-        w = e
-    else:  # circular window sum over l = 0 … L-1 as a product of spectra (real FFTs of length N)
-        box = np.fft.rfft(((k == 0) | (k > n - n_taps)).astype(np.float64))  # e[j] + e[j+1] + … + e[j+L-1]
-        w = jnp.fft.irfft(jnp.fft.rfft(e, axis=-1) * box, n=n, axis=-1)
-    return jnp.transpose(w, (0, 2, 1)).reshape(m, n * upsample)
+    return _ml_cost(correlogram.ls_spectrum(signal.demodulate(y), jnp.asarray(prs)), tau, n_taps, float(scs_hz))
 
 
 def correlogram_lookup(corr, tau, sample_period_s: float, upsample: int) -> jax.Array:
-    """Σ_m corr_m(τ_m) from ``correlogram`` output, cubic (Catmull–Rom) interpolation on its T_s/U grid.
+    """Σ_m corr_m(τ_m) from ``correlogram.correlogram`` output, cubic (Catmull–Rom) interpolation on its T_s/U grid.
 
     corr : (M, N·U); tau : (..., M) seconds.  Returns (...).  Exact at grid points; between them, on the paper's
     numerology, the error is ≤ 0.2 % of the peak at U = 4 and ≤ 0.02 % at U = 8 (linear interpolation needs U = 16
@@ -252,7 +214,7 @@ def _tau_of(q, bs_xyz):
     return toa(q[..., :3], bs_xyz, q[..., 3] / C)
 
 
-def _newton_step(y, prs, bs_xyz, q, mask, n_taps, scs_hz, max_step_m):
+def _newton_step(g, bs_xyz, q, mask, n_taps, scs_hz, max_step_m):
     """One Newton step on the exact eq. (8) in q = (x, y, z, c δt), derivatives by JAX autodiff.
 
     The cost is separable, C(q) = Σ_m c_m(τ_m(q)), so one nested forward-mode pass over the M ToAs gives every
@@ -263,7 +225,7 @@ def _newton_step(y, prs, bs_xyz, q, mask, n_taps, scs_hz, max_step_m):
     """
 
     def terms(t):
-        return _ml_cost_terms(y, prs, t, n_taps, scs_hz)
+        return _ml_cost_terms(g, t, n_taps, scs_hz)
 
     tau = _tau_of(q, bs_xyz)
     ones = jnp.ones_like(tau)
@@ -281,11 +243,12 @@ def _newton_step(y, prs, bs_xyz, q, mask, n_taps, scs_hz, max_step_m):
     return jnp.where(better, step, 0.0)
 
 
-def search(corr, y, prs, bs_xyz, center, cfg: SearchConfig, n_fft: int, scs_hz: float, with_cost: bool = True):
+def search(corr, g, bs_xyz, center, cfg: SearchConfig, n_fft: int, scs_hz: float, with_cost: bool = True):
     """The divide-and-conquer search on precomputed correlograms (traceable; used inside jit by ``estimate`` and
     by ``dpe5g.montecarlo``, which reuses one set of correlograms for several M).
 
-    corr : (M, N·U) from ``correlogram``; y, prs : (M, N) (read only by the polish); bs_xyz : (M, 3) m;
+    corr : (M, N·U) from ``correlogram.energy_grid``; g : (M, N) the LS spectrum (``correlogram.ls_spectrum``,
+    read only by the polish and for the cost); bs_xyz : (M, 3) m;
     center : (4,) = [x, y, z, δt].  Returns q (4,) = (x, y, z, c δt) in metres and the exact cost there (or only q
     when ``with_cost`` is False).
     """
@@ -304,67 +267,17 @@ def search(corr, y, prs, bs_xyz, center, cfg: SearchConfig, n_fft: int, scs_hz: 
     if cfg.polish:
         mask = jnp.array([1.0, 1.0, float(search_z), float(search_b)])
         for _ in range(cfg.polish_iters):
-            q = q + _newton_step(y, prs, bs_xyz, q, mask, cfg.n_taps, scs_hz, 2 * steps[-1])
+            q = q + _newton_step(g, bs_xyz, q, mask, cfg.n_taps, scs_hz, 2 * steps[-1])
     if not with_cost:
         return q
-    return q, _ml_cost(y, prs, _tau_of(q, bs_xyz), cfg.n_taps, scs_hz)
+    return q, _ml_cost(g, _tau_of(q, bs_xyz), cfg.n_taps, scs_hz)
 
 
 # ---- the certified search ------------------------------------------------------------------------------------------
 
-def spline_correlogram(y, prs, n_taps: int, upsample: int = 8) -> jax.Array:
-    """Cubic B-spline coefficients of the per-BS terms of eq. (8) on knots T_s/upsample apart.
-
-    The windowed energy c_m(τ) = ‖S_m(τ)^H y_m‖² is a real trigonometric polynomial in τ with harmonics of Δf up to
-    N − 1 (it is |Σ_k g_k e^{j2πkΔfτ}|² summed over L shifts), so its 2N samples at T_s/2 determine it exactly.  This
-    function takes those samples (two FFTs per BS), their real FFT, multiplies by the L-tap window and by the
-    inverse of the cubic B-spline's sampled kernel (the interpolation prefilter), and returns, by one zero-padded real
-    inverse FFT, coefficients c_j such that Σ_j c_j β³(τ/(T_s/U) − j) equals c_m(τ) at every knot exactly.
-    Between knots the spline differs from eq. (8) by ≤ 2e-5 of the peak at U = 8 (Chapter 3 measures it).
-
-    y, prs : complex (M, N); n_taps : L; upsample : U, even.  Returns real (M, N·U).
-    """
-    y, prs = _check_inputs(y, prs, n_taps)
-    _checks.integer("upsample", upsample, 2, 64)
-    if upsample % 2:
-        raise ValueError(f"upsample must be an even integer in [2, 64], got {upsample!r}")
-    return _spline_correlogram(jnp.asarray(y), jnp.asarray(prs), n_taps, upsample)
-
-
-def window_spectrum(n_taps: int, n_fft: int) -> np.ndarray:
-    """The L-tap window sum e(τ) + e(τ + T_s) + … + e(τ + (L−1)T_s) as a multiplier on the real FFT of the 2N
-    half-sample energies (harmonics q = 0 … N of Δf): Σ_{l<L} e^{j2πql/N}, with the Nyquist bin q = N set to 0.
-    Returns complex (N + 1,).  ``receiver_correlogram`` takes it as an input, so one compiled Monte Carlo serves
-    every L."""
-    _checks.integer("n_taps", n_taps, 1, n_fft)
-    q = np.arange(n_fft + 1)
-    window = np.exp(2j * np.pi * np.outer(q, np.arange(n_taps)) / n_fft).sum(axis=1)
-    window[n_fft] = 0.0  # no harmonic N: the Nyquist bin of the 2N samples is zero
-    return window
-
-
-@partial(jax.jit, static_argnames=("n_taps", "upsample"))
-def _spline_correlogram(y, prs, n_taps, upsample):
-    return _spline_from_window(y, prs, window_spectrum(n_taps, y.shape[1]), upsample)
-
-
-def _spline_from_window(y, prs, window, upsample):
-    """``_spline_correlogram`` with the window given as its spectrum (``window_spectrum``; traceable)."""
-    m, n = y.shape
-    g = jnp.conj(prs) * jnp.fft.fft(y, axis=-1, norm="ortho")
-    k = np.arange(n)
-    h0 = jnp.fft.ifft(g, axis=-1)
-    h1 = jnp.fft.ifft(g * np.exp(1j * np.pi * k / n), axis=-1)  # ĥ half a sample later
-    e2 = jnp.stack([h0.real**2 + h0.imag**2, h1.real**2 + h1.imag**2], axis=-1).reshape(m, 2 * n) * n
-    q = np.arange(n + 1)
-    prefilter = 6.0 / (4.0 + 2.0 * np.cos(2 * np.pi * q / (n * upsample)))  # 1 / DFT of (1/6, 4/6, 1/6)
-    spec = jnp.fft.rfft(e2, axis=-1) * (window * prefilter)
-    pad = jnp.zeros((m, n * upsample // 2 + 1), dtype=spec.dtype).at[:, : n + 1].set(spec)
-    return jnp.fft.irfft(pad, n=n * upsample, axis=-1) * (upsample / 2)
-
-
 def spline_values(coef, pos) -> jax.Array:
-    """Σ_m s_m(pos_m): the spline of ``spline_correlogram`` at positions pos (..., M) in knot units (periodic)."""
+    """Σ_m s_m(pos_m): the spline of ``correlogram.spline_coefficients`` at positions pos (..., M) in knot
+    units (periodic)."""
     m, j = coef.shape
     f = jnp.floor(pos)
     i0 = f.astype(jnp.int64)
@@ -425,7 +338,8 @@ def slice_cells(cfg: SearchConfig, num: Numerology = PAPER) -> int:
 
 
 def certified_search(coef, bs_xyz, center, cfg: SearchConfig, num: Numerology = PAPER) -> dict:
-    """Global maximum of eq. (8) (its spline form, ``spline_correlogram``) over the window by branch and bound.
+    """Global maximum of eq. (8) (its spline form, ``correlogram.spline_coefficients``) over the window by branch and
+    bound.
 
     The window is centre ± ``half_width_m`` in x and y and centre ± ``bias_half_width_m`` in c δt, at the centre's
     height.  The cost is separable, C(p) = Σ_m s_m(u_m(p)) with u_m = (‖p − b_m‖ + c δt) / (c T_s / U) the ToA in
@@ -446,7 +360,8 @@ def certified_search(coef, bs_xyz, center, cfg: SearchConfig, num: Numerology = 
     found; ``gap`` = (largest upper bound left − cost) / cost bounds how far the true maximum of the spline cost in
     the window can lie above it.
 
-    coef : (M, N·U) from ``spline_correlogram``; bs_xyz : (M, 3) m; center : (4,) = [x, y, z, c δt] in METRES.
+    coef : (M, N·U) from ``correlogram.spline_coefficients``; bs_xyz : (M, 3) m; center : (4,) = [x, y, z, c δt] in
+    METRES.
     Returns a dict: q (4,) = (x, y, z, c δt) m, cost (spline), gap (relative), certified (gap ≤ gap_tol, no
     box dropped), edge (the fix lies within one final box of the window's boundary in x, y or c δt).
     Traceable (jit, vmap); shapes are static given ``cfg``.
@@ -518,12 +433,14 @@ def certified_search(coef, bs_xyz, center, cfg: SearchConfig, num: Numerology = 
     ub, lb = evaluate(cx, cy, cb, hx, hb)
     i = jnp.argmax(lb)
     best, bq = lb[i], jnp.stack([cx[i], cy[i], cb[i]])
-    dropped = -jnp.inf
     sx = np.array([-1.0, 1, -1, 1, -1, 1, -1, 1])
     sy = np.array([-1.0, -1, 1, 1, -1, -1, 1, 1])
     sb = np.array([-1.0, -1, -1, -1, 1, 1, 1, 1])
-    k_keep = min(cfg.capacity, int(ub.shape[0]))
-    while 2 * hx > cfg.box_final_m + 1e-12:
+
+    def refine(state, hx, hb, k_keep):
+        """One level: keep the k_keep boxes of highest bound above the best cost, halve them into 8 children (new
+        half sizes hx, hb), bound and evaluate the children."""
+        cx, cy, cb, ub, best, bq, dropped = state
         alive = jnp.where(ub > best, ub, -jnp.inf)
         if int(alive.shape[0]) > k_keep:
             vals, ix = jax.lax.top_k(alive, k_keep + 1)
@@ -531,7 +448,6 @@ def certified_search(coef, bs_xyz, center, cfg: SearchConfig, num: Numerology = 
             vals, ix = vals[:k_keep], ix[:k_keep]
         else:
             vals, ix = alive, jnp.arange(alive.shape[0])
-        hx, hb = hx / 2, hb / 2
         cx = (cx[ix][:, None] + sx * hx).ravel()
         cy = (cy[ix][:, None] + sy * hx).ravel()
         cb = (cb[ix][:, None] + sb * hb).ravel()
@@ -539,10 +455,24 @@ def certified_search(coef, bs_xyz, center, cfg: SearchConfig, num: Numerology = 
         live = jnp.repeat(vals > -jnp.inf, 8)
         ub, lb = jnp.where(live, ub, -jnp.inf), jnp.where(live, lb, -jnp.inf)
         i = jnp.argmax(lb)
-        better = lb[i] > best
-        bq = jnp.where(better, jnp.stack([cx[i], cy[i], cb[i]]), bq)
-        best = jnp.maximum(best, lb[i])
-        k_keep = cfg.capacity
+        bq = jnp.where(lb[i] > best, jnp.stack([cx[i], cy[i], cb[i]]), bq)
+        return cx, cy, cb, ub, jnp.maximum(best, lb[i]), bq, dropped
+
+    halves = []  # the half sizes of every level's children
+    while 2 * hx > cfg.box_final_m + 1e-12:
+        hx, hb = hx / 2, hb / 2
+        halves.append((hx, hb))
+    state = (cx, cy, cb, ub, best, bq, jnp.asarray(-jnp.inf))
+    k_keep, level = min(cfg.capacity, int(ub.shape[0])), 0
+    # levels whose shapes still change are unrolled; once the level holds capacity × 8 boxes the rest have the same
+    # shapes and run as one scan (the same arithmetic, compiled once instead of once per level)
+    while level < len(halves) and not (k_keep == cfg.capacity and state[0].shape[0] == 8 * cfg.capacity):
+        state = refine(state, *halves[level], k_keep)
+        k_keep, level = cfg.capacity, level + 1
+    if level < len(halves):
+        rest = jnp.asarray(halves[level:])
+        state, _ = jax.lax.scan(lambda st, h: (refine(st, h[0], h[1], cfg.capacity), None), state, rest)
+    cx, cy, cb, ub, best, bq, dropped = state
     top = jnp.maximum(jnp.max(ub), dropped)
     gap = jnp.maximum(top - best, 0.0) / best
     off = bq - jnp.stack([center[0], center[1], center[3]])
@@ -563,36 +493,37 @@ def grid_edge(q, center_m, cfg: SearchConfig):
     return edge
 
 
-def fix(y, prs, bs_xyz, center_m, cfg: SearchConfig, num: Numerology = PAPER, corr=None) -> dict:
-    """One DPE fix with either search (traceable): y, prs (M, N); bs_xyz (M, 3) m; center_m (4,) = [x, y, z, c δt]
-    in metres.  corr : precomputed ``_correlogram`` (grid) or ``_spline_correlogram`` (bnb) of y, or None.
+def fix(g, bs_xyz, center_m, cfg: SearchConfig, num: Numerology = PAPER, corr=None) -> dict:
+    """One DPE fix with either search (traceable): g (M, N) the LS spectrum (``correlogram.ls_spectrum``);
+    bs_xyz (M, 3) m; center_m (4,) = [x, y, z, c δt] in metres.  corr : ``receiver_correlogram`` of g (or of more
+    BSs, of which the first M rows are read), or None to compute it.
     Returns a dict: q (4,) m, gap (relative; NaN for the grid, which certifies nothing), certified, edge."""
+    corr = receiver_correlogram(g, cfg) if corr is None else corr
     if cfg.method == "bnb":
-        coef = _spline_correlogram(y, prs, cfg.n_taps, cfg.spline_upsample) if corr is None else corr
-        r = certified_search(coef, bs_xyz, center_m, cfg, num)
+        r = certified_search(corr, bs_xyz, center_m, cfg, num)
         return {"q": r["q"], "gap": r["gap"], "certified": r["certified"], "edge": r["edge"]}
-    corr = _correlogram(y, prs, cfg.n_taps, cfg.upsample) if corr is None else corr
     center = center_m.at[3].divide(C)
-    q = search(corr, y, prs, bs_xyz, center, cfg, num.n_fft, num.scs_hz, with_cost=False)
+    q = search(corr, g, bs_xyz, center, cfg, num.n_fft, num.scs_hz, with_cost=False)
     return {"q": q, "gap": jnp.asarray(jnp.nan), "certified": jnp.asarray(False), "edge": grid_edge(q, center_m, cfg)}
 
 
-def receiver_correlogram(y, prs, cfg: SearchConfig, window=None):
-    """The per-BS correlograms the chosen search reads (traceable): ``_correlogram`` values on T_s/upsample for
-    "grid", ``_spline_correlogram`` coefficients for "bnb".  Rows are per BS, so the M nearest of them serve any M.
-    window : for "bnb", ``window_spectrum(cfg.n_taps, N)`` passed as an array (then ``cfg.n_taps`` is not read, and
-    a compiled caller serves every L); None computes it from ``cfg.n_taps``."""
+def receiver_correlogram(g, cfg: SearchConfig, window=None):
+    """The per-BS correlograms the chosen search reads (traceable), from the LS spectrum g (M, N):
+    ``correlogram.energy_grid`` on T_s/upsample for "grid", ``correlogram.spline_coefficients`` for "bnb".  Rows are
+    per BS, so the M nearest of them serve any M.  window : for "bnb", ``correlogram.window_spectrum(cfg.n_taps, N)``
+    passed as an array (then ``cfg.n_taps`` is not read, and a compiled caller serves every L); None computes it."""
     if cfg.method == "bnb":
-        if window is not None:
-            return _spline_from_window(y, prs, window, cfg.spline_upsample)
-        return _spline_correlogram(y, prs, cfg.n_taps, cfg.spline_upsample)
-    return _correlogram(y, prs, cfg.n_taps, cfg.upsample)
+        if window is None:
+            window = jnp.asarray(correlogram.window_spectrum(cfg.n_taps, g.shape[-1]))
+        return correlogram.spline_coefficients(g, window, cfg.spline_upsample)
+    return correlogram.energy_grid(g, cfg.n_taps, cfg.upsample)
 
 
 @partial(jax.jit, static_argnames=("cfg", "num"))
 def _estimate_one(y, prs, bs_xyz, center, cfg: SearchConfig, num: Numerology):
-    r = fix(y, prs, bs_xyz, center.at[3].multiply(C), cfg, num)
-    cost = _ml_cost(y, prs, _tau_of(r["q"], bs_xyz), cfg.n_taps, num.scs_hz)
+    g = correlogram.ls_spectrum(signal.demodulate(y), prs)
+    r = fix(g, bs_xyz, center.at[3].multiply(C), cfg, num)
+    cost = _ml_cost(g, _tau_of(r["q"], bs_xyz), cfg.n_taps, num.scs_hz)
     return r["q"], cost, r["gap"], r["certified"], r["edge"]
 
 

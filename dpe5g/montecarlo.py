@@ -2,10 +2,12 @@
 
 One trial = one UE position uniform over the deployment's region at the UE height, the ``max(m_values)`` nearest
 BSs, a LoS/NLoS draw per link (eq. (9)), TDL-D (K = 13.3 dB) for LoS and TDL-C for NLoS links at 65 ns, a truncated
-Gaussian clock bias, then for every SNR independent noise and a DPE fix with each M in ``m_values`` (the M nearest of
-the same links, so the M curves share their channels).  Every draw of trial t comes from
-``fold_in(PRNGKey(seed), t)``; the noise of SNR index s from ``fold_in(noise_key, s)``.  Results therefore do not
-depend on the batch size, the chunk size or which chunks come from the cache.
+Gaussian clock bias and a unit noise spectrum, then for every SNR that noise scaled to the SNR's variance and a DPE
+fix with each M in ``m_values`` (the M nearest of the same links, so the M curves share their channels and the SNRs
+their noise draw: common random numbers).  The signal is simulated in the frequency domain, where both receivers
+start (``signal.received_spectrum``; no inverse and forward FFT per link).  Every draw of trial t comes from
+``fold_in(PRNGKey(seed), t)``.  Results therefore do not depend on the batch size, the chunk size or which chunks
+come from the cache.
 
 Results are cached per experiment in ``<cache>/<name>-<hash>/``, one ``.npz`` per chunk of trials, written atomically
 (temporary file + rename), so an interrupted run resumes where it stopped and ends with results identical to an
@@ -28,14 +30,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _checks, channel, dpe, nr, otdoa, scenario, signal
+from . import _checks, channel, correlogram, deployment, dpe, nr, otdoa, scenario, signal
 from ._io import atomic_write
 from .nr import C, PAPER
 
 #: default cache directory: ``.cache/montecarlo`` next to the package (the repository root for an editable install);
 #: the environment variable DPE5G_CACHE overrides it.
 DEFAULT_CACHE = Path(__file__).resolve().parent.parent / ".cache" / "montecarlo"
-_SOURCES = ("channel.py", "dpe.py", "montecarlo.py", "nr.py", "otdoa.py", "scenario.py", "signal.py")
+_SOURCES = ("channel.py", "correlogram.py", "deployment.py", "dpe.py", "montecarlo.py", "nr.py", "otdoa.py", "scenario.py",
+            "signal.py")
 
 LOS_MODES = ("eq9", "two_of_four")
 #: OTDoA ToA detector settings used by the engine (``dpe5g.otdoa.toa``'s defaults)
@@ -139,8 +142,8 @@ class Experiment:
     def n_snr(self) -> int:
         return max(len(self.snrs_db), 1)
 
-    def load_deployment(self) -> scenario.Deployment:
-        dep = scenario.tst() if self.deployment == "tst" else scenario.load_deployment(self.deployment)
+    def load_deployment(self) -> deployment.Deployment:
+        dep = deployment.tst() if self.deployment == "tst" else deployment.load_deployment(self.deployment)
         if max(self.m_values) > dep.n_bs:
             raise ValueError(f"m_values must not exceed the deployment's {dep.n_bs} base stations, "
                              f"got {self.m_values!r}")
@@ -245,30 +248,45 @@ class Results:
 
 
 def _profiles(e: Experiment):
-    nlos = channel.tdl_profile("C", e.delay_spread_s)
-    los = channel.tdl_profile("D", e.delay_spread_s, e.k_factor_db)
-    k = np.arange(PAPER.n_fft)
-    resp = [np.exp(-2j * np.pi * PAPER.scs_hz * p.delays_s[:, None] * k) for p in (nlos, los)]  # (L, N) each
-    return nlos, los, resp
+    """The NLoS (TDL-C) and LoS (TDL-D) profiles of the experiment."""
+    return channel.tdl_profile("C", e.delay_spread_s), channel.tdl_profile("D", e.delay_spread_s, e.k_factor_db)
 
 
-def _draw_fn(e: Experiment, dep: scenario.Deployment):
-    """Build the traceable t → (draws of trial t, noise-free received samples), shared by the engine and ``example``.
+def trial_key(seed: int, t) -> jax.Array:
+    """The key every draw of trial t comes from: fold_in(PRNGKey(seed), t)."""
+    return jax.random.fold_in(jax.random.PRNGKey(seed), t)
 
-    Returns a dict: ue (3,), bias (), idx (I,), bs (I, 3), los (I,), prs (I, N), y0 (I, N) noise-free samples,
-    link_snr (S, I) per-sample SNR of each link, k_noise (the key the noise of SNR index s is folded from).
+
+def _trial_keys(seed: int, start: int, stop: int) -> jax.Array:
+    return jax.vmap(lambda t: trial_key(seed, t))(jnp.arange(start, stop))
+
+
+def _draw_fn(e: Experiment, dep: deployment.Deployment):
+    """Build the traceable key → draws of the trial with that key (``trial_key``) and its noise-free received
+    spectrum, shared by the engine and ``example``.  The seed is not read (it enters through the key), so one
+    compiled engine serves every seed.
+
+    Each link's channel is TDL-D if LoS and TDL-C if not: its gains and delays (padded with zero-gain taps to the
+    longer profile) are returned, and its frequency response is ``channel.frequency_response`` of the profile it
+    belongs to.  The received spectrum is ``signal.received_spectrum`` (the one signal path; ``received_noiseless``
+    is its inverse DFT, which a test checks against the engine).
+
+    Returns a dict: ue (3,), bias (), idx (I,), bs (I, 3), los (I,), prs (I, N), gains (I, L), delays (I, L) s,
+    y0 (I, N) noise-free received spectrum, link_snr (S, I) per-sample SNR of each link, noise (I, N) the trial's
+    unit noise spectrum (``_noisy``).
     """
-    nlos, los_prof, (resp_c, resp_d) = _profiles(e)
+    nlos, los_prof = _profiles(e)
+    n_taps = max(nlos.n_taps, los_prof.n_taps)
+    pad = lambda a, n=n_taps: np.pad(np.asarray(a), (0, n - len(a)))
+    delays_c, delays_d = pad(nlos.delays_s), pad(los_prof.delays_s)
     prs_all = jnp.asarray(nr.prs_matrix(range(dep.n_bs)))  # PRS ID = deployment index
     bs_all = jnp.asarray(dep.bs_xyz)
     pw_all = jnp.asarray(dep.power_dbm)
     x0, y0, x1, y1 = dep.region
     m_max = max(e.m_values)
     snrs = jnp.asarray(e.snrs_db if e.snr_mode == "fixed" else (0.0,), dtype=jnp.float64)
-    k = np.arange(PAPER.n_fft)
 
-    def draw(t):
-        key = jax.random.fold_in(jax.random.PRNGKey(e.seed), t)
+    def draw(key):
         k_ue, k_los, k_c, k_d, k_b, k_sf, k_n = jax.random.split(key, 7)
         xy = jax.random.uniform(k_ue, (2,), minval=jnp.array([x0, y0]), maxval=jnp.array([x1, y1]))
         ue = jnp.concatenate([xy, jnp.array([dep.ue_height_m])])
@@ -281,11 +299,11 @@ def _draw_fn(e: Experiment, dep: scenario.Deployment):
             los = jax.random.permutation(k_los, jnp.array([True, True, False, False]))
         g_c = jax.vmap(lambda kk: channel.draw_gains(nlos, kk))(jax.random.split(k_c, m_max))
         g_d = jax.vmap(lambda kk: channel.draw_gains(los_prof, kk))(jax.random.split(k_d, m_max))
-        h = jnp.where(los[:, None], g_d @ resp_d, g_c @ resp_c)  # (I, N) channel frequency response, eq. (3)
+        h = jnp.where(los[:, None], channel.frequency_response(g_d, los_prof.delays_s),
+                      channel.frequency_response(g_c, nlos.delays_s))  # (I, N), eq. (3)
         bias = scenario.clock_bias(k_b, e.clock_sigma_s, e.clock_bound_sigmas)
-        tau = scenario.toa_s(ue, bs) + bias
         prs = prs_all[idx]
-        y_clean = signal.ofdm_symbol(prs * h * jnp.exp(-2j * jnp.pi * PAPER.scs_hz * tau[:, None] * k))
+        y_clean = signal.received_spectrum(prs, h, dpe.toa(ue, bs), bias)
         if e.snr_mode == "fixed":
             link_snr = jnp.broadcast_to(snrs[:, None], (snrs.size, m_max))
         else:
@@ -293,23 +311,30 @@ def _draw_fn(e: Experiment, dep: scenario.Deployment):
             sf = jax.random.normal(k_sf, (m_max,)) * jnp.where(los, scenario.SIGMA_SF_LOS_DB,
                                                                scenario.SIGMA_SF_NLOS_DB)
             link_snr = e.link.model_snr_db(e.link.snr_db(pw_all[idx], pl, sf))[None, :]
-        return {"ue": ue, "bias": bias, "idx": idx, "bs": bs, "los": los, "prs": prs, "y0": y_clean,
-                "link_snr": link_snr, "k_noise": k_n}
+        gains = jnp.where(los[:, None], jnp.pad(g_d, ((0, 0), (0, n_taps - g_d.shape[1]))),
+                          jnp.pad(g_c, ((0, 0), (0, n_taps - g_c.shape[1]))))
+        delays = jnp.where(los[:, None], delays_d, delays_c)
+        noise = signal.awgn(k_n, y_clean.shape, 1.0)  # CN(0, 1) per bin, scaled per SNR by ``_noisy``
+        return {"ue": ue, "bias": bias, "idx": idx, "bs": bs, "los": los, "prs": prs, "gains": gains,
+                "delays": delays, "y0": y_clean, "link_snr": link_snr, "noise": noise}
 
     return draw
 
 
 def _noisy(d, s):
-    """Received samples of SNR index s: the trial's noise-free samples plus AWGN keyed by fold_in(k_noise, s)."""
-    noise = signal.awgn(jax.random.fold_in(d["k_noise"], s), d["y0"].shape,
-                        signal.noise_variance(d["link_snr"][s], d["prs"]))
-    return d["y0"] + noise
+    """Received spectrum of SNR index s: the trial's noise-free spectrum plus σ_s times the trial's unit noise.
+
+    The noise is drawn in the frequency domain, CN(0, 1) per bin, once per trial (``_draw_fn``), and scaled to
+    each SNR's variance (``signal.noise_variance``): the DFT is unitary, so this is exactly time-domain AWGN of
+    that variance.  One draw serves every SNR (common random numbers): each SNR's noise has the right distribution,
+    and the SNRs of one trial differ only in the noise level, as its M values differ only in the links used."""
+    return d["y0"] + jnp.sqrt(signal.noise_variance(d["link_snr"][s], d["prs"]))[:, None] * d["noise"]
 
 
-def _prior_center(e: Experiment, d: dict, t) -> jax.Array:
+def _prior_center(e: Experiment, ue, key) -> jax.Array:
     """Centring "prior": truth + a horizontal error from the stated prior, keyed by fold_in(trial key, 1000) so the
     trial's other draws are unchanged; the height is the known UE height and c δt is 0.  Returns (4,) metres."""
-    key = jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(e.seed), t), 1000)
+    key = jax.random.fold_in(key, 1000)
     if e.prior_kind == "gaussian":
         err = e.prior_scale_m * jax.random.normal(key, (2,))
     else:
@@ -317,21 +342,27 @@ def _prior_center(e: Experiment, d: dict, t) -> jax.Array:
         r = e.prior_scale_m * jnp.sqrt(jax.random.uniform(k_r))
         a = 2 * jnp.pi * jax.random.uniform(k_a)
         err = r * jnp.stack([jnp.cos(a), jnp.sin(a)])
-    return jnp.concatenate([d["ue"][:2] + err, d["ue"][2:3], jnp.zeros(1)])
+    return jnp.concatenate([ue[:2] + err, ue[2:3], jnp.zeros(1)])
 
 
-def _toa_fn(e: Experiment, dep: scenario.Deployment):
+def _prior_fn(e: Experiment, dep: deployment.Deployment):
+    """Traceable key → the trial's "prior" window centre (4,) (only the UE draw is computed)."""
+    draw = _draw_fn(e, dep)
+    return lambda key: _prior_center(e, draw(key)["ue"], key)
+
+
+def _toa_fn(e: Experiment, dep: deployment.Deployment):
     """Traceable t → (ToAs (S, D, I) of every link with each detector of ``OTDOA_DETECTORS`` (OTDoA step 1),
     the true UE position (3,) (to score the fixes), the indices (I,) of the nearest BSs)."""
     draw = _draw_fn(e, dep)
 
-    def one(t):
-        d = draw(t)
+    def one(key):
+        d = draw(key)
 
         def per_snr(s):
-            y = _noisy(d, s)
-            return jnp.stack([otdoa._toa(y, d["prs"], meth, OTDOA_UPSAMPLE, OTDOA_THRESHOLD_DB, OTDOA_MAX_LEAD,
-                                         PAPER.sample_period_s) for meth in OTDOA_DETECTORS])
+            g = correlogram.ls_spectrum(_noisy(d, s), d["prs"])
+            return jnp.stack([otdoa.toa_from_spectrum(g, meth, OTDOA_UPSAMPLE, OTDOA_THRESHOLD_DB, OTDOA_MAX_LEAD,
+                                                      PAPER.sample_period_s) for meth in OTDOA_DETECTORS])
 
         return jax.lax.map(per_snr, jnp.arange(d["link_snr"].shape[0])), d["ue"], d["idx"]
 
@@ -339,11 +370,17 @@ def _toa_fn(e: Experiment, dep: scenario.Deployment):
 
 
 def _window_free(e: Experiment) -> Experiment:
-    """``e`` without what the per-trial function does not read: the name, the trial and chunk counts, and, for the
-    "bnb" search, the receiver window L (it enters as ``dpe.window_spectrum``, an input).  Experiments that differ
-    only in these share one compiled function."""
+    """``e`` without what the per-trial function does not read: the name, the seed (it enters through the trial
+    keys), the trial and chunk counts, how a non-truth window centre is obtained (it enters as an input), and, for
+    the "bnb" search, the receiver window L (it enters as ``correlogram.window_spectrum``, an input).  Experiments
+    that differ only in these share one compiled function (and, through JAX's persistent compilation cache, one
+    compiled executable across processes)."""
     search = dataclasses.replace(e.search, n_taps=1) if e.search.method == "bnb" else e.search
-    return dataclasses.replace(e, name="", n_trials=1, chunk_trials=1, search=search)
+    d = Experiment()
+    centre = {} if e.centring == "truth" else dict(centring="prior", prior_kind=d.prior_kind,
+                                                    prior_scale_m=d.prior_scale_m, otdoa=False,
+                                                    toa_method=d.toa_method)
+    return dataclasses.replace(e, name="", seed=0, n_trials=1, chunk_trials=1, search=search, **centre)
 
 
 @lru_cache(maxsize=8)
@@ -354,32 +391,29 @@ def _compiled_trial_fn(e: Experiment, deployment_digest: str):
 
 
 def _deployment_digest(e: Experiment) -> str:
-    dep = scenario.TST_FILE if e.deployment == "tst" else Path(e.deployment)
+    dep = deployment.TST_FILE if e.deployment == "tst" else Path(e.deployment)
     return hashlib.sha256(dep.read_bytes()).hexdigest()
 
 
-def _trial_fn(e: Experiment, dep: scenario.Deployment):
-    """Build the traceable per-trial function (t, ext_center (S, J, 4), window) → result dict.  ext_center (metres)
-    is read only in centring "otdoa", where it holds the trial's OTDoA fixes; window is ``dpe.window_spectrum`` of
-    the receiver's L for the "bnb" search (read by nothing else)."""
+def _trial_fn(e: Experiment, dep: deployment.Deployment):
+    """Build the traceable per-trial function (trial key, ext_center (S, J, 4), window) → result dict.  ext_center
+    (metres) is the window centre of every (SNR, M) in the non-truth centrings: the trial's prior centre, or its
+    OTDoA fixes; window is ``correlogram.window_spectrum`` of the receiver's L for the "bnb" search."""
     draw = _draw_fn(e, dep)
     cfg = e.receiver_search()
 
-    def one(t, ext_center, window):
-        d = draw(t)
-        if e.centring == "truth":
-            c0 = jnp.concatenate([d["ue"], d["bias"][None] * C])
-        elif e.centring == "prior":
-            c0 = _prior_center(e, d, t)
-        bs, prs = d["bs"], d["prs"]
+    def one(key, ext_center, window):
+        d = draw(key)
+        c0 = jnp.concatenate([d["ue"], d["bias"][None] * C])  # read in centring "truth" only
+        bs = d["bs"]
 
         def per_snr(s):
-            y = _noisy(d, s)
-            corr = dpe.receiver_correlogram(y, prs, cfg, window if cfg.method == "bnb" else None)  # once for all M
+            g = correlogram.ls_spectrum(_noisy(d, s), d["prs"])
+            corr = dpe.receiver_correlogram(g, cfg, window if cfg.method == "bnb" else None)  # once for all M
             fixes, centers = [], []
             for j, m in enumerate(e.m_values):
-                c = ext_center[s, j] if e.centring == "otdoa" else c0
-                fixes.append(dpe.fix(y[:m], prs[:m], bs[:m], c, cfg, PAPER, corr=corr[:m]))
+                c = c0 if e.centring == "truth" else ext_center[s, j]
+                fixes.append(dpe.fix(g[:m], bs[:m], c, cfg, PAPER, corr=corr[:m]))
                 centers.append(c)
             return ({k: jnp.stack([f[k] for f in fixes]) for k in ("q", "gap", "certified", "edge")},
                     jnp.stack(centers))
@@ -397,16 +431,18 @@ def _trial_fn(e: Experiment, dep: scenario.Deployment):
 def example(e: Experiment, trial: int, snr_index: int = 0) -> dict:
     """The draws and received samples of one trial at one SNR index, exactly as the engine sees them (NumPy).
 
-    Returns ue (3,), bias, idx (I,), bs (I, 3), los (I,), prs (I, N), y (I, N), link_snr (I,).
+    Returns ue (3,), bias, idx (I,), bs (I, 3), los (I,), prs (I, N), gains (I, L), delays (I, L) s, y (I, N)
+    received samples (the inverse DFT of the engine's received spectrum), y0 (I, N) their noise-free part,
+    link_snr (I,).
     """
     dep = e.load_deployment()
     _checks.integer("trial", trial, 0, e.n_trials - 1)
     _checks.integer("snr_index", snr_index, 0, e.n_snr - 1)
-    d = _draw_fn(e, dep)(jnp.asarray(trial))
-    out = {k: np.asarray(v) for k, v in d.items() if k != "k_noise"}
-    out["y"] = np.asarray(_noisy(d, snr_index))
+    d = _draw_fn(e, dep)(trial_key(e.seed, trial))
+    out = {k: np.asarray(v) for k, v in d.items() if k != "noise"}
+    out["y"] = np.asarray(signal.ofdm_symbol(_noisy(d, snr_index)))
+    out["y0"] = np.asarray(signal.ofdm_symbol(d["y0"]))
     out["link_snr"] = out["link_snr"][snr_index]
-    del out["y0"]
     return out
 
 
@@ -417,11 +453,11 @@ def draw_links(e: Experiment, n_trials: int) -> dict:
     draw = _draw_fn(e, dep)
 
     @jax.jit
-    def one(t):
-        d = draw(t)
+    def one(key):
+        d = draw(key)
         return d["los"], d["link_snr"], jnp.linalg.norm(d["bs"][:, :2] - d["ue"][:2], axis=-1)
 
-    los, snr, dist = jax.lax.map(one, jnp.arange(n_trials), batch_size=64)
+    los, snr, dist = jax.lax.map(one, _trial_keys(e.seed, 0, n_trials), batch_size=64)
     return {"los": np.asarray(los), "link_snr_db": np.asarray(snr), "d2d_m": np.asarray(dist)}
 
 
@@ -432,76 +468,114 @@ def _run_chunk(args, fn, batch_size, shared=()):
 
 
 def cache_dir(e: Experiment, cache: str | os.PathLike | None = None) -> Path:
+    """The experiment's cache directory: ``<cache>/<name>-<key>`` (cache: the argument, else DPE5G_CACHE, else
+    ``DEFAULT_CACHE``)."""
     root = Path(cache or os.environ.get("DPE5G_CACHE") or DEFAULT_CACHE)
     return root / f"{e.name}-{e.key()}"
+
+
+class ChunkCache:
+    """One experiment's results on disk: ``cache_dir(e, cache)`` holds ``experiment.json`` (the config without the
+    trial counts, and the key) and one ``.npz`` per chunk of ``chunk_trials`` trials.  Every file is written
+    atomically (temporary file + rename), so a killed run leaves whole chunks and at most a stale ``*.tmp``, which
+    ``open`` removes; ``missing`` lists the chunks still to compute (resume), ``load`` concatenates them all."""
+
+    def __init__(self, e: Experiment, cache: str | os.PathLike | None = None):
+        self.experiment = e
+        self.dir = cache_dir(e, cache)
+        self.chunks = [(s, min(s + e.chunk_trials, e.n_trials)) for s in range(0, e.n_trials, e.chunk_trials)]
+
+    def path(self, start: int, stop: int) -> Path:
+        return self.dir / f"trials-{start:07d}-{stop:07d}.npz"
+
+    def open(self) -> "ChunkCache":
+        """Create the directory and its metadata; remove temporary files a killed run left (their chunks are
+        recomputed)."""
+        self.dir.mkdir(parents=True, exist_ok=True)
+        for stale in self.dir.glob("*.tmp"):
+            stale.unlink()
+        meta = self.dir / "experiment.json"
+        if not meta.exists():
+            d = self.experiment.to_dict()
+            d.pop("n_trials")
+            d.pop("chunk_trials")
+            atomic_write(meta, json.dumps({"key": self.dir.name.rsplit("-", 1)[1], "experiment": d}, indent=1,
+                                          default=str).encode())
+        return self
+
+    def missing(self) -> list[tuple[int, int]]:
+        return [c for c in self.chunks if not self.path(*c).exists()]
+
+    def save(self, start: int, stop: int, arrays: dict) -> None:
+        buf = io.BytesIO()
+        np.savez(buf, **arrays)
+        atomic_write(self.path(start, stop), buf.getvalue())
+
+    def load(self, names) -> dict:
+        parts = [np.load(self.path(*c)) for c in self.chunks]
+        return {k: np.concatenate([p[k] for p in parts]) for k in names}
+
+
+class _ChunkRunner:
+    """The compiled computation of a chunk of trials: OTDoA step 1 and its convex fixes (when the experiment asks),
+    then the DPE fixes; built on first use (compiling is the slow part) and shared by every chunk of a run."""
+
+    def __init__(self, e: Experiment):
+        self.e = e
+        self.dep = e.load_deployment()
+        self.fn = _compiled_trial_fn(_window_free(e), _deployment_digest(e))
+        self.toa_fn = _toa_fn(e, self.dep) if e.otdoa else None
+        self.prior_fn = _prior_fn(e, self.dep) if e.centring == "prior" else None
+        cfg = e.receiver_search()
+        self.window = jnp.asarray(correlogram.window_spectrum(cfg.n_taps, PAPER.n_fft) if cfg.method == "bnb"
+                                  else np.zeros(1, dtype=complex))
+
+    def __call__(self, start: int, stop: int, batch_size: int) -> dict:
+        e = self.e
+        keys, bsz = _trial_keys(e.seed, start, stop), min(batch_size, stop - start)
+        ext = np.zeros((stop - start, e.n_snr, len(e.m_values), 4))
+        ot = {}
+        if e.otdoa:  # step 1 on the same signals (regenerated from the same keys), then the convex fixes
+            toas, ue, idx = (np.asarray(a) for a in _run_chunk((keys,), self.toa_fn, bsz))
+            ot = _otdoa_fixes(e, self.dep, toas, ue, idx)
+            if e.centring == "otdoa":
+                ext = _otdoa_centers(e, self.dep, ot, idx)
+        if e.centring == "prior":
+            ext[:] = np.asarray(_run_chunk((keys,), self.prior_fn, bsz))[:, None, None, :]
+        out = _run_chunk((keys, jnp.asarray(ext)), self.fn, bsz, (self.window,))
+        return {**{k: np.asarray(v) for k, v in out.items()}, **ot}
 
 
 def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = True, batch_size: int = 2) -> Results:
     """Run (or resume, or load) an experiment; returns its ``Results``.
 
-    Chunks already in the cache are loaded, the others computed and written atomically as they finish.
+    Chunks already in the cache (``ChunkCache``) are loaded, the others computed and written as they finish.
     progress : a tqdm bar with ETA on stderr.  batch_size : trials vmapped together (memory/speed only).
     """
     _checks.integer("batch_size", batch_size, 1, 4096)
-    dep = e.load_deployment()
-    d = cache_dir(e, cache)
-    d.mkdir(parents=True, exist_ok=True)
-    for stale in d.glob("*.tmp"):  # left by a run killed while writing; its chunk is recomputed
-        stale.unlink()
-    meta = d / "experiment.json"
-    if not meta.exists():
-        d_meta = e.to_dict()
-        d_meta.pop("n_trials")
-        d_meta.pop("chunk_trials")
-        atomic_write(meta, json.dumps({"key": d.name.rsplit("-", 1)[1], "experiment": d_meta}, indent=1,
-                                      default=str).encode())
-    starts = list(range(0, e.n_trials, e.chunk_trials))
-    paths = [d / f"trials-{s:07d}-{min(s + e.chunk_trials, e.n_trials):07d}.npz" for s in starts]
-    todo = [i for i, p in enumerate(paths) if not p.exists()]
-    fn = toa_fn = None
+    e.load_deployment()  # validates m_values against the deployment before any work
+    store = ChunkCache(e, cache).open()
+    todo = store.missing()
     bar = None
-    solvers = {}
     if todo and progress:
         from tqdm import tqdm
 
-        done = e.n_trials - sum(min(s + e.chunk_trials, e.n_trials) - s for s in (starts[i] for i in todo))
-        bar = tqdm(total=e.n_trials, initial=done, desc=f"{e.name} trials", unit="trial", file=sys.stderr,
-                   dynamic_ncols=True)
+        bar = tqdm(total=e.n_trials, initial=e.n_trials - sum(b - a for a, b in todo), desc=f"{e.name} trials",
+                   unit="trial", file=sys.stderr, dynamic_ncols=True)
+    runner = None
     try:
-        for i in todo:
-            if fn is None:
-                fn, toa_fn = _compiled_trial_fn(_window_free(e), _deployment_digest(e)), (_toa_fn(e, dep) if e.otdoa else None)
-                cfg = e.receiver_search()
-                window = jnp.asarray(dpe.window_spectrum(cfg.n_taps, PAPER.n_fft) if cfg.method == "bnb"
-                                     else np.zeros(1, dtype=complex))
-            s = starts[i]
-            stop = min(s + e.chunk_trials, e.n_trials)
-            trials, bsz = jnp.arange(s, stop), min(batch_size, stop - s)
-            ext = np.zeros((stop - s, e.n_snr, len(e.m_values), 4))
-            ot = {}
-            if e.otdoa:  # step 1 on the same signals (regenerated from the same keys), then the convex fixes
-                toas, ue, idx = (np.asarray(a) for a in _run_chunk((trials,), toa_fn, bsz))
-                ot = _otdoa_fixes(e, dep, toas, ue, idx)
-                if e.centring == "otdoa":
-                    ext = _otdoa_centers(e, dep, ot, idx)
-            out = _run_chunk((trials, jnp.asarray(ext)), fn, bsz, (window,))
-            out = {k: np.asarray(v) for k, v in out.items()}
-            out.update(ot)
-            buf = io.BytesIO()
-            np.savez(buf, **out)
-            atomic_write(paths[i], buf.getvalue())
+        for start, stop in todo:
+            runner = runner or _ChunkRunner(e)
+            store.save(start, stop, runner(start, stop, batch_size))
             if bar is not None:
-                bar.update(stop - s)
+                bar.update(stop - start)
     finally:
         if bar is not None:
             bar.close()
-    parts = [np.load(p) for p in paths]
-    names = Results.FIELDS + (Results.OTDOA_FIELDS if e.otdoa else ())
-    arrays = {k: np.concatenate([p[k] for p in parts]) for k in names}
-    return Results(e, **arrays)
+    return Results(e, **store.load(Results.FIELDS + (Results.OTDOA_FIELDS if e.otdoa else ())))
 
 
-def _otdoa_fixes(e: Experiment, dep: scenario.Deployment, toas: np.ndarray, ue: np.ndarray, idx: np.ndarray) -> dict:
+def _otdoa_fixes(e: Experiment, dep: deployment.Deployment, toas: np.ndarray, ue: np.ndarray, idx: np.ndarray) -> dict:
     """OTDoA fixes (cvxpy, one compiled problem per M) from the chunk's ToAs (T, S, D, I) of every detector, the
     true UE positions (T, 3) (for the error only) and the nearest BSs' indices (T, I); flagged, never dropped."""
     n_t, n_s, n_d = toas.shape[:3]
@@ -519,7 +593,7 @@ def _otdoa_fixes(e: Experiment, dep: scenario.Deployment, toas: np.ndarray, ue: 
     return {"otdoa_toa_s": toas, "otdoa_xyz": xyz, "otdoa_error_m": err, "otdoa_ok": ok}
 
 
-def _otdoa_centers(e: Experiment, dep: scenario.Deployment, ot: dict, idx: np.ndarray) -> np.ndarray:
+def _otdoa_centers(e: Experiment, dep: deployment.Deployment, ot: dict, idx: np.ndarray) -> np.ndarray:
     """Centring "otdoa": the window centre of each (trial, SNR, M) is the OTDoA fix of detector ``toa_method`` at
     the known UE height with c δt = 0; where that fix is not finite (solver failure), the centroid of the M BSs
     used (known to the receiver).  Returns (T, S, J, 4) metres."""

@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _checks, dpe
+from . import _checks, correlogram, signal
 from .nr import C, PAPER
 
 TOA_METHODS = ("peak", "first_path")
@@ -50,18 +50,20 @@ def toa(y, prs, method: str = "peak", upsample: int = 8, threshold_db: float = -
     ``max_lead_samples`` samples before that maximum, within ``threshold_db`` (< 0) of it, then the local maximum
     that follows it.  Both refine with a parabola through the chosen grid point and its two neighbours.
     """
-    y, prs = dpe._check_inputs(y, prs, 1)
+    y, prs = correlogram.check_inputs(y, prs, 1)
     _checks.one_of("method", method, TOA_METHODS)
     _checks.integer("upsample", upsample, 1, 256)
     _checks.in_range("threshold_db", threshold_db, -60.0, -0.1, "dB")
     _checks.integer("max_lead_samples", max_lead_samples, 1, y.shape[1] // 2)
-    return _toa(jnp.asarray(y), jnp.asarray(prs), method, upsample, float(threshold_db), max_lead_samples,
-                num.sample_period_s)
+    g = correlogram.ls_spectrum(signal.demodulate(y), jnp.asarray(prs))
+    return toa_from_spectrum(g, method, upsample, float(threshold_db), max_lead_samples, num.sample_period_s)
 
 
 @partial(jax.jit, static_argnames=("method", "upsample", "max_lead_samples"))
-def _toa(y, prs, method, upsample, threshold_db, max_lead_samples, ts):
-    e = dpe._correlogram(y, prs, 1, upsample)  # (M, N·U): |ĥ(j T_s/U)|² · N, the one-tap windowed energy
+def toa_from_spectrum(g, method, upsample, threshold_db, max_lead_samples, ts):
+    """``toa`` from the LS spectrum g (M, N) (``correlogram.ls_spectrum``), unvalidated and traceable (the Monte Carlo
+    engine's entry point); ts : T_s in seconds.  Returns (M,) seconds."""
+    e = correlogram.energy_grid(g, 1, upsample)  # (M, N·U): |ĥ(j T_s/U)|² · N, the one-tap windowed energy
     return jax.vmap(lambda row: _toa_row(row, method, upsample, threshold_db, max_lead_samples, ts))(e)
 
 

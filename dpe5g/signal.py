@@ -57,8 +57,31 @@ def check_snr_db(snr_db) -> np.ndarray:
     return s
 
 
+def demodulate(y) -> jax.Array:
+    """The receiver's OFDM demodulation, the inverse of ``ofdm_symbol``: Y_k = (1/√N) Σ_n y[n] e^{-j2πkn/N} (the
+    unitary DFT, F^H y in eq. (4)).  y : complex (..., N) → complex (..., N), bins in FFT order."""
+    return jnp.fft.fft(jnp.asarray(y), axis=-1, norm="ortho")
+
+
+def received_spectrum(prs, freq_response, toa_s, clock_bias_s=0.0, num: Numerology = PAPER) -> jax.Array:
+    """Noise-free received signal of eq. (3) in the frequency domain, the unitary DFT of its samples (eq. (4)):
+
+    Y_{m,k} = d_{m,k} H_{m,k} e^{-j2πkΔf(τ_m + δt)}.
+
+    prs : complex (..., M, N); freq_response : complex (..., M, N) channel responses H_{m,k}
+    (``channel.frequency_response``); toa_s : real (..., M) ToA τ_m of the first path in seconds; clock_bias_s :
+    δt in seconds, scalar or (...,), common to the M base stations.  Returns complex (..., M, N).
+
+    This is the one signal path of the package: ``received_noiseless`` is its inverse DFT, and the Monte Carlo
+    engine (``dpe5g.montecarlo``) adds its noise here, in the frequency domain, where the receivers start (the DFT is
+    unitary, so CN(0, σ²) per bin is exactly the time-domain AWGN of the same variance).
+    """
+    tau = jnp.asarray(toa_s) + jnp.asarray(clock_bias_s)[..., None]
+    return jnp.asarray(prs) * jnp.asarray(freq_response) * delay_phasor(tau, num)
+
+
 def received_noiseless(prs, gains, tap_delays_s, toa_s, clock_bias_s=0.0, num: Numerology = PAPER) -> jax.Array:
-    """Noise-free received samples of eq. (3), computed in the frequency domain.
+    """Noise-free received samples of eq. (3): the inverse DFT of ``received_spectrum``.
 
     y_m[n] = (1/√N) Σ_k d_{m,k} H_{m,k} e^{-j2πkΔf(τ_m + δt)} e^{j2πkn/N},  H_{m,k} = Σ_l h_{m,l} e^{-j2πkΔf τ_l}.
 
@@ -67,8 +90,7 @@ def received_noiseless(prs, gains, tap_delays_s, toa_s, clock_bias_s=0.0, num: N
     bias δt in seconds, common to all BSs.  Returns complex (M, N).
     """
     H = frequency_response(gains, tap_delays_s, num)
-    tau = jnp.asarray(toa_s) + clock_bias_s
-    return ofdm_symbol(jnp.asarray(prs) * H * delay_phasor(tau, num))
+    return ofdm_symbol(received_spectrum(prs, H, toa_s, clock_bias_s, num))
 
 
 def awgn(key: jax.Array, shape, variance) -> jax.Array:

@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import channel, dpe, nr, signal
+from . import channel, correlogram, dpe, nr, signal
 from .nr import C
 
 
@@ -129,7 +129,7 @@ def plateau_payload(seed: int = 5, delay_spread_s: float = 65e-9, k_factor_db: f
         cir = np.abs(np.asarray(channel.sampled_cir(g[0], prof.delays_s))[:PLATEAU_CIR_SAMPLES]) ** 2
         cost = {}
         for n in PLATEAU_TAPS:
-            c = np.asarray(dpe.correlogram(y, prs, n, PLATEAU_UPSAMPLE))[0]
+            c = np.asarray(correlogram.correlogram(y, prs, n, PLATEAU_UPSAMPLE))[0]
             cost[str(n)] = c[keep][order] / c.max()
         data[f"TDL-{name}"] = {"cost": cost, "cir_offset_m": np.arange(cir.size) * ts * C,
                                "cir_power": cir / cir.max()}

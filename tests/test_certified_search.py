@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from dpe5g import dpe, montecarlo
+from dpe5g import correlogram, dpe, montecarlo
 from dpe5g.nr import C, PAPER
 
 N_TRIALS = 50
@@ -48,7 +48,7 @@ def test_certified_search_finds_the_exhaustive_maximum(trials):
     search = jax.jit(lambda coef, bs, c: dpe.certified_search(coef, bs, c, CFG))
     worst, n_cert = np.inf, 0
     for ex, center in items:
-        coef = dpe.spline_correlogram(ex["y"], ex["prs"], CFG.n_taps, CFG.spline_upsample)
+        coef = correlogram.spline_correlogram(ex["y"], ex["prs"], CFG.n_taps, CFG.spline_upsample)
         r = search(coef, jnp.asarray(ex["bs"]), jnp.asarray(center))
         best = _exhaustive_max(coef, jnp.asarray(ex["bs"]), jnp.asarray(center), CFG)
         # the returned cost is the spline at the returned point, and no grid point beats it by more than 1e-4
@@ -71,7 +71,7 @@ def test_certified_search_does_not_depend_on_the_grid_phase(trials):
     search = jax.jit(lambda coef, bs, c: dpe.certified_search(coef, bs, c, CFG))
     moved = compared = 0
     for ex, center in items:
-        coef = dpe.spline_correlogram(ex["y"], ex["prs"], CFG.n_taps, CFG.spline_upsample)
+        coef = correlogram.spline_correlogram(ex["y"], ex["prs"], CFG.n_taps, CFG.spline_upsample)
         bs = jnp.asarray(ex["bs"])
         a = search(coef, bs, jnp.asarray(center))
         b = search(coef, bs, jnp.asarray(center + np.array([0.37, -0.21, 0.0, 0.13])))
@@ -87,8 +87,8 @@ def test_certified_search_does_not_depend_on_the_grid_phase(trials):
 
 def test_spline_correlogram_is_exact_at_the_knots():
     ex = montecarlo.example(montecarlo.Experiment(n_trials=1, m_values=(6,), snrs_db=(20.0,)), 0)
-    coef = dpe.spline_correlogram(ex["y"], ex["prs"], 12, 8)
-    ref = np.asarray(dpe.correlogram(ex["y"], ex["prs"], 12, 8))
+    coef = correlogram.spline_correlogram(ex["y"], ex["prs"], 12, 8)
+    ref = np.asarray(correlogram.correlogram(ex["y"], ex["prs"], 12, 8))
     vals = (np.roll(coef, 1, -1) + 4 * np.asarray(coef) + np.roll(coef, -1, -1)) / 6
     assert np.max(np.abs(vals - ref)) <= 1e-10 * ref.max()
     tau = np.asarray(dpe.toa(ex["ue"], ex["bs"], float(ex["bias"])))[None] + np.linspace(-30e-9, 30e-9, 41)[:, None]

@@ -4,7 +4,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from dpe5g import dpe, nr, signal
+from dpe5g import correlogram, dpe, nr, signal
 from dpe5g.nr import C, PAPER, Numerology
 
 
@@ -35,7 +35,7 @@ def test_fast_cost_equals_literal_full_size():
 def test_correlogram_exact_on_its_grid():
     y, prs, _, num = random_case(2, 256, 3, 1)
     u = 8
-    corr = dpe.correlogram(y, prs, 6, u)
+    corr = correlogram.correlogram(y, prs, 6, u)
     ts = num.sample_period_s
     j = np.array([0, 1, 7, 8, 100, 256 * u - 1])
     tau = np.repeat((j * ts / u)[:, None], 3, axis=1)
@@ -47,7 +47,7 @@ def test_correlogram_exact_on_its_grid():
 def test_correlogram_cubic_interpolation_between_grid_points():
     y, prs, _, num = random_case(5, 256, 3, 1)
     ts, u = num.sample_period_s, 8
-    corr = dpe.correlogram(y, prs, 6, u)
+    corr = correlogram.correlogram(y, prs, 6, u)
     tau = np.random.default_rng(0).uniform(0, 256 * ts, size=(200, 3))
     ref = np.asarray(dpe.ml_cost(y, prs, tau, 6, num.scs_hz))
     got = np.asarray(dpe.correlogram_lookup(corr, tau, ts, u))

@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 
-from dpe5g import dpe, montecarlo
+from dpe5g import correlogram, deployment, dpe, montecarlo, signal
 
 SMALL = dict(name="test", n_trials=6, seed=1, snrs_db=(15.0, 30.0), m_values=(4, 6),
              search=dpe.SearchConfig(half_width_m=3.0, bias_half_width_m=3.0))
@@ -80,7 +80,7 @@ def test_two_of_four_and_link_budget_modes(tmp_path):
     assert r.otdoa_xyz.shape == (4, 1, n_det, 1, 3) and r.otdoa_ok.dtype == bool
     assert np.all(np.isfinite(r.otdoa_error_m))
     # the estimated ToAs carry the common clock bias and are within a few samples of the geometric ones
-    geo = np.linalg.norm(r.ue_xyz[:, None, :] - montecarlo.scenario.tst().bs_xyz[r.bs_index], axis=-1) / 3e8
+    geo = np.linalg.norm(r.ue_xyz[:, None, :] - deployment.tst().bs_xyz[r.bs_index], axis=-1) / 3e8
     for k in range(n_det):
         assert np.all(np.abs(r.otdoa_toa_s[:, 0, k, :] - r.clock_bias_s[:, None] - geo) < 40 * 8.14e-9)
     assert r.link_snr_db.shape == (4, 1, 4) and np.all(np.isfinite(r.link_snr_db))
@@ -152,7 +152,23 @@ def test_window_as_input_matches_a_direct_fix_for_every_l(tmp_path):
         for t in range(e.n_trials):
             ex = montecarlo.example(e, t)
             center = np.concatenate([res.center_xyz[t, 0, 0], [0.0]])
-            r = dpe.fix(jnp.asarray(ex["y"]), jnp.asarray(ex["prs"]), jnp.asarray(ex["bs"]), jnp.asarray(center),
-                        e.receiver_search())
+            g = correlogram.ls_spectrum(signal.demodulate(ex["y"]), jnp.asarray(ex["prs"]))
+            r = dpe.fix(g, jnp.asarray(ex["bs"]), jnp.asarray(center), e.receiver_search())
             np.testing.assert_allclose(res.est_xyz[t, 0, 0], np.asarray(r["q"])[:3], atol=1e-9, err_msg=str(n_taps))
-    assert dpe.window_spectrum(1, 8)[0] == 1 and dpe.window_spectrum(3, 8)[0] == 3
+    assert correlogram.window_spectrum(1, 8)[0] == 1 and correlogram.window_spectrum(3, 8)[0] == 3
+
+
+def test_engine_signal_is_the_public_signal_path():
+    """The engine simulates in the frequency domain; its samples must be ``signal.received_noiseless`` of the
+    trial's own channel (per-link profile, gains, delays, ToA, clock bias), and its noise AWGN of the SNR's
+    variance."""
+    e = montecarlo.Experiment(name="s", n_trials=3, seed=4, snrs_db=(20.0, 30.0), m_values=(6,))
+    for t in range(e.n_trials):
+        ex = montecarlo.example(e, t)
+        ref = np.asarray(signal.received_noiseless(ex["prs"], ex["gains"], ex["delays"], dpe.toa(ex["ue"], ex["bs"]),
+                                                   float(ex["bias"])))
+        np.testing.assert_allclose(ex["y0"], ref, atol=1e-12 * np.abs(ref).max())
+        assert np.all((ex["delays"][:, 0] == 0) & (np.abs(ex["gains"]).sum(axis=1) > 0))
+        noise = ex["y"] - ex["y0"]
+        var = float(np.asarray(signal.noise_variance(20.0, ex["prs"]))[0])
+        assert abs(np.mean(np.abs(noise) ** 2) / var - 1) < 0.05

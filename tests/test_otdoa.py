@@ -3,7 +3,7 @@ import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
 
-from dpe5g import nr, otdoa, scenario, signal
+from dpe5g import deployment, nr, otdoa, signal
 from dpe5g.nr import C, PAPER
 
 
@@ -25,7 +25,7 @@ def _brute_force(bs, t, ue_z, centre, half=300.0):
 
 
 def test_cvxpy_equals_brute_force_least_squares_noise_free():
-    dep = scenario.tst()
+    dep = deployment.tst()
     rng = np.random.default_rng(4)
     solver = otdoa.Solver(4)
     assert solver.problem.is_dpp()

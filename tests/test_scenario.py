@@ -5,11 +5,11 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from dpe5g import scenario
+from dpe5g import deployment, scenario
 
 
 def test_packaged_deployment_has_the_papers_numbers():
-    dep = scenario.tst()
+    dep = deployment.tst()
     assert dep.n_bs == 26
     assert dep.area_m2 == pytest.approx(227_360.0, rel=1e-5)
     x0, y0, x1, y1 = dep.region
@@ -70,7 +70,7 @@ def test_clock_bias_is_truncated():
 
 
 def test_ue_outside_region_is_an_error():
-    dep = scenario.tst()
+    dep = deployment.tst()
     with pytest.raises(ValueError, match="inside the region"):
         dep.check_ue([600.0, 10.0])
     with pytest.raises(ValueError, match="finite"):
@@ -103,12 +103,12 @@ def _write(tmp_path, name, text):
 ])
 def test_malformed_deployment_files(tmp_path, name, text, needle):
     with pytest.raises(ValueError, match=needle):
-        scenario.load_deployment(_write(tmp_path, name, text))
+        deployment.load_deployment(_write(tmp_path, name, text))
 
 
 def test_csv_deployment_loads(tmp_path):
     p = _write(tmp_path, "mine.csv", "id,x_m,y_m,height_m,power_dbm\nA,0,0,10,24\nB,100,0,12,20\nC,0,100,10,24\n")
-    dep = scenario.load_deployment(p)
+    dep = deployment.load_deployment(p)
     assert dep.bs_ids == ("A", "B", "C")
     assert dep.bs_xyz[1].tolist() == [100.0, 0.0, 12.0] and dep.power_dbm[1] == 20.0
     assert dep.region == (-10.0, -10.0, 110.0, 110.0)

@@ -1,0 +1,201 @@
+"""The deployment of Section III: base stations (position, height, power, ID), the region, buildings and streets,
+read from a file and validated.
+
+Units: metres (local ENU: x east, y north, z up, origin at the region's south-west corner), dBm.
+
+The paper's 26 BS positions in Tsim Sha Tsui are not published.  ``tst()`` loads our layout with the paper's numbers
+(26 BSs over a 227,360 m² square, BS height 10 m, 24 dBm) on a Tsim Sha Tsui-like street grid, made by
+``scripts/make_layout.py``; ``load_deployment`` reads a user's deployment from JSON or CSV.  The propagation models
+that act on a deployment (eq. (9), the path loss, the link budget, the clock bias) are in ``dpe5g.scenario``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import _checks
+
+DATA_DIR = Path(__file__).resolve().parent / "data"
+TST_FILE = DATA_DIR / "tst_deployment.json"
+
+#: allowed ranges for a deployment's numbers
+BS_HEIGHT_RANGE_M = (1.5, 150.0)  # TR 38.901 UMi: 10 m; the formulas need h_BS > h_E = 1 m
+POWER_RANGE_DBM = (-30.0, 60.0)
+MIN_BS = 3  # (x, y, c δt) has three unknowns
+
+
+@dataclass(frozen=True, eq=False)
+class Deployment:
+    """Base stations over a rectangular region, with optional buildings and streets for the map and the 3-D scene.
+
+    bs_ids : (B,) names; bs_xyz : (B, 3) m; power_dbm : (B,) transmit power per BS in dBm;
+    region : (x_min, y_min, x_max, y_max) m; ue_height_m : UE height in m;
+    buildings : (K, 5) rows (x_min, y_min, x_max, y_max, height) in m (may be empty);
+    streets : tuple of dicts (name, axis, centre_m, width_m), for drawing only;
+    anchor_lat_deg, anchor_lon_deg : WGS-84 position of the local origin, or None.
+    """
+
+    name: str
+    bs_ids: tuple[str, ...]
+    bs_xyz: np.ndarray
+    power_dbm: np.ndarray
+    region: tuple[float, float, float, float]
+    ue_height_m: float = 2.0
+    buildings: np.ndarray = field(default_factory=lambda: np.zeros((0, 5)))
+    streets: tuple = ()
+    anchor_lat_deg: float | None = None
+    anchor_lon_deg: float | None = None
+    description: str = ""
+
+    @property
+    def n_bs(self) -> int:
+        return len(self.bs_ids)
+
+    @property
+    def area_m2(self) -> float:
+        x0, y0, x1, y1 = self.region
+        return (x1 - x0) * (y1 - y0)
+
+    def check_ue(self, xy) -> np.ndarray:
+        """Validate UE positions (..., 2) in metres: finite and inside the region."""
+        xy = np.asarray(xy, dtype=np.float64)
+        if xy.shape[-1:] != (2,) or not np.all(np.isfinite(xy)):
+            raise ValueError(f"UE position must be finite (..., 2) metres, got shape {xy.shape}")
+        x0, y0, x1, y1 = self.region
+        inside = (xy[..., 0] >= x0) & (xy[..., 0] <= x1) & (xy[..., 1] >= y0) & (xy[..., 1] <= y1)
+        if not np.all(inside):
+            bad = xy[~inside].reshape(-1, 2)[0]
+            raise ValueError(f"UE position must be inside the region x in [{x0:g}, {x1:g}] m, y in [{y0:g}, "
+                             f"{y1:g}] m; got ({bad[0]:g}, {bad[1]:g})")
+        return xy
+
+    def nearest(self, ue_xy, m: int) -> np.ndarray:
+        """Indices (..., m) of the m BSs nearest to the UE in 2-D distance, nearest first."""
+        _checks.integer("m", m, 1, self.n_bs)
+        d = np.linalg.norm(np.asarray(ue_xy)[..., None, :] - self.bs_xyz[:, :2], axis=-1)
+        return np.argsort(d, axis=-1, kind="stable")[..., :m]
+
+
+def _fail(source, msg):
+    raise ValueError(f"deployment file {source}: {msg}")
+
+
+def _number(source, where, key, value, lo, hi, unit):
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        _fail(source, f"{where}: {key} must be a number in [{lo:g}, {hi:g}] {unit}, got {value!r}")
+    if not math.isfinite(v) or not lo <= v <= hi:
+        _fail(source, f"{where}: {key} must be in [{lo:g}, {hi:g}] {unit}, got {value!r}")
+    return v
+
+
+def _base_stations(source, rows):
+    """Validate BS rows (dicts with id, x_m, y_m, height_m, power_dbm) → ids, xyz, power."""
+    if not isinstance(rows, list) or len(rows) < MIN_BS:
+        n = len(rows) if isinstance(rows, list) else 0
+        _fail(source, f"needs at least {MIN_BS} base stations (x, y and the clock bias are unknown), got {n}")
+    ids, xyz, pw = [], [], []
+    for i, r in enumerate(rows):
+        where = f"base station {i + 1}"
+        if not isinstance(r, dict):
+            _fail(source, f"{where} must be an object with id, x_m, y_m, height_m, power_dbm")
+        missing = [k for k in ("x_m", "y_m", "height_m", "power_dbm") if k not in r or r[k] in ("", None)]
+        if missing:
+            _fail(source, f"{where}: missing {', '.join(missing)}")
+        bid = str(r.get("id") or f"BS{i + 1:02d}")
+        if bid in ids:
+            _fail(source, f"{where}: duplicate id {bid!r}")
+        ids.append(bid)
+        xyz.append([_number(source, where, "x_m", r["x_m"], -1e5, 1e5, "m"),
+                    _number(source, where, "y_m", r["y_m"], -1e5, 1e5, "m"),
+                    _number(source, where, "height_m", r["height_m"], *BS_HEIGHT_RANGE_M, "m")])
+        pw.append(_number(source, where, "power_dbm", r["power_dbm"], *POWER_RANGE_DBM, "dBm"))
+    xyz = np.array(xyz)
+    d = np.linalg.norm(xyz[:, None, :2] - xyz[None, :, :2], axis=-1) + np.eye(len(ids)) * 1e9
+    if d.min() < 0.5:
+        i, j = np.unravel_index(np.argmin(d), d.shape)
+        _fail(source, f"base stations {ids[i]} and {ids[j]} are less than 0.5 m apart")
+    return tuple(ids), xyz, np.array(pw)
+
+
+def load_deployment(path) -> Deployment:
+    """Read a deployment from JSON (our schema, see ``dpe5g/data/tst_deployment.json``) or CSV.
+
+    CSV: a header row with columns id, x_m, y_m, height_m, power_dbm (id optional), one BS per row; the region is
+    then the BSs' bounding box grown by 10 % on each side and the UE height 2 m.
+    JSON: {"base_stations": [{id, x_m, y_m, height_m, power_dbm}, ...], "region": {x_min_m, y_min_m, x_max_m,
+    y_max_m}, optional "ue_height_m", "buildings" [{x_min_m, y_min_m, x_max_m, y_max_m, height_m}], "streets",
+    "anchor" {lat_deg, lon_deg}, "name", "description"}.
+    Malformed files raise ``ValueError`` naming the file, the entry and the allowed range.
+    """
+    path = Path(path)
+    src = str(path)
+    if not path.is_file():
+        raise ValueError(f"deployment file {src} does not exist")
+    suffix = path.suffix.lower()
+    if suffix == ".csv":
+        try:
+            with path.open(newline="") as f:
+                rows = list(csv.DictReader(f))
+        except (OSError, UnicodeDecodeError, csv.Error) as e:
+            _fail(src, f"cannot be read as CSV ({e})")
+        if rows and None in rows[0]:
+            _fail(src, "a row has more fields than the header")
+        ids, xyz, pw = _base_stations(src, rows)
+        lo, hi = xyz[:, :2].min(0), xyz[:, :2].max(0)
+        pad = 0.1 * max(float(np.max(hi - lo)), 1.0)
+        region = (lo[0] - pad, lo[1] - pad, hi[0] + pad, hi[1] + pad)
+        return Deployment(path.stem, ids, xyz, pw, tuple(float(v) for v in region))
+    if suffix != ".json":
+        _fail(src, f"must end in .json or .csv, got {path.suffix!r}")
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        _fail(src, f"is not valid JSON ({e})")
+    if not isinstance(doc, dict):
+        _fail(src, "must hold a JSON object with base_stations and region")
+    ids, xyz, pw = _base_stations(src, doc.get("base_stations"))
+    reg = doc.get("region")
+    if not isinstance(reg, dict):
+        _fail(src, "needs a region {x_min_m, y_min_m, x_max_m, y_max_m}")
+    region = tuple(_number(src, "region", k, reg.get(k), -1e5, 1e5, "m")
+                   for k in ("x_min_m", "y_min_m", "x_max_m", "y_max_m"))
+    if region[2] - region[0] < 1.0 or region[3] - region[1] < 1.0:
+        _fail(src, f"region must have x_max_m > x_min_m and y_max_m > y_min_m (by at least 1 m), got {region}")
+    outside = [b for b, p in zip(ids, xyz) if not (region[0] <= p[0] <= region[2] and region[1] <= p[1] <= region[3])]
+    if outside:
+        _fail(src, f"base station {outside[0]} lies outside the region {region}")
+    ue_h = _number(src, "ue_height_m", "ue_height_m", doc.get("ue_height_m", 2.0), 1.0, 22.5, "m")
+    blds = []
+    for i, b in enumerate(doc.get("buildings", [])):
+        keys = ("x_min_m", "y_min_m", "x_max_m", "y_max_m", "height_m")
+        if not isinstance(b, dict) or any(k not in b for k in keys):
+            _fail(src, f"building {i + 1} needs {', '.join(keys)}")
+        row = [_number(src, f"building {i + 1}", k, b[k], -1e5, 1e5, "m") for k in keys]
+        if row[2] <= row[0] or row[3] <= row[1] or row[4] <= 0:
+            _fail(src, f"building {i + 1} must have x_max_m > x_min_m, y_max_m > y_min_m and height_m > 0")
+        blds.append(row)
+    anchor = doc.get("anchor") or {}
+    lat = anchor.get("lat_deg")
+    lon = anchor.get("lon_deg")
+    if lat is not None:
+        lat = _number(src, "anchor", "lat_deg", lat, -90, 90, "deg")
+        lon = _number(src, "anchor", "lon_deg", lon, -180, 180, "deg")
+    return Deployment(str(doc.get("name", path.stem)), ids, xyz, pw, region, ue_h,
+                      np.array(blds).reshape(-1, 5), tuple(doc.get("streets", [])), lat, lon,
+                      str(doc.get("description", "")))
+
+
+def tst() -> Deployment:
+    """Our Tsim Sha Tsui-like deployment: 26 BSs at 10 m, 24 dBm, over a 476.8 m square (227,360 m²)."""
+    return load_deployment(TST_FILE)
+
+
+# ---- links: TR 38.901 UMi street canyon ----------------------------------------------------------------------------
