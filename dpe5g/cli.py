@@ -12,14 +12,26 @@ import time
 
 
 def _figures(args) -> int:
-    from . import figures
+    from pathlib import Path
+
+    from . import _checks, figures
 
     ids = args.only or list(figures.REGISTRY)
     for fig_id in ids:
         figures.get(fig_id)  # validate every id before spending time
+    if args.trials is not None:
+        _checks.integer("--trials", args.trials, 1, 10_000_000)
+        mc = [f for f in ids if figures.takes_trials(f)]
+        if not mc:
+            raise ValueError(f"--trials applies to the Monte Carlo figures "
+                             f"({', '.join(f for f in figures.REGISTRY if figures.takes_trials(f))}), none selected")
+        if Path(args.out).resolve() == (Path(figures.__file__).resolve().parent.parent / "figures"):
+            raise ValueError(f"--out {args.out} holds the committed baselines; figures with --trials {args.trials} "
+                             f"are not those, so give --out another folder")
     for fig_id in ids:
         t0 = time.perf_counter()
-        png, js = figures.write(fig_id, args.out, progress=True)
+        trials = args.trials if args.trials is not None and figures.takes_trials(fig_id) else None
+        png, js = figures.write(fig_id, args.out, progress=True, trials=trials)
         print(f"{fig_id}: {png} {js} ({time.perf_counter() - t0:.1f} s)", flush=True)
     return 0
 
@@ -64,7 +76,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
     f = sub.add_parser("figures", help="regenerate figures: <out>/<id>.png and <out>/data/<id>.json")
     f.add_argument("--out", default="figures", help="output folder (default: figures)")
-    f.add_argument("--only", nargs="*", metavar="ID", help="figure ids (default: all registered)")
+    f.add_argument("--only", nargs="+", metavar="ID", help="figure ids (default: all registered)")
+    f.add_argument("--trials", type=int, default=None, metavar="N",
+                   help="Monte Carlo trials per experiment of Figs. 9-10 (default: the committed figures' counts)")
     f.set_defaults(func=_figures)
     t = sub.add_parser("profile", help="print a TR 38.901 TDL profile scaled to a delay spread")
     t.add_argument("name", help="A, B, C, D or E")

@@ -14,8 +14,12 @@ c_m(τ) = N Σ_{l<L} |ĥ_m(τ + l T_s) / √N|² (Chapter 3 derives it), and the
   FFTs for the energy at T_s/2, a real FFT for its spectrum, the window and the interpolation prefilter as
   multipliers there, one zero-padded real inverse FFT), read by the certified search.
 
-Precision: everything is float64 / complex128.  Measured on the paper's numerology (``benchmarks/bench_engine.py``):
-complex64 FFTs are no faster on this CPU, and the ToA error they add is not needed, so no step is demoted.
+Precision: ``energy_grid`` follows the dtype of its input.  ``benchmarks/bench_engine.py`` measures it in complex64
+against complex128 on the same signals — the time of each and the ToA error complex64 adds to the detector's peak
+(README's engine table): complex64 is about twice as fast and its ToA error is far below a millimetre, so the
+receivers' grid correlograms (``GRID_DTYPE``: the grid search and the OTDoA detector) use it.  The spline
+coefficients of the certified search stay float64 (its certificate compares costs to 1e-4 relative, and its bounds
+must hold), and so do the book's exactness checks (``correlogram`` on complex128 samples).
 
 ``correlogram`` and ``spline_correlogram`` are the validated entry points for time-domain samples y (the book's
 checks); the engine calls the traceable ``energy_grid`` / ``spline_coefficients`` on ``ls_spectrum`` directly.
@@ -30,6 +34,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _checks, signal
+
+
+#: precision of the grid correlograms the receivers read (``dpe.receiver_correlogram`` for the grid search,
+#: ``otdoa.toa_from_spectrum``), chosen from the measurement in the module docstring
+GRID_DTYPE = jnp.complex64
 
 
 def check_inputs(y, prs, n_taps: int):
@@ -79,7 +88,7 @@ def energy_grid(g, n_taps: int, upsample: int) -> jax.Array:
     n = g.shape[-1]
     k = np.arange(n)
     shifts = np.exp(2j * np.pi * np.outer(np.arange(upsample) / upsample, k) / n)  # (U, N), a compile-time constant
-    h = jnp.fft.ifft(g[..., None, :] * shifts, axis=-1)  # (..., M, U, N): ĥ(n + u/U) / √N
+    h = jnp.fft.ifft(g[..., None, :] * jnp.asarray(shifts, g.dtype), axis=-1)  # (..., M, U, N): ĥ(n + u/U) / √N
     w = window_sum((h.real**2 + h.imag**2) * n, n_taps)
     w = jnp.swapaxes(w, -1, -2)  # (..., M, N, U)
     return w.reshape(w.shape[:-2] + (n * upsample,))

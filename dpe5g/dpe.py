@@ -31,7 +31,7 @@ from .nr import C, PAPER, Numerology
 
 #: Default receiver window L (taps).  First chosen in Chapter 3 on 8 NLoS (TDL-C) links on a 150 m ring with the grid
 #: on the truth, where L = 12 gave the smallest RMSE; chosen again on the urban scenario (mixed LoS/NLoS, Figs. 9 and
-#: 10 set-ups) with the honest receiver (prior-centred window, certified search; ``studies.urban_window_experiments``,
+#: 10 set-ups) with the honest receiver (prior-centred window, certified search; ``paper.urban_window_experiments``,
 #: Chapter 5), where the rule of ``studies.choose_window`` picks L = 12 again.  Shorter windows lock onto the strongest
 #: cluster of NLoS links; longer ones widen the LoS plateau and flatten the peak (the TDL-C excess delay is 69 samples).
 DEFAULT_TAPS = 12
@@ -257,12 +257,18 @@ def search(corr, g, bs_xyz, center, cfg: SearchConfig, n_fft: int, scs_hz: float
     search_b, search_z = cfg.bias_half_width_m > 0, cfg.z_half_width_m > 0
     steps = cfg.steps()
     for level, step in enumerate(steps):
+        half_b = cfg.bias_half_width_m if level == 0 else 2 * step * search_b
         if level == 0:
-            off = _grid_offsets(cfg.half_width_m, cfg.z_half_width_m, cfg.bias_half_width_m, step)
+            off = _grid_offsets(cfg.half_width_m, cfg.z_half_width_m, half_b, step)
         else:
-            off = _grid_offsets(2 * step, 2 * step * search_z, 2 * step * search_b, step)
+            off = _grid_offsets(2 * step, 2 * step * search_z, half_b, step)
         cand = q + jnp.asarray(off)
-        vals = _lookup(corr, _tau_of(cand, bs_xyz) / ts * cfg.upsample)
+        # the c δt offsets vary fastest: the distances of each (x, y, z) point are computed once for all of them
+        n_b = _axis(half_b, step).size
+        grid = cand.reshape(-1, n_b, 4)
+        dist = jnp.linalg.norm(grid[:, 0, None, :3] - bs_xyz, axis=-1) / C  # (K / n_b, M)
+        tau = dist[:, None, :] + (grid[..., 3] / C)[..., None]  # = _tau_of(cand), (K / n_b, n_b, M)
+        vals = _lookup(corr, tau.reshape(cand.shape[0], -1) / ts * cfg.upsample)
         q = cand[jnp.argmax(vals)]
     if cfg.polish:
         mask = jnp.array([1.0, 1.0, float(search_z), float(search_b)])
@@ -509,14 +515,15 @@ def fix(g, bs_xyz, center_m, cfg: SearchConfig, num: Numerology = PAPER, corr=No
 
 def receiver_correlogram(g, cfg: SearchConfig, window=None):
     """The per-BS correlograms the chosen search reads (traceable), from the LS spectrum g (M, N):
-    ``correlogram.energy_grid`` on T_s/upsample for "grid", ``correlogram.spline_coefficients`` for "bnb".  Rows are
+    ``correlogram.energy_grid`` on T_s/upsample (in ``correlogram.GRID_DTYPE``) for "grid",
+    ``correlogram.spline_coefficients`` (float64) for "bnb".  Rows are
     per BS, so the M nearest of them serve any M.  window : for "bnb", ``correlogram.window_spectrum(cfg.n_taps, N)``
     passed as an array (then ``cfg.n_taps`` is not read, and a compiled caller serves every L); None computes it."""
     if cfg.method == "bnb":
         if window is None:
             window = jnp.asarray(correlogram.window_spectrum(cfg.n_taps, g.shape[-1]))
         return correlogram.spline_coefficients(g, window, cfg.spline_upsample)
-    return correlogram.energy_grid(g, cfg.n_taps, cfg.upsample)
+    return correlogram.energy_grid(g.astype(correlogram.GRID_DTYPE), cfg.n_taps, cfg.upsample)
 
 
 @partial(jax.jit, static_argnames=("cfg", "num"))

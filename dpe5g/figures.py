@@ -20,7 +20,7 @@ from typing import Any, Callable
 import jax
 import numpy as np
 
-from . import channel, plots
+from . import channel, paper, plots
 from ._io import atomic_write
 from .nr import PAPER
 
@@ -71,14 +71,28 @@ def get(fig_id: str) -> FigureSpec:
     return REGISTRY[fig_id]
 
 
-def compute(fig_id: str, progress: bool = False) -> dict:
+def takes_trials(fig_id: str) -> bool:
+    """Whether the figure comes from a Monte Carlo whose trial count ``compute(..., trials=N)`` can set."""
+    return "trials" in inspect.signature(get(fig_id).compute).parameters
+
+
+def compute(fig_id: str, progress: bool = False, trials: int | None = None) -> dict:
     """Run the producer of ``fig_id`` and return its JSON-able payload.
 
     progress : show a progress bar (stderr) where the producer runs a long Monte Carlo (the CLI turns it on).
+    trials : Monte Carlo trials per experiment instead of the committed figure's (``dpe5g.paper``); only for the
+        figures of ``takes_trials``.  The payload then differs from the committed baseline.
     """
     spec = get(fig_id)
-    takes_progress = "progress" in inspect.signature(spec.compute).parameters
-    payload = spec.compute(progress=progress) if takes_progress else spec.compute()
+    kwargs = {}
+    if "progress" in inspect.signature(spec.compute).parameters:
+        kwargs["progress"] = progress
+    if trials is not None:
+        if not takes_trials(fig_id):
+            raise ValueError(f"trials: figure {fig_id} has no Monte Carlo; trials applies to "
+                             f"{', '.join(f for f in REGISTRY if takes_trials(f))}")
+        kwargs["trials"] = int(trials)
+    payload = spec.compute(**kwargs)
     payload = {"id": spec.id, "paper_ref": spec.paper_ref, "caption": spec.caption, **payload}
     return _jsonable(payload)
 
@@ -88,10 +102,10 @@ def render(payload: dict):
     return get(payload["id"]).plot(payload)
 
 
-def write(fig_id: str, out_dir, progress: bool = False) -> tuple[Path, Path]:
+def write(fig_id: str, out_dir, progress: bool = False, trials: int | None = None) -> tuple[Path, Path]:
     """Compute and draw ``fig_id``; write ``out_dir/<id>.png`` and ``out_dir/data/<id>.json``."""
     out = Path(out_dir)
-    payload = compute(fig_id, progress=progress)
+    payload = compute(fig_id, progress=progress, trials=trials)
     js = out / "data" / f"{fig_id}.json"
     atomic_write(js, (json.dumps(payload, indent=1, sort_keys=True) + "\n").encode())
     fig = render(payload)
@@ -258,16 +272,6 @@ register("fig06_cost_surface", "Fig. 6",
 # ---------------------------------------------------------------------------------------------------------------
 # Figs. 7–9: the urban study (Section IV-A).
 
-URBAN_SEED = 9
-URBAN_TRIALS = 5000  # the paper's Monte Carlo size
-#: the honest receiver of Fig. 9: window centred on truth + a Gaussian error of σ = 5 m per axis, ±30 m (6 σ), the
-#: clock-bias window from the clock model, certified branch-and-bound search.  Its trial count is set by what the
-#: 2-core CI machine can afford (each of its fixes is a certified global search); the truth-centred comparison uses
-#: the same seed, so its first trials are the same signals.
-HONEST_SEARCH_HALF_WIDTH_M = 30.0
-PRIOR_SIGMA_M = 5.0
-FIG9_HONEST_TRIALS = 400
-FIG9_TRUTH_TRIALS = 1000
 EXAMPLE_TRIAL = 0  # the example UE of Figs. 7–8 and of the 3-D scene: trial 0 of the Fig. 9 experiment
 EXAMPLE_SNR_DB = 20.0
 EXAMPLE_M = 12
@@ -275,35 +279,10 @@ FIG8_HALF_WIDTH_M = 10.0
 FIG8_STEP_M = 0.2
 
 
-def honest_search():
-    """The honest receiver's search: certified branch and bound over ±30 m (the bias window comes from the clock
-    model, ``Experiment.receiver_search``)."""
-    from . import dpe
-
-    return dpe.SearchConfig(method="bnb", half_width_m=HONEST_SEARCH_HALF_WIDTH_M)
-
-
-def urban_experiment(n_trials: int = FIG9_TRUTH_TRIALS):
-    """The Fig. 9 experiment in the paper's set-up (labelled comparison): fixed per-link SNR 10…40 dB, M = 6, 12,
-    18, 24 nearest BSs, LoS from eq. (9), grid search centred on the true position and clock bias."""
-    from . import montecarlo
-
-    return montecarlo.Experiment(name="fig09", n_trials=n_trials, seed=URBAN_SEED)
-
-
-def urban_honest_experiment(n_trials: int = FIG9_HONEST_TRIALS):
-    """The Fig. 9 experiment with the honest receiver (the main curves): as ``urban_experiment`` but the window
-    centred on a prior (truth + N(0, 5² m²) per axis) and the certified search."""
-    from . import montecarlo
-
-    return montecarlo.Experiment(name="fig09-honest", n_trials=n_trials, seed=URBAN_SEED, centring="prior",
-                                 prior_kind="gaussian", prior_scale_m=PRIOR_SIGMA_M, search=honest_search())
-
-
 def _example():
     from . import montecarlo
 
-    e = urban_experiment(n_trials=EXAMPLE_TRIAL + 1)
+    e = paper.fig9_truth(n_trials=EXAMPLE_TRIAL + 1)
     return e, montecarlo.example(e, EXAMPLE_TRIAL, list(e.snrs_db).index(EXAMPLE_SNR_DB))
 
 
@@ -313,7 +292,7 @@ def deployment_payload() -> dict:
     dep = e.load_deployment()
     m = EXAMPLE_M
     return {
-        "seed": URBAN_SEED,
+        "seed": paper.URBAN_SEED,
         "config": {"deployment": dep.name, "n_bs": dep.n_bs, "area_m2": dep.area_m2, "example_trial": EXAMPLE_TRIAL,
                    "m": m, "anchor_lat_lon_deg": [dep.anchor_lat_deg, dep.anchor_lon_deg]},
         "data": {"region": dep.region, "buildings": dep.buildings, "streets": [dict(s) for s in dep.streets],
@@ -340,7 +319,7 @@ def urban_correlogram_payload() -> dict:
                                            PAPER.scs_hz)))
     cost = np.stack(rows)
     return {
-        "seed": URBAN_SEED,
+        "seed": paper.URBAN_SEED,
         "config": {"example_trial": EXAMPLE_TRIAL, "snr_db": EXAMPLE_SNR_DB, "m": m, "n_taps": e.search.n_taps,
                    "grid_step_m": FIG8_STEP_M, "centring": "truth"},
         "data": {"x_m": ue[0] + axis, "y_m": ue[1] + axis, "cost_norm": cost / cost.max(), "ue_xyz": ue,
@@ -387,11 +366,6 @@ def rmse_payload(experiments: dict, progress: bool = False) -> dict:
     }
 
 
-def fig9_experiments(honest_trials: int = FIG9_HONEST_TRIALS, truth_trials: int = FIG9_TRUTH_TRIALS) -> dict:
-    """The receivers of Fig. 9: the honest one (main curves) and the paper's truth-centred set-up (comparison)."""
-    return {"honest": urban_honest_experiment(honest_trials), "truth": urban_experiment(truth_trials)}
-
-
 register("fig07_deployment_map", "Fig. 7",
          "Our Tsim Sha Tsui-like deployment: 26 BSs over a 227,360 m² region, and an example UE with its 12 "
          "nearest links (LoS/NLoS drawn from eq. (9)).", plots.plot_deployment)(deployment_payload)
@@ -401,37 +375,15 @@ register("fig08_urban_correlogram", "Fig. 8",
 register("fig09_rmse_vs_snr", "Fig. 9",
          "DPE RMSE against SNR for M = 6, 12, 18, 24 nearest BSs: the honest receiver (window centred on a 5 m "
          "prior, certified search; solid) and the paper's truth-centred grid (dashed).",
-         plots.plot_rmse_vs_snr)(lambda progress=False: rmse_payload(fig9_experiments(), progress))
+         plots.plot_rmse_vs_snr)(
+    lambda progress=False, trials=None: rmse_payload(
+        paper.fig9() if trials is None else paper.fig9(honest_trials=trials, truth_trials=trials), progress))
 
 
 # ---------------------------------------------------------------------------------------------------------------
 # Fig. 10: DPE against OTDoA with the 4 nearest BSs (Section IV-B).
 
-FIG10_SEED = 10
-FIG10_CASES = ("two_of_four", "eq9")
-#: DPE receivers of Fig. 10: centred on the OTDoA (first-path) fix — the realistic two-stage receiver —, on a 5 m
-#: prior, and on the truth (the paper's set-up, a labelled comparison)
-FIG10_CENTRINGS = ("otdoa", "prior", "truth")
-FIG10_TRIALS = 2000
 CDF_GRID_M = np.logspace(-2, 3, 251)  # error axis of the stored CDFs, 1 cm … 1 km
-
-
-def otdoa_experiments(n_trials: int = FIG10_TRIALS) -> dict:
-    """The Fig. 10 experiments, keyed (case, centring): the paper's stated case (two of the four nearest links LoS)
-    and LoS drawn from eq. (9); SNR of each link from the UMi path loss; DPE and OTDoA on the same received signals
-    (the same seed, so every centring sees the same trials).  The "otdoa" experiments also hold the OTDoA fixes of
-    both detectors."""
-    from . import montecarlo
-
-    base = dict(n_trials=n_trials, seed=FIG10_SEED, snr_mode="link_budget", snrs_db=(), m_values=(4,))
-    out = {}
-    for case in FIG10_CASES:
-        for cen in FIG10_CENTRINGS:
-            extra = (dict(search=honest_search(), prior_kind="gaussian", prior_scale_m=PRIOR_SIGMA_M)
-                     if cen != "truth" else {})
-            out[(case, cen)] = montecarlo.Experiment(name=f"fig10-{case.replace('_', '-')}-{cen}", los_mode=case,
-                                                     centring=cen, otdoa=cen == "otdoa", **base, **extra)
-    return out
 
 
 def _quantiles(err):
@@ -465,11 +417,11 @@ def cdf_payload(experiments: dict, progress: bool = False) -> dict:
                                    "noise_figure_db": e.link.noise_figure_db}
     for d in data.values():
         d["improvement_p90"] = 1.0 - d["dpe_otdoa"]["p50_p90_p99_m"][1] / d["otdoa_first_path"]["p50_p90_p99_m"][1]
-    return {"seed": FIG10_SEED, "config": {"experiments": config, "error_grid_m": CDF_GRID_M}, "data": data}
+    return {"seed": paper.FIG10_SEED, "config": {"experiments": config, "error_grid_m": CDF_GRID_M}, "data": data}
 
 
 register("fig10_cdf_dpe_vs_otdoa", "Fig. 10",
          "CDF of the position error of DPE and OTDoA with the 4 nearest BSs, SNR per link from the UMi path loss: "
          "DPE centred on the OTDoA fix or on a 5 m prior (certified search) and on the truth (the paper's set-up); "
          "OTDoA with the first-path and the strongest-peak ToA.", plots.plot_cdf)(
-    lambda progress=False: cdf_payload(otdoa_experiments(), progress))
+    lambda progress=False, trials=None: cdf_payload(paper.fig10() if trials is None else paper.fig10(trials), progress))

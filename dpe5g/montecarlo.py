@@ -11,11 +11,13 @@ come from the cache.
 
 Results are cached per experiment in ``<cache>/<name>-<hash>/``, one ``.npz`` per chunk of trials, written atomically
 (temporary file + rename), so an interrupted run resumes where it stopped and ends with results identical to an
-uninterrupted one.  The hash covers the config and the source of every module the numbers depend on.
+uninterrupted one.  The hash covers the config, the code of every module the numbers depend on (docstrings and
+comments left out), the deployment file, the numerical libraries' versions and the float precision.
 """
 
 from __future__ import annotations
 
+import ast
 import dataclasses
 import hashlib
 import io
@@ -153,8 +155,9 @@ class Experiment:
         return dataclasses.asdict(self)
 
     def key(self) -> str:
-        """Hash of the config and of the source and data the results depend on.  Leaves out ``n_trials`` and
-        ``chunk_trials``: trial t's result depends on neither, so a longer run reuses a shorter one's chunks."""
+        """Hash of the config, of the code (``code_digest``) and data the results depend on, and of the numerical
+        libraries' versions and JAX's precision.  Leaves out ``n_trials`` and ``chunk_trials``: trial t's result
+        depends on neither, so a longer run reuses a shorter one's chunks."""
         h = hashlib.sha256()
         d = self.to_dict()
         d.pop("chunk_trials")
@@ -162,9 +165,31 @@ class Experiment:
         h.update(json.dumps(d, sort_keys=True, default=str).encode())
         here = Path(__file__).resolve().parent
         for name in _SOURCES:
-            h.update((here / name).read_bytes())
+            h.update(code_digest(here / name))
         h.update(_deployment_digest(self).encode())
+        h.update(json.dumps(_numerics()).encode())
         return h.hexdigest()[:16]
+
+
+def code_digest(path: Path) -> bytes:
+    """A module's code for the cache key: its syntax tree without docstrings, comments or line numbers, so that
+    editing the prose of a module does not invalidate cached results, while any change of code does."""
+    tree = ast.parse(Path(path).read_text())
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if (isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and body
+                and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant)
+                and isinstance(body[0].value.value, str)):
+            node.body = body[1:] or [ast.Pass()]
+    return ast.dump(tree).encode()
+
+
+def _numerics() -> dict:
+    """What else the numbers depend on: the versions of the numerical libraries and JAX's float precision."""
+    import jaxlib
+
+    return {"jax": jax.__version__, "jaxlib": jaxlib.__version__, "numpy": np.__version__,
+            "x64": bool(jax.config.jax_enable_x64)}
 
 
 @dataclass(frozen=True)

@@ -59,11 +59,12 @@ def toa(y, prs, method: str = "peak", upsample: int = 8, threshold_db: float = -
     return toa_from_spectrum(g, method, upsample, float(threshold_db), max_lead_samples, num.sample_period_s)
 
 
-@partial(jax.jit, static_argnames=("method", "upsample", "max_lead_samples"))
-def toa_from_spectrum(g, method, upsample, threshold_db, max_lead_samples, ts):
+@partial(jax.jit, static_argnames=("method", "upsample", "max_lead_samples", "dtype"))
+def toa_from_spectrum(g, method, upsample, threshold_db, max_lead_samples, ts, dtype=correlogram.GRID_DTYPE):
     """``toa`` from the LS spectrum g (M, N) (``correlogram.ls_spectrum``), unvalidated and traceable (the Monte Carlo
-    engine's entry point); ts : T_s in seconds.  Returns (M,) seconds."""
-    e = correlogram.energy_grid(g, 1, upsample)  # (M, N·U): |ĥ(j T_s/U)|² · N, the one-tap windowed energy
+    engine's entry point); ts : T_s in seconds; dtype : of the correlogram (the benchmark compares two).  Returns (M,)
+    seconds."""
+    e = correlogram.energy_grid(g.astype(dtype), 1, upsample)  # (M, N·U): |ĥ(j T_s/U)|² · N
     return jax.vmap(lambda row: _toa_row(row, method, upsample, threshold_db, max_lead_samples, ts))(e)
 
 

@@ -137,37 +137,8 @@ def plateau_payload(seed: int = 5, delay_spread_s: float = 65e-9, k_factor_db: f
                        "taps": PLATEAU_TAPS, "upsample": PLATEAU_UPSAMPLE, "sample_m": ts * C}, "data": data}
 
 
-#: windows compared on the urban scenario, and the set-ups they are compared on (Fig. 9's at one SNR, Fig. 10's
-#: two LoS cases).  The seeds differ from the figures' (9 and 10), so L is not chosen on the trials it is scored on.
-URBAN_WINDOW_TAPS = (1, 2, 4, 8, 12, 16, 24)
-URBAN_WINDOW_SETUPS = ("fig9_20db", "fig10_eq9", "fig10_two_of_four")
-URBAN_WINDOW_SEEDS = {"fig9_20db": 31, "fig10_eq9": 32, "fig10_two_of_four": 33}
-#: trials per (set-up, L): enough to rank windows whose RMSEs differ by more than ~10 % (the Monte Carlo standard
-#: error of an RMSE over n trials is about RMSE / √(2n) for a light tail; the urban tail is heavier)
-URBAN_WINDOW_TRIALS = 200
-
-
-def urban_window_experiments(search: dpe.SearchConfig, taps=URBAN_WINDOW_TAPS, n_trials: int = 200,
-                             prior_sigma_m: float = 5.0) -> dict:
-    """The receiver-window study on the urban scenario with an honest receiver: window centred on truth + a
-    Gaussian prior error (σ = ``prior_sigma_m`` per axis), the bias window from the clock model, ``search`` (the
-    honest search of the figures) with each L of ``taps``.  Set-ups: Fig. 9's (every link at 20 dB per sample,
-    M = 6 and 24, LoS from eq. (9)) and Fig. 10's (M = 4, SNR per link from the path loss, LoS from eq. (9) or two
-    of four).  Returns {(setup, L): Experiment}."""
-    from . import montecarlo
-
-    base = dict(n_trials=n_trials, centring="prior", prior_kind="gaussian", prior_scale_m=prior_sigma_m)
-    setups = {"fig9_20db": dict(snr_mode="fixed", snrs_db=(20.0,), m_values=(6, 24), los_mode="eq9"),
-              "fig10_eq9": dict(snr_mode="link_budget", snrs_db=(), m_values=(4,), los_mode="eq9"),
-              "fig10_two_of_four": dict(snr_mode="link_budget", snrs_db=(), m_values=(4,), los_mode="two_of_four")}
-    return {(name, int(n)): montecarlo.Experiment(name=f"window-{name.replace('_', '-')}-L{int(n)}",
-                                                  seed=URBAN_WINDOW_SEEDS[name],
-                                                  search=replace(search, n_taps=int(n)), **base, **kw)
-            for name, kw in setups.items() for n in taps}
-
-
 def urban_window_table(experiments: dict, progress: bool = False) -> list[dict]:
-    """Run (or load) ``urban_window_experiments`` and score every (set-up, M, L): RMSE, median, 90 % error, edge
+    """Run (or load) ``paper.urban_window_experiments`` and score every (set-up, M, L): RMSE, median, 90 % error, edge
     and certified shares, and the median certified gap (how far, relative, the window's maximum can lie above the
     fix's cost).  Adds ``rmse_rel``: the RMSE over the smallest RMSE of the same (set-up, M) column."""
     from . import montecarlo

@@ -15,6 +15,9 @@ def run(*args):
         (("profile", "Z"), "profile must be one of"),
         (("profile", "C", "--delay-spread", "nan"), "finite"),
         (("figures", "--only", "fig99_nothing"), "figure must be one of"),
+        (("figures", "--only", "fig01_tdl_a", "--trials", "5", "--out", "elsewhere"), "--trials applies to"),
+        (("figures", "--trials", "5"), "holds the committed baselines"),
+        (("figures", "--only", "fig09_rmse_vs_snr", "--trials", "0", "--out", "elsewhere"), "--trials must be"),
     ],
 )
 def test_bad_input_is_one_line_exit_2(args, needle):
@@ -42,3 +45,16 @@ def test_profile_prints_table():
     r = run("profile", "D")
     assert r.returncode == 0
     assert "TDL-D" in r.stdout and "K = 13.3" in r.stdout
+
+
+def test_figures_with_a_trial_count(tmp_path):
+    """``dpe5g figures --trials N`` runs the paper's experiment (``dpe5g.paper``) with N trials."""
+    import json
+    import os
+
+    env = {**os.environ, "DPE5G_CACHE": str(tmp_path / "cache")}
+    r = subprocess.run([sys.executable, "-m", "dpe5g", "figures", "--only", "fig09_rmse_vs_snr", "--trials", "3",
+                        "--out", str(tmp_path / "out")], capture_output=True, text=True, timeout=600, env=env)
+    assert r.returncode == 0, r.stderr
+    doc = json.loads((tmp_path / "out" / "data" / "fig09_rmse_vs_snr.json").read_text())
+    assert {v["n_trials"] for v in doc["config"]["receivers"].values()} == {3}

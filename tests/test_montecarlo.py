@@ -172,3 +172,14 @@ def test_engine_signal_is_the_public_signal_path():
         noise = ex["y"] - ex["y0"]
         var = float(np.asarray(signal.noise_variance(20.0, ex["prs"]))[0])
         assert abs(np.mean(np.abs(noise) ** 2) / var - 1) < 0.05
+
+
+def test_cache_key_follows_code_not_prose(tmp_path):
+    """``code_digest`` ignores docstrings, comments and layout, and changes with any change of code."""
+    a = tmp_path / "a.py"
+    a.write_text('"""Doc."""\n\ndef f(x):\n    """Say."""\n    return x + 1  # one\n')
+    b = tmp_path / "b.py"
+    b.write_text('"""Other doc."""\n\n\ndef f(x):\n    # a comment\n    return x + 1\n')
+    c = tmp_path / "c.py"
+    c.write_text('"""Doc."""\n\ndef f(x):\n    """Say."""\n    return x + 2  # one\n')
+    assert montecarlo.code_digest(a) == montecarlo.code_digest(b) != montecarlo.code_digest(c)

@@ -1,0 +1,180 @@
+"""Benchmark of the Monte Carlo engine (a script, not a test): prints a table and writes JSON.
+
+    .venv/bin/python benchmarks/bench_engine.py [--trials 300] [--full] [--out benchmarks/bench_engine.json]
+
+1. The correlogram work per BS and SNR, on the engine's path (LS spectrum → ``correlogram.energy_grid`` for the grid
+   search, ``correlogram.spline_coefficients`` for the certified one), against one 4096-point FFT measured in the
+   same run, two ways: one FFT per call (what a single transform costs with its dispatch) and the per-row time of
+   24 FFTs in one call (the throughput the correlograms compete with).  Target: ≤ 3 FFT-equivalents.
+2. Precision: complex64 against complex128 correlograms on the same signals — the time of each and the ToA error
+   that complex64 adds to the OTDoA detector's peak (which reads the same correlogram).
+3. The profile of one (trial, SNR) of Fig. 9's truth-centred experiment (24 links, M = 6, 12, 18, 24): draws and
+   noise, correlograms, searches.
+4. Fig. 9's truth-centred experiment from an empty cache, in a fresh process with an empty JAX compilation cache:
+   the first chunk (compile + 100 trials) and ``--trials`` in all are timed; the 5000-trial time is extrapolated
+   from them (or measured with ``--full``).  Target: ≤ 120 s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from dpe5g import correlogram, dpe, montecarlo, otdoa, paper
+from dpe5g.nr import PAPER
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+
+
+def median_time(fn, repeats):
+    jax.block_until_ready(fn())  # warm-up / compile
+    ts = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn())
+        ts.append(time.perf_counter() - t0)
+    return float(np.median(ts))
+
+
+RUN_FIG9 = """
+import json, sys, time
+from dpe5g import montecarlo, paper
+n, cache = int(sys.argv[1]), sys.argv[2]
+t0 = time.perf_counter()
+montecarlo.run(paper.fig9_truth(100), cache=cache, progress=False)
+t1 = time.perf_counter()
+montecarlo.run(paper.fig9_truth(n), cache=cache, progress=False)
+print(json.dumps({"first_chunk_s": t1 - t0, "total_s": time.perf_counter() - t0}))
+"""
+
+
+def fig9_from_empty_cache(n_trials: int) -> dict:
+    with tempfile.TemporaryDirectory() as tmp:
+        env = {**os.environ, "DPE5G_JAX_CACHE": os.path.join(tmp, "jax"), "DPE5G_CACHE": os.path.join(tmp, "mc")}
+        r = subprocess.run([sys.executable, "-c", RUN_FIG9, str(n_trials), os.path.join(tmp, "mc")], env=env,
+                           capture_output=True, text=True, check=True)
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    per_trial = (out["total_s"] - out["first_chunk_s"]) / (n_trials - 100)
+    out["per_trial_s"] = per_trial
+    out["trials"] = n_trials
+    out["full_5000_s"] = out["first_chunk_s"] + per_trial * (paper.URBAN_TRIALS - 100)
+    out["full_measured"] = n_trials == paper.URBAN_TRIALS
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--trials", type=int, default=300, help="Fig. 9 trials to time (> 100; default 300)")
+    ap.add_argument("--full", action="store_true", help="time all 5000 trials of Fig. 9 instead of extrapolating")
+    ap.add_argument("--out", default=os.path.join(HERE, "bench_engine.json"))
+    args = ap.parse_args(argv)
+    n_fig9 = paper.URBAN_TRIALS if args.full else args.trials
+    if n_fig9 <= 100:
+        ap.error("--trials must exceed 100 (the first chunk is timed separately)")
+
+    # signals of one Fig. 9 trial at 20 dB: 24 links, engine's own draws
+    e = paper.fig9_truth(1)
+    ex = montecarlo.example(e, 0, list(e.snrs_db).index(20.0))
+    g = correlogram.ls_spectrum(jnp.fft.fft(jnp.asarray(ex["y"]), axis=-1, norm="ortho"), jnp.asarray(ex["prs"]))
+    m = g.shape[0]
+    cfg, honest = e.receiver_search(), paper.fig9_honest(1).receiver_search()
+    window = jnp.asarray(correlogram.window_spectrum(honest.n_taps, PAPER.n_fft))
+
+    # 1. FFT floor and correlogram work per BS
+    fft = jax.jit(lambda x: jnp.fft.ifft(x, axis=-1))
+    t_fft_call = median_time(lambda: fft(g[0]), 300)
+    t_fft_row = median_time(lambda: fft(g), 100) / m
+    grid = jax.jit(lambda x: correlogram.energy_grid(x, cfg.n_taps, cfg.upsample))  # complex128 in, as g is
+    spline = jax.jit(lambda x: correlogram.spline_coefficients(x, window, honest.spline_upsample))
+    t_grid = median_time(lambda: grid(g), 50) / m
+    t_spline = median_time(lambda: spline(g), 50) / m
+
+    # 2. complex64 against complex128, same signals: time, and the ToA error complex64 adds to the detector's peak
+    g64 = g.astype(jnp.complex64)
+    grid64 = jax.jit(lambda x: correlogram.energy_grid(x, cfg.n_taps, cfg.upsample))
+    t_grid64 = median_time(lambda: grid64(g64), 50) / m
+    toa = lambda dt: np.asarray(otdoa.toa_from_spectrum(g, "peak", 8, -10.0, 64, PAPER.sample_period_s, dt),
+                                dtype=np.float64)
+    err_mm = float(np.max(np.abs(toa(jnp.complex64) - toa(jnp.complex128)))) * 299792458.0 * 1e3
+    dtype64 = str(grid64(g64).dtype)
+
+    # 3. profile of one (trial, SNR) of the Fig. 9 truth-centred experiment, batch of 2 trials as the engine runs
+    dep = e.load_deployment()
+    draw = montecarlo._draw_fn(e, dep)
+    keys = jax.vmap(lambda t: montecarlo.trial_key(e.seed, t))(jnp.arange(20))
+    f_draw = jax.jit(lambda k: jax.lax.map(lambda kk: (lambda d: d["y0"].sum() + d["noise"].sum())(draw(kk)), k,
+                                           batch_size=2))
+
+    def corr_all(kk):
+        d = draw(kk)
+        return jax.lax.map(lambda s: dpe.receiver_correlogram(correlogram.ls_spectrum(montecarlo._noisy(d, s),
+                                                                                      d["prs"]), cfg).sum(),
+                           jnp.arange(d["link_snr"].shape[0])).sum()
+
+    f_corr = jax.jit(lambda k: jax.lax.map(corr_all, k, batch_size=2))
+    fn = montecarlo._trial_fn(e, dep)
+    ext = jnp.zeros((20, e.n_snr, len(e.m_values), 4))
+    f_all = jax.jit(lambda k: jax.lax.map(lambda a: fn(*a, jnp.zeros(1, complex)), (k, ext), batch_size=2))
+    n_ts = 20 * e.n_snr
+    p_draw = median_time(lambda: f_draw(keys), 3) / n_ts
+    p_corr = median_time(lambda: f_corr(keys), 3) / n_ts - p_draw
+    p_all = median_time(lambda: f_all(keys), 3) / n_ts
+    p_search = p_all - p_draw - p_corr
+
+    # 4. Fig. 9 from an empty cache
+    f9 = fig9_from_empty_cache(n_fig9)
+
+    rows = [
+        ("one 4096-point FFT, one call (with dispatch)", t_fft_call, "s"),
+        ("one 4096-point FFT, per row of 24 in one call", t_fft_row, "s"),
+        ("grid correlogram per BS and SNR (L = 12, U = 4), complex128", t_grid, "s"),
+        ("  in FFT-equivalents, one-call FFT (target <= 3)", t_grid / t_fft_call, "x"),
+        ("  in FFT-equivalents, per-row FFT", t_grid / t_fft_row, "x"),
+        ("spline correlogram per BS and SNR (certified search, U = 8)", t_spline, "s"),
+        ("  in FFT-equivalents, per-row FFT", t_spline / t_fft_row, "x"),
+        (f"grid correlogram per BS and SNR, complex64 ({dtype64} out; the engine's)", t_grid64, "s"),
+        ("  ToA error complex64 adds (OTDoA peak, 24 links, max)", err_mm, "mm"),
+        ("Fig. 9 truth: draws + noise per (trial, SNR)", p_draw, "s"),
+        ("Fig. 9 truth: 24 correlograms per (trial, SNR)", p_corr, "s"),
+        ("Fig. 9 truth: 4 grid searches per (trial, SNR)", p_search, "s"),
+        ("Fig. 9 truth: all per (trial, SNR)", p_all, "s"),
+        ("Fig. 9 truth from empty caches: compile + first 100 trials", f9["first_chunk_s"], "s"),
+        (f"Fig. 9 truth: per trial (7 SNRs), from {n_fig9} trials", f9["per_trial_s"], "s"),
+        ("Fig. 9 truth, 5000 trials " + ("(measured)" if f9["full_measured"] else "(extrapolated)")
+         + " (target <= 120 s)", f9["full_5000_s"], "S"),
+    ]
+    print(f"{'quantity':<78} {'value':>12}")
+    for name, v, unit in rows:
+        s = {"s": f"{v * 1e3:.3g} ms", "S": f"{v:.0f} s", "x": f"{v:.1f}x", "mm": f"{v:.2g} mm"}[unit]
+        print(f"{name:<78} {s:>12}")
+    result = {
+        "machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "jax": jax.__version__,
+                    "device": str(jax.devices()[0])},
+        "seconds": {"fft_4096_call": t_fft_call, "fft_4096_row": t_fft_row, "grid_correlogram_per_bs": t_grid,
+                    "spline_correlogram_per_bs": t_spline, "grid_correlogram_per_bs_c64": t_grid64,
+                    "fig9_draw_per_trial_snr": p_draw, "fig9_correlograms_per_trial_snr": p_corr,
+                    "fig9_searches_per_trial_snr": p_search, "fig9_all_per_trial_snr": p_all},
+        "ratios": {"grid_correlogram_vs_fft_call": t_grid / t_fft_call,
+                   "grid_correlogram_c64_vs_fft_row": t_grid64 / t_fft_row,
+                   "grid_correlogram_vs_fft_row": t_grid / t_fft_row,
+                   "spline_correlogram_vs_fft_row": t_spline / t_fft_row},
+        "c64_toa_error_mm": err_mm,
+        "fig9_empty_cache": f9,
+    }
+    with open(args.out, "w") as f:
+        json.dump(result, f, indent=1)
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
