@@ -12,27 +12,16 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
-import platform
-import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from benchutil import median_time, write
+
 from dpe5g import correlogram, dpe, nr, signal
 from dpe5g.nr import PAPER
-
-
-def median_time(fn, repeats):
-    fn()  # warm-up / compile
-    ts = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        ts.append(time.perf_counter() - t0)
-    return float(np.median(ts))
 
 
 def main(argv=None):
@@ -106,8 +95,6 @@ def main(argv=None):
         s = f"{v * 1e3:.3g} ms" if unit == "s" else (f"{v:.1f}x" if unit == "x" else f"{v:.1e}")
         print(f"{name:<80} {s:>12}")
     result = {
-        "machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "jax": jax.__version__,
-                    "device": str(jax.devices()[0])},
         "config": {"n_fft": n, "n_taps": n_taps, "search": dataclasses.asdict(cfg)},
         "seconds": {"literal_per_bs_candidate": t_lit / per, "fast_per_bs_candidate": t_fast / per,
                     "correlogram_per_bs_candidate": t_corr_cand, "fix_m24": t_fix, "fix_m24_polish": t_fix_pol,
@@ -117,9 +104,7 @@ def main(argv=None):
                    "per_bs_vs_fft": t_fix / m / t_fft, "honest_fix_vs_fft": t_honest / t_fft},
         "fast_vs_literal_max_rel_diff": agree,
     }
-    with open(args.out, "w") as f:
-        json.dump(result, f, indent=1)
-    print(f"wrote {args.out}")
+    write(args.out, result)
 
 
 if __name__ == "__main__":

@@ -20,30 +20,20 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
-import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from benchutil import median_time, write
+
 from dpe5g import correlogram, dpe, montecarlo, otdoa, paper
 from dpe5g.nr import PAPER
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-
-
-def median_time(fn, repeats):
-    jax.block_until_ready(fn())  # warm-up / compile
-    ts = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        ts.append(time.perf_counter() - t0)
-    return float(np.median(ts))
 
 
 RUN_FIG9 = """
@@ -158,8 +148,6 @@ def main(argv=None):
         s = {"s": f"{v * 1e3:.3g} ms", "S": f"{v:.0f} s", "x": f"{v:.1f}x", "mm": f"{v:.2g} mm"}[unit]
         print(f"{name:<78} {s:>12}")
     result = {
-        "machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "jax": jax.__version__,
-                    "device": str(jax.devices()[0])},
         "seconds": {"fft_4096_call": t_fft_call, "fft_4096_row": t_fft_row, "grid_correlogram_per_bs": t_grid,
                     "spline_correlogram_per_bs": t_spline, "grid_correlogram_per_bs_c64": t_grid64,
                     "fig9_draw_per_trial_snr": p_draw, "fig9_correlograms_per_trial_snr": p_corr,
@@ -171,9 +159,7 @@ def main(argv=None):
         "c64_toa_error_mm": err_mm,
         "fig9_empty_cache": f9,
     }
-    with open(args.out, "w") as f:
-        json.dump(result, f, indent=1)
-    print(f"wrote {args.out}")
+    write(args.out, result)
 
 
 if __name__ == "__main__":
