@@ -242,7 +242,7 @@ def plot_cdf(payload: dict):
               ("otdoa_first_path", "OTDoA, first-path ToA", "#d62728", "-"),
               ("otdoa_peak", "OTDoA, peak ToA (naive)", "#ff7f0e", ":")]
     with style():
-        fig = Figure(figsize=(10.0, 4.4), layout="constrained")
+        fig = Figure(figsize=(10.0, 5.2), layout="constrained")
         axes = fig.subplots(1, 2, sharey=True)
         for ax, case in zip(axes, ("two_of_four", "eq9")):
             d = payload["data"][case]
@@ -256,8 +256,8 @@ def plot_cdf(payload: dict):
             ax.set_xlim(0.03, 1000)
             ax.set_ylim(0, 1.0)
             ax.set_xlabel("horizontal position error (m)")
-            ax.set_title(titles[case], fontsize=9)
-            ax.legend(fontsize=6.5, loc="upper left", bbox_to_anchor=(0.0, -0.14), frameon=False)
+            ax.set_title(titles[case], fontsize=10)
+            ax.legend(fontsize=9, loc="upper left", bbox_to_anchor=(0.0, -0.14), frameon=False)
         axes[0].set_ylabel("CDF")
     return fig
 
