@@ -7,7 +7,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 SOURCES := $(wildcard dpe5g/*.py dpe5g/data/*)
 CHAPTERS := $(wildcard chapters/*.md)
-BOOK_SRC := $(wildcard book/*.md book/*.yml book/*.bib book/_static/*) $(CHAPTERS)
+BOOK_SRC := $(wildcard book/*.md book/*.yml book/*.bib book/_static/* book/_ext/*.py) scripts/book_cache.py $(CHAPTERS)
 HTML := book/_build/html/index.html
 
 .PHONY: all setup figures book test clean
@@ -28,7 +28,8 @@ figures: $(STAMP)
 	$(BIN)/python -m dpe5g figures --out figures
 	$(BIN)/python scripts/readme_tables.py
 
-# Build the HTML book; chapters are re-executed only when they or the package changed (jupyter-cache),
+# Build the HTML book; a chapter is re-executed when it changed, every chapter when dpe5g/ or environment.txt changed
+# (book/_ext/dpe5g_book.py clears the execution cache then),
 # and warnings are errors.
 $(HTML): $(STAMP) $(BOOK_SRC) $(SOURCES)
 	$(BIN)/jupyter-book build . --config book/_config.yml --toc book/_toc.yml --path-output book -W -n --keep-going

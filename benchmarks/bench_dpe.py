@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/bench_dpe.py [--out benchmarks/bench_dpe.json]
 
-1. eq. (8) fast (FFT) vs literal (explicit matrices) on the same inputs and candidates, N = 4096 (target ≥ 1000×);
+1. eq. (10) fast (FFT) vs literal (explicit matrices) on the same inputs and candidates, N = 4096 (target ≥ 1000×);
 2. one DPE fix with M = 24 after jit (target ≤ 20 ms on the 2-core machine);
 3. the per-BS share of a fix against one 4096-point FFT on the same machine (the floor).
 Times are medians of repeated runs (wall clock, after a warm-up call).
@@ -74,11 +74,11 @@ def main(argv=None):
     per = 2 * n_cand  # BS-candidate pairs
     t_corr_cand = t_corr / (2 * n * cfg.upsample)
     rows = [
-        ("eq. (8) literal, per BS and candidate (N = 4096)", t_lit / per, "s"),
-        ("eq. (8) fast (one FFT per candidate), per BS and candidate", t_fast / per, "s"),
+        ("eq. (10) literal, per BS and candidate (N = 4096)", t_lit / per, "s"),
+        ("eq. (10) fast (one FFT per candidate), per BS and candidate", t_fast / per, "s"),
         ("speed-up fast / literal", t_lit / t_fast, "x"),
         ("  max relative difference fast vs literal", agree, "1"),
-        ("eq. (8) on the correlogram grid (exact there), per BS and candidate", t_corr_cand, "s"),
+        ("eq. (10) on the correlogram grid (exact there), per BS and candidate", t_corr_cand, "s"),
         ("speed-up correlogram / literal (target >= 1000)", (t_lit / per) / t_corr_cand, "x"),
         ("one DPE fix, M = 24, grid to 0.1 m (default; target <= 20 ms)", t_fix, "s"),
         ("  of which the 24 correlograms", t_c24, "s"),

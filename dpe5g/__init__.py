@@ -1,7 +1,7 @@
 """dpe5g: reproducible companion to "5G Direct Position Estimation for Precise Localization in Dense Urban Area".
 
-Modules are named after the paper's objects: ``nr`` (numerology, PRS), ``channel`` (TR 38.901 TDL, eqs. 1–2),
-``signal`` (eqs. 3–4), ``correlogram`` (the LS CIR estimate both receivers share), ``dpe`` (eqs. 5–8), ``otdoa``,
+Modules are named after the paper's objects: ``nr`` (numerology, PRS), ``channel`` (TR 38.901 TDL, eqs. (1)–(2)),
+``signal`` (eqs. (3)–(6)), ``correlogram`` (the LS CIR estimate both receivers share), ``dpe`` (eqs. (7)–(10)), ``otdoa``,
 ``deployment`` and ``scenario`` (Section III), ``montecarlo`` (Section IV), ``figures`` (one registered producer per
 figure) and ``plots`` (their drawing).
 

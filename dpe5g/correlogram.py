@@ -1,11 +1,11 @@
-"""The least-squares CIR estimate and its correlograms: what the DPE cost of eq. (8) and the OTDoA ToA share.
+"""The least-squares CIR estimate and its correlograms: what the DPE cost of eq. (10) and the OTDoA ToA share.
 
 Both receivers start from the demodulated received symbol Y_m = F^H y_m (``signal.demodulate``) and the known
-pilots d_m.  The least-squares CIR estimate of BS m in the frequency domain (eq. (6) with D_m^H D_m = I) is
+pilots d_m.  The least-squares CIR estimate of BS m in the frequency domain (eq. (8) with D_m^H D_m = I) is
 
     G_{m,k} = conj(d_{m,k}) Y_{m,k},        ĥ_m(τ) = (1/√N) Σ_k G_{m,k} e^{+j2πkΔfτ}   (``ls_spectrum``),
 
-the CIR estimate delayed by τ.  The BS-m term of eq. (8) at ToA τ is its energy in an L-tap window,
+the CIR estimate delayed by τ.  The BS-m term of eq. (10) at ToA τ is its energy in an L-tap window,
 c_m(τ) = N Σ_{l<L} |ĥ_m(τ + l T_s) / √N|² (Chapter 3 derives it), and the correlograms below tabulate it:
 
 * ``energy_grid`` — c_m on a grid of T_s/U (U inverse FFTs of length N per BS, the L-tap window sum by prefix
@@ -52,7 +52,7 @@ def check_inputs(y, prs, n_taps: int):
 
 
 def ls_spectrum(spectrum, prs) -> jax.Array:
-    """G = conj(d) ⊙ Y: the LS CIR estimate in the frequency domain (D^H F^H y of eq. (6)).
+    """G = conj(d) ⊙ Y: the LS CIR estimate in the frequency domain (D^H F^H y of eq. (8)).
 
     spectrum : complex (..., M, N) demodulated symbols Y (``signal.demodulate`` of y, or the engine's
     ``signal.received_spectrum`` plus noise); prs : complex (..., M, N).  Returns complex (..., M, N)."""
@@ -81,7 +81,7 @@ def window_sum(e, n_taps: int) -> jax.Array:
 @partial(jax.jit, static_argnames=("n_taps", "upsample"))
 def energy_grid(g, n_taps: int, upsample: int) -> jax.Array:
     """Per-BS correlograms from the LS spectrum g (..., M, N): entry j of row m is c_m(j T_s / U), the BS-m term of
-    eq. (8) with an L-tap window, exactly.  Returns real (..., M, N·U).  Traceable.
+    eq. (10) with an L-tap window, exactly.  Returns real (..., M, N·U).  Traceable.
 
     One inverse FFT of length N per fractional offset u/U (the phase ramp e^{j2πku/(UN)} delays by u T_s/U), the
     energy, then the L-tap window sum by ``window_sum`` (no FFT).  The cost is periodic in τ with period N T_s = 1/Δf."""
@@ -106,7 +106,7 @@ def window_spectrum(n_taps: int, n_fft: int) -> np.ndarray:
 
 
 def spline_coefficients(g, window, upsample: int) -> jax.Array:
-    """Cubic B-spline coefficients of the per-BS terms of eq. (8) on knots T_s/U apart, from the LS spectrum g
+    """Cubic B-spline coefficients of the per-BS terms of eq. (10) on knots T_s/U apart, from the LS spectrum g
     (..., M, N) and ``window_spectrum(L, N)``.  Returns real (..., M, N·U); traceable (U static, even).
 
     c_m(τ) is a real trigonometric polynomial with harmonics of Δf up to N − 1 (|Σ_k g_k e^{j2πkΔfτ}|² summed over
@@ -114,7 +114,7 @@ def spline_coefficients(g, window, upsample: int) -> jax.Array:
     their real FFT, times the window and the inverse of the cubic B-spline's sampled kernel (1/6, 4/6, 1/6) at the
     knot spacing (the interpolation prefilter), then one zero-padded real inverse FFT of length N·U gives
     coefficients c_j such that Σ_j c_j β³(τ/(T_s/U) − j) equals c_m(τ) at every knot exactly (to round-off).
-    Between knots the spline differs from eq. (8) by ≤ 2e-5 of the peak at U = 8 (Chapter 3 measures it).
+    Between knots the spline differs from eq. (10) by ≤ 2e-5 of the peak at U = 8 (Chapter 3 measures it).
     (Computing the U knot phases as U/2 complex length-N transforms instead of the long one was measured slower on
     this CPU, 0.39 against 0.30 ms per BS, and dropped.)"""
     n = g.shape[-1]
@@ -143,7 +143,7 @@ def correlogram(y, prs, n_taps: int, upsample: int) -> jax.Array:
 
 
 def spline_correlogram(y, prs, n_taps: int, upsample: int = 8) -> jax.Array:
-    """Cubic B-spline coefficients of the per-BS terms of eq. (8) (``spline_coefficients``) from time-domain samples.
+    """Cubic B-spline coefficients of the per-BS terms of eq. (10) (``spline_coefficients``) from time-domain samples.
 
     y, prs : complex (M, N); n_taps : L; upsample : U, even.  Returns real (M, N·U).
     """

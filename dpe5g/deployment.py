@@ -6,7 +6,7 @@ Units: metres (local ENU: x east, y north, z up, origin at the region's south-we
 The paper's 26 BS positions in Tsim Sha Tsui are not published.  ``tst()`` loads our layout with the paper's numbers
 (26 BSs over a 227,360 m² square, BS height 10 m, 24 dBm) on a Tsim Sha Tsui-like street grid, made by
 ``scripts/make_layout.py``; ``load_deployment`` reads a user's deployment from JSON or CSV.  The propagation models
-that act on a deployment (eq. (9), the path loss, the link budget, the clock bias) are in ``dpe5g.scenario``.
+that act on a deployment (eq. (11), the path loss, the link budget, the clock bias) are in ``dpe5g.scenario``.
 """
 
 from __future__ import annotations
@@ -26,7 +26,9 @@ TST_FILE = DATA_DIR / "tst_deployment.json"
 
 #: allowed ranges for a deployment's numbers
 BS_HEIGHT_RANGE_M = (1.5, 150.0)  # TR 38.901 UMi: 10 m; the formulas need h_BS > h_E = 1 m
-POWER_RANGE_DBM = (-30.0, 60.0)
+#: a BS transmit power in dBm: 10 dBm (a femtocell) to 60 dBm (1 kW, above any macro cell's 46-49 dBm); a value
+#: below 10 is most likely in watts (24 dBm is 0.25 W)
+POWER_RANGE_DBM = (10.0, 60.0)
 MIN_BS = 3  # (x, y, c δt) has three unknowns
 
 
@@ -96,6 +98,22 @@ def _number(source, where, key, value, lo, hi, unit):
     return v
 
 
+def _power(source, where, value):
+    """A BS transmit power in dBm within ``POWER_RANGE_DBM``; the error suggests watts for small positive values."""
+    lo, hi = POWER_RANGE_DBM
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        v = math.nan
+    if math.isfinite(v) and lo <= v <= hi:
+        return v
+    hint = ""
+    if math.isfinite(v) and 0 < v < lo:
+        hint = (f" — {v:g} dBm is {10 ** (v / 10):.3g} mW, not a base station; looks like watts? "
+                f"{v:g} W is {10 * math.log10(v * 1e3):.1f} dBm")
+    _fail(source, f"{where}: power_dbm must be in [{lo:g}, {hi:g}] dBm (a BS transmit power), got {value!r}{hint}")
+
+
 def _base_stations(source, rows):
     """Validate BS rows (dicts with id, x_m, y_m, height_m, power_dbm) → ids, xyz, power."""
     if not isinstance(rows, list) or len(rows) < MIN_BS:
@@ -116,7 +134,7 @@ def _base_stations(source, rows):
         xyz.append([_number(source, where, "x_m", r["x_m"], -1e5, 1e5, "m"),
                     _number(source, where, "y_m", r["y_m"], -1e5, 1e5, "m"),
                     _number(source, where, "height_m", r["height_m"], *BS_HEIGHT_RANGE_M, "m")])
-        pw.append(_number(source, where, "power_dbm", r["power_dbm"], *POWER_RANGE_DBM, "dBm"))
+        pw.append(_power(source, f"{where} ({bid})", r["power_dbm"]))
     xyz = np.array(xyz)
     d = np.linalg.norm(xyz[:, None, :2] - xyz[None, :, :2], axis=-1) + np.eye(len(ids)) * 1e9
     if d.min() < 0.5:
@@ -137,14 +155,18 @@ def load_deployment(path) -> Deployment:
     """
     path = Path(path)
     src = str(path)
-    if not path.is_file():
+    if not path.exists():
         raise ValueError(f"deployment file {src} does not exist")
+    if not path.is_file():
+        raise ValueError(f"deployment file {src} is not a file")
     suffix = path.suffix.lower()
     if suffix == ".csv":
         try:
             with path.open(newline="") as f:
                 rows = list(csv.DictReader(f))
-        except (OSError, UnicodeDecodeError, csv.Error) as e:
+        except OSError as e:
+            _fail(src, f"cannot be read ({e.strerror or e})")
+        except (UnicodeDecodeError, csv.Error) as e:
             _fail(src, f"cannot be read as CSV ({e})")
         if rows and None in rows[0]:
             _fail(src, "a row has more fields than the header")
@@ -156,8 +178,12 @@ def load_deployment(path) -> Deployment:
     if suffix != ".json":
         _fail(src, f"must end in .json or .csv, got {path.suffix!r}")
     try:
-        doc = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        text = path.read_text()
+    except OSError as e:
+        _fail(src, f"cannot be read ({e.strerror or e})")
+    try:
+        doc = json.loads(text)
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
         _fail(src, f"is not valid JSON ({e})")
     if not isinstance(doc, dict):
         _fail(src, "must hold a JSON object with base_stations and region")

@@ -1,11 +1,11 @@
-"""Direct position estimation: the ML cost of eqs. (5)–(8) and its divide-and-conquer search.
+"""Direct position estimation: the ML cost of eqs. (7)–(10) and its divide-and-conquer search.
 
-Eq. (8): p̂ = argmax_p Σ_m ‖S_m(p)^H y_m‖²,  S_m(p) = F D_m Γ_m(τ_m(p)) F_L,
+Eq. (10): p̂ = argmax_p Σ_m ‖S_m(p)^H y_m‖²,  S_m(p) = F D_m Γ_m(τ_m(p)) F_L,
 
-written here in the code's convention (see ``dpe5g.signal``): F is the unitary inverse DFT of eq. (3)
+written here in the code's convention (see ``dpe5g.signal``): F is the unitary inverse DFT of eq. (5)
 ([F]_{n,k} = e^{+j2πnk/N}/√N), D_m = diag(d_{m,k}), Γ_m(τ) = diag(e^{-j2πkΔfτ}), and F_L is the N × L matrix
 [F_L]_{k,l} = e^{-j2πkl/N}/√N that turns an L-tap CIR on the sample grid into its frequency response.  Its columns
-are orthonormal and D_m^H D_m = I for unit-modulus pilots, so S_m^H S_m = I_L (the identity under the brace of eq. (6)).
+are orthonormal and D_m^H D_m = I for unit-modulus pilots, so S_m^H S_m = I_L (the identity under the brace of eq. (8)).
 
 Two evaluations of the same number:
 
@@ -39,9 +39,9 @@ SEARCH_METHODS = ("grid", "bnb")
 
 
 def ml_cost_literal(y, prs, tau, n_taps: int, scs_hz: float) -> np.ndarray:
-    """Eq. (8) evaluated literally: Σ_m ‖S_m(τ_m)^H y_m‖² with S_m = F D_m Γ_m(τ_m) F_L built as matrices.
+    """Eq. (10) evaluated literally: Σ_m ‖S_m(τ_m)^H y_m‖² with S_m = F D_m Γ_m(τ_m) F_L built as matrices.
 
-    y : complex (M, N) received samples per eq. (3); prs : complex (M, N) pilots d_{m,k} in FFT-bin order;
+    y : complex (M, N) received samples per eq. (5); prs : complex (M, N) pilots d_{m,k} in FFT-bin order;
     tau : real (..., M) candidate ToAs in seconds; n_taps : L; scs_hz : Δf in Hz.  Returns real (...).
     F is a dense N × N matrix; D_m and Γ_m are diagonal and applied as row scalings (the same product).
     NumPy, O(N² L) per candidate: for checking ``ml_cost`` on small N.
@@ -52,7 +52,7 @@ def ml_cost_literal(y, prs, tau, n_taps: int, scs_hz: float) -> np.ndarray:
     if tau.shape[-1:] != (n_bs,):
         raise ValueError(f"tau must have shape (..., M) with M = {n_bs}, got {tau.shape}")
     k = np.arange(n)
-    f = np.exp(2j * np.pi * np.outer(k, k) / n) / np.sqrt(n)  # synthesis, eq. (3)
+    f = np.exp(2j * np.pi * np.outer(k, k) / n) / np.sqrt(n)  # synthesis, eq. (5)
     f_l = np.exp(-2j * np.pi * np.outer(k, np.arange(n_taps)) / n) / np.sqrt(n)  # (N, L)
     out = np.zeros(tau.shape[:-1])
     for idx in np.ndindex(*tau.shape[:-1]):
@@ -66,7 +66,7 @@ def ml_cost_literal(y, prs, tau, n_taps: int, scs_hz: float) -> np.ndarray:
 
 
 def _ml_cost_terms(g, tau, n_taps, scs_hz):
-    """Per-BS terms of eq. (8): ‖S_m(τ_m)^H y_m‖², shape (..., M); g = D^H F^H y (M, N), ``ls_spectrum``."""
+    """Per-BS terms of eq. (10): ‖S_m(τ_m)^H y_m‖², shape (..., M); g = D^H F^H y (M, N), ``ls_spectrum``."""
     n = g.shape[-1]
     k = jnp.arange(n)
     z = g * jnp.exp(2j * jnp.pi * scs_hz * tau[..., None] * k)  # Γ^H D^H F^H y, (..., M, N)
@@ -80,7 +80,7 @@ def _ml_cost(g, tau, n_taps, scs_hz):
 
 
 def ml_cost(y, prs, tau, n_taps: int, scs_hz: float) -> jax.Array:
-    """Eq. (8), fast: the energy of the delay-compensated LS CIR estimate in an L-tap window, summed over BSs.
+    """Eq. (10), fast: the energy of the delay-compensated LS CIR estimate in an L-tap window, summed over BSs.
 
     Σ_m Σ_{l<L} |√N · IDFT_l(conj(d_{m,k}) Y_{m,k} e^{+j2πkΔfτ_m})|², Y_m = DFT(y_m) (unitary).
 
@@ -124,7 +124,7 @@ def toa(xyz, bs_xyz, clock_bias_s=0.0) -> jax.Array:
 
 @dataclass(frozen=True)
 class SearchConfig:
-    """Divide-and-conquer grid search of eq. (8) over (x, y, c δt) at known UE height (the paper's set-up), or over
+    """Divide-and-conquer grid search of eq. (10) over (x, y, c δt) at known UE height (the paper's set-up), or over
     (x, y, z, c δt) with ``z_half_width_m`` > 0.
 
     n_taps : receiver window L in taps (default ``DEFAULT_TAPS``; Chapter 3 shows the bias-vs-L study behind it).
@@ -141,9 +141,9 @@ class SearchConfig:
         4 cm (median, 13 cm at most) and costs about as much as the grid search.
     method : "grid" — the coarse-to-fine grid above (the paper's divide-and-conquer search; no guarantee);
         "bnb" — ``certified_search``: branch-and-bound over (x, y, c δt) boxes that returns the global maximum of
-        eq. (8) (cubic-spline form) inside the window with a certified gap.  The fields below apply to "bnb" only,
+        eq. (10) (cubic-spline form) inside the window with a certified gap.  The fields below apply to "bnb" only,
         which searches (x, y, c δt) at the known UE height (``z_half_width_m`` must be 0).
-    spline_upsample : T_s / spline_upsample is the knot spacing of the spline form of eq. (8) (8 → 0.305 m).
+    spline_upsample : T_s / spline_upsample is the knot spacing of the spline form of eq. (10) (8 → 0.305 m).
     box_m : side of the first boxes in x and y (the c δt window is split into ``bias_boxes`` boxes).
     box_final_m : boxes are halved until their x, y side is ≤ this (m).
     capacity : boxes kept per level; a box dropped for lack of room makes the fix uncertified (counted, not hidden).
@@ -215,7 +215,7 @@ def _tau_of(q, bs_xyz):
 
 
 def _newton_step(g, bs_xyz, q, mask, n_taps, scs_hz, max_step_m):
-    """One Newton step on the exact eq. (8) in q = (x, y, z, c δt), derivatives by JAX autodiff.
+    """One Newton step on the exact eq. (10) in q = (x, y, z, c δt), derivatives by JAX autodiff.
 
     The cost is separable, C(q) = Σ_m c_m(τ_m(q)), so one nested forward-mode pass over the M ToAs gives every
     c_m, c_m' and c_m'' at once; the chain rule then gives ∇C = Jᵀc' and ∇²C = Jᵀ diag(c'') J + Σ_m c_m' ∇²τ_m with
@@ -344,7 +344,7 @@ def slice_cells(cfg: SearchConfig, num: Numerology = PAPER) -> int:
 
 
 def certified_search(coef, bs_xyz, center, cfg: SearchConfig, num: Numerology = PAPER) -> dict:
-    """Global maximum of eq. (8) (its spline form, ``correlogram.spline_coefficients``) over the window by branch and
+    """Global maximum of eq. (10) (its spline form, ``correlogram.spline_coefficients``) over the window by branch and
     bound.
 
     The window is centre ± ``half_width_m`` in x and y and centre ± ``bias_half_width_m`` in c δt, at the centre's
@@ -536,7 +536,7 @@ def _estimate_one(y, prs, bs_xyz, center, cfg: SearchConfig, num: Numerology):
 
 @dataclass(frozen=True)
 class Estimate:
-    """Result of ``estimate``: xyz (..., 3) metres, clock_bias_s (...), cost (...) = eq. (8) at the estimate;
+    """Result of ``estimate``: xyz (..., 3) metres, clock_bias_s (...), cost (...) = eq. (10) at the estimate;
     gap (...) relative certified gap (NaN for the grid search), certified (...), edge (...) fix on the window's
     boundary."""
 
@@ -551,7 +551,7 @@ class Estimate:
 def estimate(
     y, prs, bs_xyz, center, cfg: SearchConfig = SearchConfig(), num: Numerology = PAPER, batch_size: int = 8
 ) -> Estimate:
-    """DPE fix by divide-and-conquer search of eq. (8) around ``center``, batched over trials with vmap.
+    """DPE fix by divide-and-conquer search of eq. (10) around ``center``, batched over trials with vmap.
 
     y, prs : complex (..., M, N); bs_xyz : (..., M, 3) metres; center : (..., 4) = [x, y, z, δt] (m, m, m, s), the
     grid centre — the true position in the paper's set-up, or a prior from a coarse fix; z is the known UE height

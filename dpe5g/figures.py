@@ -231,7 +231,7 @@ FIG6_STEP_M = 0.25
 
 
 def cost_surface_payload(n_taps: int | None = None) -> dict:
-    """Eq. (8) on an (x, y) grid around the UE: 8 BSs, each through the 3-tap channel, taps one sample apart.
+    """Eq. (10) on an (x, y) grid around the UE: 8 BSs, each through the 3-tap channel, taps one sample apart.
 
     Noise-free, taps real and positive (the paper gives amplitudes only), UE height and clock bias known (the paper:
     "the estimation for altitude and clock bias is not involved").  The receiver window is the default L.
@@ -302,7 +302,7 @@ def deployment_payload() -> dict:
 
 
 def urban_correlogram_payload() -> dict:
-    """Fig. 8: eq. (8) — the correlograms of the M nearest BSs summed — over (x, y) around the example UE, at the
+    """Fig. 8: eq. (10) — the correlograms of the M nearest BSs summed — over (x, y) around the example UE, at the
     fix's clock bias, with the DPE fix (grid centred on the truth, the paper's set-up) and the truth."""
     from . import dpe
 
@@ -368,9 +368,9 @@ def rmse_payload(experiments: dict, progress: bool = False) -> dict:
 
 register("fig07_deployment_map", "Fig. 7",
          "Our Tsim Sha Tsui-like deployment: 26 BSs over a 227,360 m² region, and an example UE with its 12 "
-         "nearest links (LoS/NLoS drawn from eq. (9)).", plots.plot_deployment)(deployment_payload)
+         "nearest links (LoS/NLoS drawn from eq. (11)).", plots.plot_deployment)(deployment_payload)
 register("fig08_urban_correlogram", "Fig. 8",
-         "2-D correlogram (eq. (8), the 12 nearest BSs summed) of the example urban fix at 20 dB.",
+         "2-D correlogram (eq. (10), the 12 nearest BSs summed) of the example urban fix at 20 dB.",
          plots.plot_urban_correlogram)(urban_correlogram_payload)
 register("fig09_rmse_vs_snr", "Fig. 9",
          "DPE RMSE against SNR for M = 6, 12, 18, 24 nearest BSs: the honest receiver (window centred on a 5 m "

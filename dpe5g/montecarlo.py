@@ -1,7 +1,7 @@
 """Monte Carlo engine of the urban study (Section IV): experiments as frozen configs, per-trial keys, cached chunks.
 
 One trial = one UE position uniform over the deployment's region at the UE height, the ``max(m_values)`` nearest
-BSs, a LoS/NLoS draw per link (eq. (9)), TDL-D (K = 13.3 dB) for LoS and TDL-C for NLoS links at 65 ns, a truncated
+BSs, a LoS/NLoS draw per link (eq. (11)), TDL-D (K = 13.3 dB) for LoS and TDL-C for NLoS links at 65 ns, a truncated
 Gaussian clock bias and a unit noise spectrum, then for every SNR that noise scaled to the SNR's variance and a DPE
 fix with each M in ``m_values`` (the M nearest of the same links, so the M curves share their channels and the SNRs
 their noise draw: common random numbers).  The signal is simulated in the frequency domain, where both receivers
@@ -42,7 +42,7 @@ DEFAULT_CACHE = Path(__file__).resolve().parent.parent / ".cache" / "montecarlo"
 _SOURCES = ("channel.py", "correlogram.py", "deployment.py", "dpe.py", "montecarlo.py", "nr.py", "otdoa.py", "scenario.py",
             "signal.py")
 
-LOS_MODES = ("eq9", "two_of_four")
+LOS_MODES = ("pr_los", "two_of_four")
 #: OTDoA ToA detector settings used by the engine (``dpe5g.otdoa.toa``'s defaults)
 OTDOA_UPSAMPLE = 8
 OTDOA_THRESHOLD_DB = -10.0
@@ -62,7 +62,7 @@ class Experiment:
     snr_mode : "fixed" — every link at each SNR of ``snrs_db`` (per-sample SNR of ``dpe5g.signal``, dB), as Fig. 9;
         "link_budget" — each link's SNR from the UMi path loss and shadow fading (``link``), ``snrs_db`` must be ().
     m_values : numbers of nearest BSs used by the DPE (each ≤ the deployment's BS count).
-    los_mode : "eq9" — each link LoS with the probability of eq. (9); "two_of_four" — the paper's stated case for
+    los_mode : "pr_los" — each link LoS with the probability of eq. (11); "two_of_four" — the paper's stated case for
         Fig. 10: of the four nearest links, two (chosen at random) LoS and two NLoS (needs max(m_values) = 4).
     centring : where the receiver centres its search window.  "truth" — on the true position and clock bias (the
         paper's set-up, a labelled comparison only: the window's position and grid phase then carry the truth);
@@ -87,7 +87,7 @@ class Experiment:
     snr_mode: str = "fixed"
     snrs_db: tuple[float, ...] = (10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0)
     m_values: tuple[int, ...] = (6, 12, 18, 24)
-    los_mode: str = "eq9"
+    los_mode: str = "pr_los"
     centring: str = "truth"
     prior_kind: str = "gaussian"
     prior_scale_m: float = 5.0
@@ -318,14 +318,14 @@ def _draw_fn(e: Experiment, dep: deployment.Deployment):
         d2d = jnp.linalg.norm(bs_all[:, :2] - xy, axis=-1)
         idx = jnp.argsort(d2d)[:m_max]  # nearest first
         bs = bs_all[idx]
-        if e.los_mode == "eq9":
+        if e.los_mode == "pr_los":
             los = jax.random.uniform(k_los, (m_max,)) < scenario.los_probability(d2d[idx])
         else:  # two of the four nearest LoS, which two at random
             los = jax.random.permutation(k_los, jnp.array([True, True, False, False]))
         g_c = jax.vmap(lambda kk: channel.draw_gains(nlos, kk))(jax.random.split(k_c, m_max))
         g_d = jax.vmap(lambda kk: channel.draw_gains(los_prof, kk))(jax.random.split(k_d, m_max))
         h = jnp.where(los[:, None], channel.frequency_response(g_d, los_prof.delays_s),
-                      channel.frequency_response(g_c, nlos.delays_s))  # (I, N), eq. (3)
+                      channel.frequency_response(g_c, nlos.delays_s))  # (I, N), eq. (5)
         bias = scenario.clock_bias(k_b, e.clock_sigma_s, e.clock_bound_sigmas)
         prs = prs_all[idx]
         y_clean = signal.received_spectrum(prs, h, dpe.toa(ue, bs), bias)

@@ -187,7 +187,7 @@ def prs_symbols(
     """PRS frequency-domain symbols d_{m,k} of one BS for one OFDM symbol, in FFT-bin order k = 0 … N-1.
 
     pattern="full" (the paper's simplification, default): every bin carries a unit-modulus QPSK pilot,
-        d_k = r(k), so D^H D = I as eq. (6) of the paper requires.
+        d_k = r(k), so D^H D = I as eq. (8) of the paper requires.
     pattern="comb" (TS 38.211 §7.4.3.2.1): only the 3276 active subcarriers can carry PRS, every ``comb``-th one
         starting at ``comb_offset`` (comb size 2, 4, 6 or 12, k' = 0 for this symbol); the other bins are zero.
         Pilots keep unit modulus.

@@ -3,7 +3,7 @@ BS, and the position from a convex (second-order-cone) program solved with cvxpy
 
 Two steps, as a two-step receiver works:
 
-1. ``toa`` — the ToA of each BS from its LS CIR estimate (the same correlation as eq. (8) with a one-tap window):
+1. ``toa`` — the ToA of each BS from its LS CIR estimate (the same correlation as eq. (10) with a one-tap window):
    the strongest peak ("peak") or the first arrival within ``threshold_db`` of it ("first_path"), refined between
    grid points by a parabola through the three grid values around it.
 2. ``solve`` — with r_m = c (τ_m − τ_1) the range differences to the reference BS 1 and R_1 = ‖p − b_1‖,

@@ -28,7 +28,7 @@ FIG9_HONEST_TRIALS = 400
 FIG9_TRUTH_TRIALS = 1000
 #: Fig. 10 (Section IV-B)
 FIG10_SEED = 10
-FIG10_CASES = ("two_of_four", "eq9")
+FIG10_CASES = ("two_of_four", "pr_los")
 #: DPE receivers of Fig. 10: centred on the OTDoA (first-path) fix — the realistic two-stage receiver —, on a 5 m
 #: prior, and on the truth (the paper's set-up, a labelled comparison)
 FIG10_CENTRINGS = ("otdoa", "prior", "truth")
@@ -39,7 +39,7 @@ STUDY_TRIALS = 1000
 #: the receiver-window study: windows compared, and the set-ups they are compared on (Fig. 9's at one SNR, Fig. 10's
 #: two LoS cases).  The seeds differ from the figures' (9 and 10), so L is not chosen on the trials it is scored on.
 URBAN_WINDOW_TAPS = (1, 2, 4, 8, 12, 16, 24)
-URBAN_WINDOW_SEEDS = {"fig9_20db": 31, "fig10_eq9": 32, "fig10_two_of_four": 33}
+URBAN_WINDOW_SEEDS = {"fig9_20db": 31, "fig10_pr_los": 32, "fig10_two_of_four": 33}
 #: trials per (set-up, L): enough to rank windows whose RMSEs differ by more than ~10 % (the Monte Carlo standard
 #: error of an RMSE over n trials is about RMSE / √(2n) for a light tail; the urban tail is heavier)
 URBAN_WINDOW_TRIALS = 200
@@ -53,7 +53,7 @@ def honest_search() -> dpe.SearchConfig:
 
 def fig9_truth(n_trials: int = FIG9_TRUTH_TRIALS) -> Experiment:
     """Fig. 9 in the paper's set-up (labelled comparison): fixed per-link SNR 10…40 dB, M = 6, 12, 18, 24 nearest
-    BSs, LoS from eq. (9), grid search centred on the true position and clock bias."""
+    BSs, LoS from eq. (11), grid search centred on the true position and clock bias."""
     return Experiment(name="fig09", n_trials=n_trials, seed=URBAN_SEED)
 
 
@@ -71,7 +71,7 @@ def fig9(honest_trials: int = FIG9_HONEST_TRIALS, truth_trials: int = FIG9_TRUTH
 
 def fig10(n_trials: int = FIG10_TRIALS) -> dict:
     """The Fig. 10 experiments, keyed (case, centring): the paper's stated case (two of the four nearest links LoS)
-    and LoS drawn from eq. (9); SNR of each link from the UMi path loss; DPE and OTDoA on the same received signals
+    and LoS drawn from eq. (11); SNR of each link from the UMi path loss; DPE and OTDoA on the same received signals
     (the same seed, so every centring sees the same trials).  The "otdoa" experiments also hold the OTDoA fixes of
     both detectors."""
     base = dict(n_trials=n_trials, seed=FIG10_SEED, snr_mode="link_budget", snrs_db=(), m_values=(4,))
@@ -101,12 +101,12 @@ def urban_window_experiments(search: dpe.SearchConfig | None = None, taps=URBAN_
     """The receiver-window study on the urban scenario with an honest receiver: window centred on truth + a
     Gaussian prior error (σ = ``prior_sigma_m`` per axis), the bias window from the clock model, ``search`` (default:
     the honest search of the figures) with each L of ``taps``.  Set-ups: Fig. 9's (every link at 20 dB per sample,
-    M = 6 and 24, LoS from eq. (9)) and Fig. 10's (M = 4, SNR per link from the path loss, LoS from eq. (9) or two
+    M = 6 and 24, LoS from eq. (11)) and Fig. 10's (M = 4, SNR per link from the path loss, LoS from eq. (11) or two
     of four).  Returns {(setup, L): Experiment}."""
     search = honest_search() if search is None else search
     base = dict(n_trials=n_trials, centring="prior", prior_kind="gaussian", prior_scale_m=prior_sigma_m)
-    setups = {"fig9_20db": dict(snr_mode="fixed", snrs_db=(20.0,), m_values=(6, 24), los_mode="eq9"),
-              "fig10_eq9": dict(snr_mode="link_budget", snrs_db=(), m_values=(4,), los_mode="eq9"),
+    setups = {"fig9_20db": dict(snr_mode="fixed", snrs_db=(20.0,), m_values=(6, 24), los_mode="pr_los"),
+              "fig10_pr_los": dict(snr_mode="link_budget", snrs_db=(), m_values=(4,), los_mode="pr_los"),
               "fig10_two_of_four": dict(snr_mode="link_budget", snrs_db=(), m_values=(4,), los_mode="two_of_four")}
     return {(name, int(n)): Experiment(name=f"window-{name.replace('_', '-')}-L{int(n)}", seed=URBAN_WINDOW_SEEDS[name],
                                        search=replace(search, n_taps=int(n)), **base, **kw)

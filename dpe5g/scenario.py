@@ -1,4 +1,4 @@
-"""The urban propagation models of Section III: UMi street-canyon links (LoS probability of eq. (9), TR 38.901 path
+"""The urban propagation models of Section III: UMi street-canyon links (LoS probability of eq. (11), TR 38.901 path
 loss, shadow fading), the link budget, and the UE clock bias.  The deployment they act on (base stations, region,
 file format) is ``dpe5g.deployment``.
 
@@ -24,7 +24,7 @@ H_E_M = 1.0
 
 
 def los_probability(d2d_m) -> jax.Array:
-    """Eq. (9) (TR 38.901 Table 7.4.2-1, UMi street canyon): Pr_LoS = 1 for D ≤ 18 m, else
+    """Eq. (11) (TR 38.901 Table 7.4.2-1, UMi street canyon): Pr_LoS = 1 for D ≤ 18 m, else
     18/D + (1 - 18/D) e^{-D/36}.  d2d_m : (...) 2-D BS–UE distance in metres → (...) probability."""
     d = jnp.asarray(d2d_m, dtype=jnp.float64)
     safe = jnp.maximum(d, 18.0)

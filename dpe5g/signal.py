@@ -1,12 +1,12 @@
-"""Transmitted OFDM symbol (eq. (3)) and received samples (eqs. (3)–(4)) of the paper.
+"""Transmitted OFDM symbol (eq. (3)) and received samples (eqs. (5)–(6)) of the paper.
 
 Conventions (used by every module):
 
 * Arrays are in FFT-bin order, k = 0 … N-1, and bin k is the tone at k Δf of eq. (3).
-* Time-domain synthesis follows eq. (3): x[n] = (1/√N) Σ_k d_k e^{+j2πkn/N}, i.e. the unitary inverse DFT
-  (``jnp.fft.ifft(..., norm="ortho")``).  Eq. (4) writes the same thing as F^H D Γ F_L h with
-  [F]_{ι,κ} = e^{+j2πικ/N}/√N, which would make synthesis a *forward* DFT; the code follows eq. (3).
-* A delay τ multiplies bin k by e^{-j2πkΔfτ} (the diagonal Γ(τ) of eq. (4)), exactly, for any real τ.
+* Time-domain synthesis follows eq. (5): x[n] = (1/√N) Σ_k d_k e^{+j2πkn/N}, i.e. the unitary inverse DFT
+  (``jnp.fft.ifft(..., norm="ortho")``).  Eq. (6) writes the same thing as F^H D Γ F_L h with
+  [F]_{ι,κ} = e^{+j2πικ/N}/√N, which would make synthesis a *forward* DFT; the code follows eq. (5).
+* A delay τ multiplies bin k by e^{-j2πkΔfτ} (the diagonal Γ(τ) of eq. (6)), exactly, for any real τ.
 * The ToA of BS m is τ_m = ‖p - b_m‖/c + δt with a clock bias δt common to all BSs.
 
 SNR (``snr_db``) is the per-sample signal-to-noise ratio over the sampled band N Δf: the mean received signal
@@ -36,7 +36,7 @@ def ofdm_symbol(prs) -> jax.Array:
 
 
 def delay_phasor(tau_s, num: Numerology = PAPER) -> jax.Array:
-    """Diagonal of Γ(τ) in eq. (4): e^{-j2πkΔfτ}, k = 0 … N-1.  tau_s : real (...) seconds → complex (..., N)."""
+    """Diagonal of Γ(τ) in eq. (6): e^{-j2πkΔfτ}, k = 0 … N-1.  tau_s : real (...) seconds → complex (..., N)."""
     k = jnp.arange(num.n_fft)
     return jnp.exp(-2j * jnp.pi * num.scs_hz * jnp.asarray(tau_s)[..., None] * k)
 
@@ -59,12 +59,12 @@ def check_snr_db(snr_db) -> np.ndarray:
 
 def demodulate(y) -> jax.Array:
     """The receiver's OFDM demodulation, the inverse of ``ofdm_symbol``: Y_k = (1/√N) Σ_n y[n] e^{-j2πkn/N} (the
-    unitary DFT, F^H y in eq. (4)).  y : complex (..., N) → complex (..., N), bins in FFT order."""
+    unitary DFT, F^H y in eq. (6)).  y : complex (..., N) → complex (..., N), bins in FFT order."""
     return jnp.fft.fft(jnp.asarray(y), axis=-1, norm="ortho")
 
 
 def received_spectrum(prs, freq_response, toa_s, clock_bias_s=0.0, num: Numerology = PAPER) -> jax.Array:
-    """Noise-free received signal of eq. (3) in the frequency domain, the unitary DFT of its samples (eq. (4)):
+    """Noise-free received signal of eq. (5) in the frequency domain, the unitary DFT of its samples (eq. (6)):
 
     Y_{m,k} = d_{m,k} H_{m,k} e^{-j2πkΔf(τ_m + δt)}.
 
@@ -81,7 +81,7 @@ def received_spectrum(prs, freq_response, toa_s, clock_bias_s=0.0, num: Numerolo
 
 
 def received_noiseless(prs, gains, tap_delays_s, toa_s, clock_bias_s=0.0, num: Numerology = PAPER) -> jax.Array:
-    """Noise-free received samples of eq. (3): the inverse DFT of ``received_spectrum``.
+    """Noise-free received samples of eq. (5): the inverse DFT of ``received_spectrum``.
 
     y_m[n] = (1/√N) Σ_k d_{m,k} H_{m,k} e^{-j2πkΔf(τ_m + δt)} e^{j2πkn/N},  H_{m,k} = Σ_l h_{m,l} e^{-j2πkΔf τ_l}.
 
@@ -109,7 +109,7 @@ def received_samples(
     clock_bias_s: float = 0.0,
     num: Numerology = PAPER,
 ) -> jax.Array:
-    """Received samples y_m = F^{-1} D_m Γ_m(p) H_m + η_m of eqs. (3)–(4) with AWGN at ``snr_db``.
+    """Received samples y_m = F^{-1} D_m Γ_m(p) H_m + η_m of eqs. (5)–(6) with AWGN at ``snr_db``.
 
     key : jax.random key for the noise; snr_db : dB, scalar or (M,), per-sample SNR as defined in the module
     docstring.  Other arguments as ``received_noiseless``.  Returns complex (M, N).
@@ -121,7 +121,7 @@ def received_samples(
 
 
 def received_noiseless_direct(prs, gains, tap_delays_s, toa_s, clock_bias_s=0.0, num: Numerology = PAPER):
-    """Eq. (3) evaluated term by term in the time domain, for verification on small N (O(L N²) memory N²).
+    """Eq. (5) evaluated term by term in the time domain, for verification on small N (O(L N²) memory N²).
 
     y_m[n] = (1/√N) Σ_l h_{m,l} Σ_k d_{m,k} exp(j2πk n/N) exp(-j2πkΔf(τ_m + δt + τ_l)).
 

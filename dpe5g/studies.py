@@ -86,7 +86,7 @@ def window_study(sc: RingScenario, taps, seed: int, n_trials: int, cfg: dpe.Sear
 
 
 def coarse_prior(sc: RingScenario, y, prs, cfg: dpe.SearchConfig) -> np.ndarray:
-    """A prior from a coarse fix: eq. (8) on a 2 m grid over the whole UE square ± 10 m, centred on the BSs."""
+    """A prior from a coarse fix: eq. (10) on a 2 m grid over the whole UE square ± 10 m, centred on the BSs."""
     t = y.shape[0]
     coarse = dpe.SearchConfig(n_taps=cfg.n_taps, upsample=cfg.upsample, half_width_m=sc.ue_half_width_m + 10.0,
                               bias_half_width_m=max(cfg.bias_half_width_m, 4 * sc.clock_sigma_s * C),
@@ -97,7 +97,7 @@ def coarse_prior(sc: RingScenario, y, prs, cfg: dpe.SearchConfig) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# The plateau of eq. (8) for one link, and the receiver window L re-selected on the urban scenario.
+# The plateau of eq. (10) for one link, and the receiver window L re-selected on the urban scenario.
 
 PLATEAU_TAPS = (1, 4, 12)
 PLATEAU_UPSAMPLE = 8
@@ -106,7 +106,7 @@ PLATEAU_CIR_SAMPLES = 40
 
 def plateau_payload(seed: int = 5, delay_spread_s: float = 65e-9, k_factor_db: float = 13.3,
                     span_m: tuple[float, float] = (-40.0, 15.0)) -> dict:
-    """One BS term of eq. (8), ‖S_m(τ)^H y_m‖², against the candidate ToA for a TDL-D (LoS) and a TDL-C (NLoS)
+    """One BS term of eq. (10), ‖S_m(τ)^H y_m‖², against the candidate ToA for a TDL-D (LoS) and a TDL-C (NLoS)
     link, noise-free, for the windows L of ``PLATEAU_TAPS``.
 
     Each link is one draw of its profile's tap gains (key ``fold_in(PRNGKey(seed), i)``, i = 0 TDL-D, 1 TDL-C) at

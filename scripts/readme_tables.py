@@ -51,9 +51,9 @@ def fig10_table() -> str:
     names = [("dpe_otdoa", "DPE centred on the OTDoA fix (honest, main)"), ("dpe_prior", "DPE centred on a 5 m prior (honest)"),
              ("dpe_truth", "DPE centred on the truth (paper's set-up)"), ("otdoa_first_path", "OTDoA, first-path ToA (main baseline)"),
              ("otdoa_peak", "OTDoA, strongest-peak ToA (naive)")]
-    cases = [("two_of_four", "(a) 2 of 4 LoS"), ("eq9", "(b) LoS from eq. (9)")]
+    cases = [("two_of_four", "(a) 2 of 4 LoS"), ("pr_los", "(b) LoS from eq. (11)")]
     lines = [f"Horizontal error p50 / p90 / p99 (m), 4 nearest BSs, SNR per link from the path loss, "
-             f"{ex['eq9/otdoa']['n_trials']} trials per case; in brackets the share of fixes flagged (DPE: on the "
+             f"{ex['pr_los/otdoa']['n_trials']} trials per case; in brackets the share of fixes flagged (DPE: on the "
              "window's edge; OTDoA: solver or polish failure):", "",
              "| receiver | " + " | ".join(lab for _, lab in cases) + " |", "|---|---|---|"]
     for key, lab in names:
@@ -77,8 +77,8 @@ def bench_table() -> str:
     s, r = b["seconds"], b["ratios"]
     ms = lambda x: f"{1e3 * x:.3g} ms"
     rows = [
-        ("eq. (8) literal (explicit matrices), per BS and candidate, N = 4096", ms(s["literal_per_bs_candidate"]), ""),
-        ("eq. (8) fast, one FFT per candidate (`dpe.ml_cost`), per BS and candidate",
+        ("eq. (10) literal (explicit matrices), per BS and candidate, N = 4096", ms(s["literal_per_bs_candidate"]), ""),
+        ("eq. (10) fast, one FFT per candidate (`dpe.ml_cost`), per BS and candidate",
          ms(s["fast_per_bs_candidate"]), ""),
         ("speed-up `ml_cost` / literal (agreement {:.1e})".format(b["fast_vs_literal_max_rel_diff"]),
          f"{r['fast_vs_literal']:.0f}×", ""),

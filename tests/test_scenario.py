@@ -19,7 +19,7 @@ def test_packaged_deployment_has_the_papers_numbers():
     assert all(x0 <= b[0] <= x1 and y0 <= b[1] <= y1 for b in dep.bs_xyz)
 
 
-def test_los_probability_eq9():
+def test_los_probability_eq11():
     d = np.array([0.0, 10.0, 18.0, 36.0, 100.0])
     p = np.asarray(scenario.los_probability(d))
     assert np.all(p[:3] == 1.0)
