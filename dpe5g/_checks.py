@@ -46,3 +46,17 @@ def one_of(name: str, value: str, allowed: Iterable[str]) -> str:
     if value not in allowed:
         raise ValueError(f"{name} must be one of {', '.join(map(str, allowed))}; got {value!r}")
     return value
+
+
+def require_x64() -> None:
+    """Raise unless JAX float64 is on.
+
+    ``import dpe5g`` turns it on; this guards the computing entry points against it having been turned off since
+    (``jax.config.update("jax_enable_x64", False)``, ``jax.experimental.disable_x64``), which would silently move
+    ToAs by centimetres (float32 carries ~7 digits of a ~1e-6 s ToA) and change every DPE result.  Called at trace
+    time inside jitted functions, so the check costs nothing per call."""
+    import jax
+
+    if not jax.config.jax_enable_x64:
+        raise RuntimeError("dpe5g needs JAX float64 (jax_enable_x64), which is off: ToAs and phases lose their "
+                           "precision in float32.  `import dpe5g` turns it on; do not turn it off afterwards.")

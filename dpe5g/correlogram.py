@@ -43,6 +43,7 @@ GRID_DTYPE = jnp.complex64
 
 def check_inputs(y, prs, n_taps: int):
     """Validate received samples and pilots: both complex (M, N) of equal shape, 1 ≤ n_taps ≤ N.  Returns NumPy."""
+    _checks.require_x64()
     y = np.asarray(y)
     prs = np.asarray(prs)
     if y.ndim != 2 or prs.shape != y.shape:
@@ -56,6 +57,7 @@ def ls_spectrum(spectrum, prs) -> jax.Array:
 
     spectrum : complex (..., M, N) demodulated symbols Y (``signal.demodulate`` of y, or the engine's
     ``signal.received_spectrum`` plus noise); prs : complex (..., M, N).  Returns complex (..., M, N)."""
+    _checks.require_x64()
     return jnp.conj(prs) * spectrum
 
 
@@ -85,6 +87,7 @@ def energy_grid(g, n_taps: int, upsample: int) -> jax.Array:
 
     One inverse FFT of length N per fractional offset u/U (the phase ramp e^{j2πku/(UN)} delays by u T_s/U), the
     energy, then the L-tap window sum by ``window_sum`` (no FFT).  The cost is periodic in τ with period N T_s = 1/Δf."""
+    _checks.require_x64()
     n = g.shape[-1]
     k = np.arange(n)
     shifts = np.exp(2j * np.pi * np.outer(np.arange(upsample) / upsample, k) / n)  # (U, N), a compile-time constant
@@ -117,6 +120,7 @@ def spline_coefficients(g, window, upsample: int) -> jax.Array:
     Between knots the spline differs from eq. (10) by ≤ 2e-5 of the peak at U = 8 (Chapter 3 measures it).
     (Computing the U knot phases as U/2 complex length-N transforms instead of the long one was measured slower on
     this CPU, 0.39 against 0.30 ms per BS, and dropped.)"""
+    _checks.require_x64()
     n = g.shape[-1]
     k = np.arange(n)
     h0 = jnp.fft.ifft(g, axis=-1)

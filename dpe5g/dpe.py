@@ -39,13 +39,15 @@ SEARCH_METHODS = ("grid", "bnb")
 
 
 def ml_cost_literal(y, prs, tau, n_taps: int, scs_hz: float) -> np.ndarray:
-    """Eq. (10) evaluated literally: Σ_m ‖S_m(τ_m)^H y_m‖² with S_m = F D_m Γ_m(τ_m) F_L built as matrices.
+    """Eq. (10) evaluated literally: Σ_m ‖S_m(τ_m)^H y_m‖² with S_m = F D_m Γ_m(τ_m) F_L built as matrices, which
+    is Σ_m ‖y_m‖² minus the least-squares residual of eq. (7) at the ĥ_m of eq. (8) (eq. (9)).
 
     y : complex (M, N) received samples per eq. (5); prs : complex (M, N) pilots d_{m,k} in FFT-bin order;
     tau : real (..., M) candidate ToAs in seconds; n_taps : L; scs_hz : Δf in Hz.  Returns real (...).
     F is a dense N × N matrix; D_m and Γ_m are diagonal and applied as row scalings (the same product).
     NumPy, O(N² L) per candidate: for checking ``ml_cost`` on small N.
     """
+    _checks.require_x64()
     y, prs = correlogram.check_inputs(y, prs, n_taps)
     n_bs, n = y.shape
     tau = np.asarray(tau, dtype=np.float64)
@@ -87,6 +89,7 @@ def ml_cost(y, prs, tau, n_taps: int, scs_hz: float) -> jax.Array:
     Same arguments and values as ``ml_cost_literal`` (agreement ≤ 1e-9 relative is tested), one FFT per BS and
     candidate instead of N × N matrices.  Differentiable in ``tau`` (used by the autodiff polish).
     """
+    _checks.require_x64()
     y, prs = correlogram.check_inputs(y, prs, n_taps)
     tau = jnp.asarray(tau, dtype=jnp.float64)
     if tau.shape[-1:] != (y.shape[0],):
@@ -252,6 +255,7 @@ def search(corr, g, bs_xyz, center, cfg: SearchConfig, n_fft: int, scs_hz: float
     center : (4,) = [x, y, z, δt].  Returns q (4,) = (x, y, z, c δt) in metres and the exact cost there (or only q
     when ``with_cost`` is False).
     """
+    _checks.require_x64()
     ts = 1.0 / (n_fft * scs_hz)
     q = jnp.array([center[0], center[1], center[2], center[3] * C])
     search_b, search_z = cfg.bias_half_width_m > 0, cfg.z_half_width_m > 0
@@ -372,6 +376,7 @@ def certified_search(coef, bs_xyz, center, cfg: SearchConfig, num: Numerology = 
     box dropped), edge (the fix lies within one final box of the window's boundary in x, y or c δt).
     Traceable (jit, vmap); shapes are static given ``cfg``.
     """
+    _checks.require_x64()
     m, n_knots = coef.shape
     u_scale = cfg.spline_upsample
     cell_m = C * num.sample_period_s / u_scale
@@ -504,6 +509,7 @@ def fix(g, bs_xyz, center_m, cfg: SearchConfig, num: Numerology = PAPER, corr=No
     bs_xyz (M, 3) m; center_m (4,) = [x, y, z, c δt] in metres.  corr : ``receiver_correlogram`` of g (or of more
     BSs, of which the first M rows are read), or None to compute it.
     Returns a dict: q (4,) m, gap (relative; NaN for the grid, which certifies nothing), certified, edge."""
+    _checks.require_x64()
     corr = receiver_correlogram(g, cfg) if corr is None else corr
     if cfg.method == "bnb":
         r = certified_search(corr, bs_xyz, center_m, cfg, num)
@@ -559,6 +565,7 @@ def estimate(
     batch_size : trials evaluated together (vmap) inside a sequential ``lax.map``; results do not depend on it.
     Returns an ``Estimate`` with leading shape (...).
     """
+    _checks.require_x64()
     y = jnp.asarray(y)
     prs = jnp.asarray(prs)
     bs_xyz = jnp.asarray(bs_xyz, dtype=jnp.float64)

@@ -102,6 +102,30 @@ def render(payload: dict):
     return get(payload["id"]).plot(payload)
 
 
+def caption_md(fig_id: str) -> str:
+    """The book's caption of a registered figure (Markdown): the paper's figure it reproduces, then its caption."""
+    spec = get(fig_id)
+    return f"**Reproduces the paper's {spec.paper_ref}.** {spec.caption}"
+
+
+def glue(name: str, fig, caption: str) -> None:
+    """Hand a drawn figure and its Markdown caption to a chapter's ``{glue:figure}`` directive (MyST-NB glue).
+
+    Glues ``fig`` (a matplotlib Figure) as ``name`` and ``caption`` as ``name + "_caption"``; the chapter then shows
+    them as a numbered, captioned figure::
+
+        ```{glue:figure} name
+        :name: fig-name
+        {glue:md}`name_caption`
+        ```
+    """
+    from IPython.display import Markdown
+    from myst_nb import glue as _glue
+
+    _glue(name, fig, display=False)
+    _glue(f"{name}_caption", Markdown(caption), display=False)
+
+
 def write(fig_id: str, out_dir, progress: bool = False, trials: int | None = None) -> tuple[Path, Path]:
     """Compute and draw ``fig_id``; write ``out_dir/<id>.png`` and ``out_dir/data/<id>.json``."""
     out = Path(out_dir)

@@ -577,6 +577,7 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
     Chunks already in the cache (``ChunkCache``) are loaded, the others computed and written as they finish.
     progress : a tqdm bar with ETA on stderr.  batch_size : trials vmapped together (memory/speed only).
     """
+    _checks.require_x64()
     _checks.integer("batch_size", batch_size, 1, 4096)
     e.load_deployment()  # validates m_values against the deployment before any work
     store = ChunkCache(e, cache).open()

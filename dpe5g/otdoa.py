@@ -50,6 +50,7 @@ def toa(y, prs, method: str = "peak", upsample: int = 8, threshold_db: float = -
     ``max_lead_samples`` samples before that maximum, within ``threshold_db`` (< 0) of it, then the local maximum
     that follows it.  Both refine with a parabola through the chosen grid point and its two neighbours.
     """
+    _checks.require_x64()
     y, prs = correlogram.check_inputs(y, prs, 1)
     _checks.one_of("method", method, TOA_METHODS)
     _checks.integer("upsample", upsample, 1, 256)
@@ -64,6 +65,7 @@ def toa_from_spectrum(g, method, upsample, threshold_db, max_lead_samples, ts, d
     """``toa`` from the LS spectrum g (M, N) (``correlogram.ls_spectrum``), unvalidated and traceable (the Monte Carlo
     engine's entry point); ts : T_s in seconds; dtype : of the correlogram (the benchmark compares two).  Returns (M,)
     seconds."""
+    _checks.require_x64()
     e = correlogram.energy_grid(g.astype(dtype), 1, upsample)  # (M, N·U): |ĥ(j T_s/U)|² · N
     return jax.vmap(lambda row: _toa_row(row, method, upsample, threshold_db, max_lead_samples, ts))(e)
 
@@ -224,5 +226,6 @@ def gauss_newton(bs_xyz, toa_s, ue_z, xy0, iters: int = 10) -> np.ndarray:
 
 def solve(bs_xyz, toa_s, ue_z: float, polish: bool = True) -> Fix:
     """One OTDoA fix (convenience: builds a ``Solver`` for this M; reuse a Solver for many fixes)."""
+    _checks.require_x64()
     b = check_geometry(bs_xyz)
     return Solver(b.shape[0]).solve(b, toa_s, ue_z, polish)

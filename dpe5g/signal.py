@@ -32,11 +32,13 @@ def ofdm_symbol(prs) -> jax.Array:
 
     prs : complex (..., N) PRS symbols d_{m,k} in FFT-bin order.  Returns complex (..., N).
     """
+    _checks.require_x64()
     return jnp.fft.ifft(jnp.asarray(prs), axis=-1, norm="ortho")
 
 
 def delay_phasor(tau_s, num: Numerology = PAPER) -> jax.Array:
     """Diagonal of Γ(τ) in eq. (6): e^{-j2πkΔfτ}, k = 0 … N-1.  tau_s : real (...) seconds → complex (..., N)."""
+    _checks.require_x64()
     k = jnp.arange(num.n_fft)
     return jnp.exp(-2j * jnp.pi * num.scs_hz * jnp.asarray(tau_s)[..., None] * k)
 
@@ -60,6 +62,7 @@ def check_snr_db(snr_db) -> np.ndarray:
 def demodulate(y) -> jax.Array:
     """The receiver's OFDM demodulation, the inverse of ``ofdm_symbol``: Y_k = (1/√N) Σ_n y[n] e^{-j2πkn/N} (the
     unitary DFT, F^H y in eq. (6)).  y : complex (..., N) → complex (..., N), bins in FFT order."""
+    _checks.require_x64()
     return jnp.fft.fft(jnp.asarray(y), axis=-1, norm="ortho")
 
 
@@ -76,6 +79,7 @@ def received_spectrum(prs, freq_response, toa_s, clock_bias_s=0.0, num: Numerolo
     engine (``dpe5g.montecarlo``) adds its noise here, in the frequency domain, where the receivers start (the DFT is
     unitary, so CN(0, σ²) per bin is exactly the time-domain AWGN of the same variance).
     """
+    _checks.require_x64()
     tau = jnp.asarray(toa_s) + jnp.asarray(clock_bias_s)[..., None]
     return jnp.asarray(prs) * jnp.asarray(freq_response) * delay_phasor(tau, num)
 
@@ -121,7 +125,8 @@ def received_samples(
 
 
 def received_noiseless_direct(prs, gains, tap_delays_s, toa_s, clock_bias_s=0.0, num: Numerology = PAPER):
-    """Eq. (5) evaluated term by term in the time domain, for verification on small N (O(L N²) memory N²).
+    """Eq. (4) sampled at t = nT_s, i.e. eq. (5), evaluated term by term in the time domain, for verification on
+    small N (O(L N²) memory N²).
 
     y_m[n] = (1/√N) Σ_l h_{m,l} Σ_k d_{m,k} exp(j2πk n/N) exp(-j2πkΔf(τ_m + δt + τ_l)).
 

@@ -6,6 +6,7 @@ absent; a missing book is a failure (``make test`` builds it first).
 """
 
 import functools
+import re
 import http.server
 import shutil
 import threading
@@ -151,4 +152,23 @@ def test_meshcat_scene_draws_in_webgl(server, browser):
     r, g, b = (img[:, i].astype(int) for i in range(3))
     grey = (np.abs(r - g) < 12) & (np.abs(g - b) < 16) & (r > 90) & (r < 235)
     assert grey.mean() > 0.02, f"no buildings on the WebGL canvas: grey share {grey.mean():.3f}"
+    page.close()
+
+
+@pytest.mark.parametrize("page_path", [p for p in pages() if p.startswith("chapters/")] or ["index.html"])
+def test_every_figure_is_numbered_and_captioned(server, browser, page_path):
+    """Every image and embedded scene of a chapter sits in a numbered <figure> with a caption; a figure that
+    reproduces one of the paper's says which ("Reproduces the paper's Fig. N"), every other says it is ours."""
+    page = browser.new_page()
+    page.goto(f"{server}/{page_path}", wait_until="load")
+    found = page.evaluate("""() => Array.from(document.querySelectorAll('main img, main iframe')).map(e => {
+        const f = e.closest('figure'), c = f && f.querySelector('figcaption');
+        return {src: (e.src || '').slice(-40), caption: c ? c.textContent.trim() : null,
+                number: c && c.querySelector('.caption-number') ? c.querySelector('.caption-number').textContent : null,
+                alt: e.getAttribute('alt')}; })""")
+    for f in found:
+        assert f["caption"], f"{page_path}: figure without a caption: {f['src']}"
+        assert f["number"] and f["number"].startswith("Figure "), f"{page_path}: figure not numbered: {f['caption'][:60]}"
+        assert "Reproduces the paper's Fig. " in f["caption"] or "not in the paper" in f["caption"], f["caption"][:80]
+        assert f["alt"] is None or not re.fullmatch(r"[0-9a-f]{32,}(\.png)?", f["alt"]), f"{page_path}: hash alt text"
     page.close()

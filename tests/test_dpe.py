@@ -149,3 +149,14 @@ def test_bad_inputs():
         dpe.SearchConfig(final_step_m=5.0)
     with pytest.raises(ValueError, match="finite"):
         dpe.estimate(np.zeros((2, 4096), complex), nr.prs_matrix([1, 2]), _geometry(2), [np.nan, 0, 2, 0])
+
+
+def test_ls_estimate_recovers_the_channel():
+    """Eq. (8): with unit-modulus pilots the LS estimate D^H F^H y is the channel's frequency response, whose
+    inverse DFT gives back the taps (noise-free, taps on the sample grid, ToA 0)."""
+    prs = nr.prs_matrix([4])
+    h = np.array([[0.7079, 1.0, 0.8913]])
+    y = signal.received_noiseless(prs, h, np.array([[0, 1, 2]]) * PAPER.sample_period_s, np.zeros(1))
+    g = np.asarray(correlogram.ls_spectrum(signal.demodulate(y), prs))
+    h_hat = np.fft.ifft(g, axis=-1)
+    assert np.allclose(h_hat[0, :3], h[0], atol=1e-12) and np.max(np.abs(h_hat[0, 3:])) < 1e-12

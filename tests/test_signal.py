@@ -65,3 +65,31 @@ def test_bad_clock_bias():
     with pytest.raises(ValueError, match="clock_bias_s"):
         signal.received_samples(jax.random.PRNGKey(0), prs, np.ones((1, 1)), np.zeros((1, 1)), np.zeros(1), 10.0,
                                 clock_bias_s=float("nan"))
+
+
+def test_computing_refuses_without_float64():
+    """float64 is guaranteed where dpe5g computes: with x64 turned off after import, the entry points refuse."""
+    import jax
+
+    from dpe5g import correlogram, dpe, montecarlo, otdoa, signal
+
+    prs = np.ones((2, 64), complex)
+    calls = [lambda: signal.ofdm_symbol(prs), lambda: signal.demodulate(prs),
+             lambda: correlogram.ls_spectrum(prs, prs), lambda: dpe.ml_cost(prs, prs, np.zeros(2), 4, 30e3),
+             lambda: otdoa.toa(prs, prs), lambda: montecarlo.run(montecarlo.Experiment(n_trials=1), progress=False)]
+    jax.config.update("jax_enable_x64", False)
+    try:
+        for call in calls:
+            with pytest.raises(RuntimeError, match="float64"):
+                call()
+    finally:
+        jax.config.update("jax_enable_x64", True)
+    assert np.asarray(signal.ofdm_symbol(prs)).dtype == np.complex128
+
+
+def test_ofdm_symbol_is_eq3_by_hand():
+    """Eq. (3) at t = nT_s after CP removal, x[n] = (1/√N) Σ_k d_k e^{j2πkn/N}, as a double loop on a small N."""
+    num = Numerology(n_fft=64, n_rb=4)
+    d = nr.prs_matrix([7], num)[0]
+    by_hand = np.array([sum(d[k] * np.exp(2j * np.pi * k * n / 64) for k in range(64)) for n in range(64)]) / 8.0
+    assert np.max(np.abs(np.asarray(signal.ofdm_symbol(d)) - by_hand)) < 1e-13

@@ -1,0 +1,58 @@
+"""book/equations.md maps every numbered equation of the paper to its code and its test; the map must stay true."""
+
+import ast
+import importlib
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PAGE = ROOT / "book" / "equations.md"
+N_EQUATIONS = 11  # equations (1)–(11) of the compiled paper
+
+
+def _rows():
+    rows = {}
+    for line in PAGE.read_text().splitlines():
+        m = re.match(r"\| \((\d+)\) \|", line)
+        if m:
+            cells = [c.strip() for c in line.strip().strip("|").split("|")]
+            rows[int(m.group(1))] = (re.findall(r"`(dpe5g\.[\w.]+)`", cells[2]), re.findall(r"`(tests/[\w/.]+::\w+)`", cells[3]))
+    return rows
+
+
+def _tests_in(path: Path) -> dict:
+    tree = ast.parse(path.read_text())
+    return {n.name: ast.get_source_segment(path.read_text(), n) for n in tree.body if isinstance(n, ast.FunctionDef)}
+
+
+def test_every_equation_has_code_and_a_test():
+    rows = _rows()
+    assert sorted(rows) == list(range(1, N_EQUATIONS + 1))
+    for n, (funcs, tests) in rows.items():
+        assert funcs and tests, f"eq. ({n}): no function or no test named"
+        names = []
+        for dotted in funcs:
+            mod, name = dotted.rsplit(".", 1)
+            fn = getattr(importlib.import_module(mod), name)
+            cited = {int(x) for a, b in re.findall(r"[Ee]qs?\. \((\d+)\)(?:[–-]\((\d+)\))?", fn.__doc__ or "")
+                     for x in (range(int(a), int(b) + 1) if b else [a])}
+            assert n in cited, f"{dotted}: its docstring does not cite eq. ({n}) (cites {sorted(cited)})"
+            names.append(name)
+        for t in tests:
+            path, name = t.split("::")
+            src = _tests_in(ROOT / path)
+            assert name in src, f"eq. ({n}): {t} does not exist"
+            assert any(f in src[name] for f in names), f"eq. ({n}): {t} does not call {names}"
+
+
+def test_chapters_number_equations_as_the_compiled_paper():
+    """Displayed equations carry the paper's number (``\\tag{N}``), never a Sphinx number (``:label:``), and prose and
+    docstrings cite only equations the paper has."""
+    texts = {p: p.read_text() for p in sorted((ROOT / "chapters").glob("*.md"))}
+    texts.update({p: p.read_text() for p in sorted((ROOT / "dpe5g").glob("*.py"))})
+    texts[ROOT / "README.md"] = (ROOT / "README.md").read_text()
+    for path, text in texts.items():
+        assert not re.search(r"```\{math\}\n(:\w+:.*\n)*:label:", text), f"{path.name}: a Sphinx-numbered equation"
+        tags = [int(n) for n in re.findall(r"\\tag\{(\d+)\}", text)]
+        cited = [int(n) for n in re.findall(r"[Ee]qs?\. \((\d+)\)", text)]
+        assert all(1 <= n <= N_EQUATIONS for n in tags + cited), f"{path.name}: cites an equation the paper lacks"
