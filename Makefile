@@ -10,7 +10,7 @@ CHAPTERS := $(wildcard chapters/*.md)
 BOOK_SRC := $(wildcard book/*.md book/*.yml book/*.bib book/_static/* book/_ext/*.py) scripts/book_cache.py $(CHAPTERS)
 HTML := book/_build/html/index.html
 
-.PHONY: all setup figures book test clean
+.PHONY: all setup figures book chapter test clean
 all: book
 
 setup: $(STAMP)
@@ -25,7 +25,7 @@ $(STAMP): environment.txt pyproject.toml
 # Regenerate the committed figure baselines (PNG + data JSON) of every registered figure, then README's tables.  Deliberately not a
 # dependency of `book` or `test`: the figure-diff in `make test` compares fresh output against what is committed.
 figures: $(STAMP)
-	$(BIN)/python -m dpe5g figures --out figures
+	$(BIN)/python -m dpe5g figures --update-baselines
 	$(BIN)/python scripts/readme_tables.py
 
 # Build the HTML book; a chapter is re-executed when it changed, every chapter when dpe5g/ or environment.txt changed
@@ -36,6 +36,11 @@ $(HTML): $(STAMP) $(BOOK_SRC) $(SOURCES)
 	test -f $@ && touch $@
 
 book: $(HTML)
+
+# Execute one chapter on its own: make chapter CH=05 [SMOKE=1] -> book/_build/chapters/05_rmse_vs_snr.ipynb, with its run time.
+chapter: $(STAMP)
+	@test -n "$(CH)" || { echo "make chapter: say which, e.g. make chapter CH=05 (add SMOKE=1 for a quick run)" >&2; exit 2; }
+	$(BIN)/python scripts/run_chapter.py "$(CH)" $(if $(filter 1,$(SMOKE)),--smoke)
 
 # Every test: unit + property tests, bad input, figure-diff against the committed baselines, browser test of the book.
 test: $(STAMP) $(HTML)

@@ -59,7 +59,7 @@ class LinkBudget:
 
     fc_hz : carrier (the paper's Table I: 3 GHz); bandwidth_hz : 100 MHz (the paper's PRS band);
     noise_psd_dbm_hz : thermal noise density, -174 dBm/Hz; noise_figure_db : UE noise figure, 9 dB (our choice, the
-    value TR 38.802 and the IMT-2020 evaluations use for a UE; the paper does not state one).
+    value TR 38.802 Table A.2.1-1 and TR 38.901 Table 7.8-1 use for a UE below 6 GHz; the paper does not state one).
     """
 
     fc_hz: float = 3e9
