@@ -126,16 +126,17 @@ class TDLProfile:
 
 
 def check_delay_spread(delay_spread_s: float) -> float:
-    """Validate a delay spread in seconds, rejecting values that are evidently in nanoseconds."""
+    """Validate a delay spread in seconds: finite and in (0, ``MAX_DELAY_SPREAD_S``].  The error says what the value
+    looks like: nanoseconds typed as seconds (65 → 65e-9), or seconds far above any TR 38.901 delay spread."""
     ds = _checks.finite("delay_spread_s", delay_spread_s)
-    if ds > MAX_DELAY_SPREAD_S:
-        raise ValueError(
-            f"delay_spread_s is in seconds and must be in (0, {MAX_DELAY_SPREAD_S:g}]; got {delay_spread_s!r}"
-            f" — did you pass nanoseconds? 65 ns is 65e-9"
-        )
+    if 0 < ds <= MAX_DELAY_SPREAD_S:
+        return ds
+    head = f"delay_spread_s={ds:g} s is outside the allowed range (0, {MAX_DELAY_SPREAD_S:g}] s"
     if ds <= 0:
-        raise ValueError(f"delay_spread_s must be in (0, {MAX_DELAY_SPREAD_S:g}] seconds, got {delay_spread_s!r}")
-    return ds
+        raise ValueError(f"{head}; a delay spread is positive — pass seconds, e.g. 65e-9")
+    if 1.0 <= ds <= MAX_DELAY_SPREAD_S * 1e9:  # 1 ns … 10 µs written in nanoseconds
+        raise ValueError(f"{head}; {ds:g} looks like nanoseconds — pass seconds: {ds:g} ns is {ds:g}e-9")
+    raise ValueError(f"{head}; TR 38.901 delay spreads are 10 ns to a few µs — pass seconds, e.g. 65e-9")
 
 
 def rms_delay_spread(delays_s, powers) -> float:
@@ -207,7 +208,7 @@ def draw_gains(profile: TDLProfile, key: jax.Array) -> jax.Array:
 
 
 def frequency_response(gains, delays_s, num: Numerology = PAPER) -> jax.Array:
-    """H_k = Σ_l h_l exp(-j 2π k Δf τ_l) on FFT bins k = 0 … N-1, the channel part of eqs. (3)–(4).
+    """H_k = Σ_l h_l exp(-j 2π k Δf τ_l) on FFT bins k = 0 … N-1, the channel part of eqs. (5)–(6).
 
     gains : complex (..., L); delays_s : real (..., L) seconds.  Returns complex (..., N).
     Fractional delays are exact here: no rounding of τ_l to the sample grid.

@@ -1,19 +1,187 @@
-"""Command line: ``dpe5g figures`` (the figure build script), ``dpe5g profile`` (print a scaled TDL table),
-``dpe5g deployment`` (check and summarise a deployment file) and ``dpe5g scene`` (export the 3-D scene as HTML).
+"""Command line: ``dpe5g run`` (a Monte Carlo DPE study on your deployment), ``dpe5g figures`` (the figure build
+script), ``dpe5g profile`` (print a scaled TDL table), ``dpe5g deployment`` (check and summarise a deployment file)
+and ``dpe5g scene`` (export the 3-D scene as HTML).
 
-Bad input ends with one line on stderr and exit code 2, never a traceback.
+Bad input, including a file that cannot be read or written, ends with one line on stderr that names the parameter
+and exit code 2, never a traceback.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import re
 import sys
+import tempfile
 import time
+from pathlib import Path
 
+#: the committed figure baselines (``figures/`` of the repository); ``dpe5g figures`` writes here only with
+#: ``--update-baselines``
+BASELINE_DIR = Path(__file__).resolve().parent.parent / "figures"
+
+#: library parameter → the ``dpe5g run`` option that sets it, so an error raised by the library names the option
+RUN_OPTIONS = {"n_trials": "--trials", "snr_db": "--snr", "snrs_db": "--snr", "m_values": "--m", "n_taps": "--taps",
+               "delay_spread_s": "--delay-spread", "centring": "--centring", "prior_scale_m": "--prior-sigma",
+               "seed": "--seed", "deployment file": "--deployment"}
+
+
+class UsageError(Exception):
+    """A command-line syntax error (argparse's), reported as one line: ``<prog>: error: <message>``."""
+
+    def __init__(self, prog: str, message: str):
+        super().__init__(message)
+        self.prog = prog
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse's parser with its errors raised as ``UsageError`` (``main`` prints them on one line, exit 2)
+    instead of a usage block."""
+
+    def error(self, message):
+        raise UsageError(self.prog, f"{message} (see {self.prog} --help)")
+
+
+# ---- shared checks --------------------------------------------------------------------------------------------------
+
+def _writable_dir(option: str, folder: Path, given=None) -> None:
+    """Create ``folder`` if needed and check that a file can be written in it; a ValueError names ``option`` and
+    the value ``given`` (default: the folder)."""
+    given = folder if given is None else given
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"{option} {given}: {folder} exists and is not a folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as e:
+        raise ValueError(f"{option} {given}: cannot write in {folder} ({e.strerror or e})") from None
+
+
+def _output_file(option: str, path: str, suffixes: tuple[str, ...], force: bool | None = None) -> Path:
+    """Check an output file before any work: its suffix (one of ``suffixes``), that it is not a folder, that it does
+    not exist unless ``force`` (None: overwriting is allowed), and that its folder is writable."""
+    p = Path(path)
+    if p.suffix.lower() not in suffixes:
+        raise ValueError(f"{option} {path}: must end in {' or '.join(suffixes)}")
+    if p.is_dir():
+        raise ValueError(f"{option} {path}: is a folder; give a file name ending in {' or '.join(suffixes)}")
+    if force is False and p.exists():
+        raise ValueError(f"{option} {path}: exists; pass --force to overwrite it")
+    _writable_dir(option, p.parent, path)
+    return p
+
+
+def _in_baselines(folder: Path) -> bool:
+    """Whether ``folder`` (resolved) is the committed baselines folder or inside it."""
+    return folder.resolve().is_relative_to(BASELINE_DIR.resolve())
+
+
+def _numbers_as_values(argv: list[str]) -> list[str]:
+    """argparse takes ``-65e-9`` or ``-inf`` for an option (only ``-12`` and ``-1.5`` look like numbers to it), so
+    ``--delay-spread -65e-9`` would fail with a misleading "expected one argument".  Every token that is a negative
+    number gets a leading space, which makes argparse read it as a value; ``float`` and ``int`` ignore the space."""
+    out = []
+    for tok in argv:
+        if tok.startswith("-") and len(tok) > 1 and not re.fullmatch(r"-\d+|-\d*\.\d+", tok):
+            try:
+                float(tok)
+                tok = " " + tok
+            except ValueError:
+                pass
+        out.append(tok)
+    return out
+
+
+# ---- dpe5g run ------------------------------------------------------------------------------------------------------
+
+def _with_option(err: ValueError, options: dict[str, str]) -> ValueError:
+    """``err`` with the command-line option of the library parameter its message starts with put in front."""
+    msg = str(err)
+    for name, option in options.items():
+        if re.match(rf"{re.escape(name)}\b", msg):
+            return ValueError(f"{option}: {msg}")
+    return err
+
+
+def run_experiment(args):
+    """The ``montecarlo.Experiment`` of ``dpe5g run``'s arguments: the paper's Fig. 9 set-up (``dpe5g.paper``) with
+    the user's deployment, SNRs (dB), M values, trials, receiver window L (taps), delay spread (s), centring, prior
+    σ (m) and seed.  Centring "truth" uses the paper's coarse-to-fine grid (``dpe.SearchConfig()``), "prior" and
+    "otdoa" the honest certified search (``paper.honest_search()``), as the figures do.  When everything equals one
+    of the paper's experiments, that experiment (and its cache) is used."""
+    from dataclasses import replace
+
+    from . import dpe, paper, signal
+    from .montecarlo import Experiment
+
+    dep = args.deployment if args.deployment == "tst" else str(Path(args.deployment).resolve())
+    try:
+        for snr in args.snr:
+            signal.check_snr_db(snr)  # one by one, so that the message shows the bad value
+        search = dpe.SearchConfig(n_taps=args.taps) if args.centring == "truth" else replace(paper.honest_search(),
+                                                                                             n_taps=args.taps)
+        kw = dict(n_trials=args.trials, seed=args.seed, snrs_db=tuple(args.snr), m_values=tuple(sorted(set(args.m))),
+                  delay_spread_s=args.delay_spread, centring=args.centring, search=search, deployment=dep)
+        if args.centring != "truth":
+            kw.update(prior_kind="gaussian", prior_scale_m=args.prior_sigma)
+        e = Experiment(name="run", otdoa=args.centring == "otdoa", **kw)
+        e.load_deployment()  # the file, and M against its BS count
+    except ValueError as err:
+        raise _with_option(err, RUN_OPTIONS) from None
+    for known in (paper.fig9_honest(args.trials), paper.fig9_truth(args.trials)):
+        if replace(e, name=known.name) == known:
+            return known
+    return e
+
+
+def _summary(res) -> str:
+    """The study in one line, then the RMSE (m) per SNR (rows) and M (columns) of the DPE (and of the OTDoA fix
+    that centres it, for centring "otdoa"), and for the honest centrings the edge-flag and certified shares."""
+    import numpy as np
+
+    from .montecarlo import OTDOA_DETECTORS
+
+    e = res.experiment
+    prior = f" (σ = {e.prior_scale_m:g} m)" if e.centring == "prior" else ""
+    lines = [f"{e.n_trials} trials, seed {e.seed}, deployment {e.deployment}, delay spread "
+             f"{e.delay_spread_s * 1e9:g} ns, L = {e.receiver_search().n_taps}, centring {e.centring}{prior}"]
+    tables = [("DPE", res.rmse_m())]
+    if res.otdoa_error_m is not None:
+        k = OTDOA_DETECTORS.index(e.toa_method)
+        tables.append((f"OTDoA, {e.toa_method} ToA", np.sqrt(np.mean(res.otdoa_error_m[:, :, k] ** 2, axis=0))))
+    for label, rmse in tables:
+        lines += [f"RMSE (m), {label}:", f"{'SNR (dB)':>9} " + " ".join(f"{f'M = {m}':>9}" for m in e.m_values)]
+        lines += [f"{snr:9g} " + " ".join(f"{v:9.3f}" for v in row) for snr, row in zip(e.snrs_db, rmse)]
+    if e.centring != "truth":
+        lines.append(f"DPE fixes on the window's edge (flagged): {100 * res.edge.mean():.1f} %; certified: "
+                     f"{100 * res.certified.mean():.1f} %")
+    return "\n".join(lines)
+
+
+def _run(args) -> int:
+    from . import montecarlo
+
+    e = run_experiment(args)
+    out = _output_file("--out", args.out, (".csv", ".json"), force=args.force)
+    res = montecarlo.run(e, progress=True)
+    fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=f".{out.name}.", suffix=".tmp")
+    os.close(fd)
+    try:  # write beside the target and rename, so an existing file is never left half-overwritten
+        (res.write_csv if out.suffix.lower() == ".csv" else res.write_json)(tmp)
+        os.replace(tmp, out)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    n_rows = e.n_trials * len(e.snrs_db) * len(e.m_values)
+    print(_summary(res))
+    print(f"wrote {out} ({n_rows} rows: one per trial, SNR and M)")
+    return 0
+
+
+# ---- dpe5g figures --------------------------------------------------------------------------------------------------
 
 def _figures(args) -> int:
-    from pathlib import Path
-
     from . import _checks, figures
 
     ids = args.only or list(figures.REGISTRY)
@@ -21,25 +189,46 @@ def _figures(args) -> int:
         figures.get(fig_id)  # validate every id before spending time
     if args.trials is not None:
         _checks.integer("--trials", args.trials, 1, 10_000_000)
-        mc = [f for f in ids if figures.takes_trials(f)]
-        if not mc:
+        if args.update_baselines:
+            raise ValueError(f"--trials {args.trials} cannot be used with --update-baselines: the committed "
+                             f"baselines use the paper's trial counts (dpe5g.paper); write elsewhere with --out DIR")
+        if not any(figures.takes_trials(f) for f in ids):
             raise ValueError(f"--trials applies to the Monte Carlo figures "
                              f"({', '.join(f for f in figures.REGISTRY if figures.takes_trials(f))}), none selected")
-        if Path(args.out).resolve() == (Path(figures.__file__).resolve().parent.parent / "figures"):
-            raise ValueError(f"--out {args.out} holds the committed baselines; figures with --trials {args.trials} "
-                             f"are not those, so give --out another folder")
+    if args.update_baselines:
+        if args.out is not None:
+            raise ValueError(f"--out {args.out} cannot be used with --update-baselines, which writes the committed "
+                             f"baselines in {BASELINE_DIR}")
+        if not BASELINE_DIR.is_dir():
+            raise ValueError(f"--update-baselines: no committed baselines folder {BASELINE_DIR} (it needs the "
+                             f"repository checkout, an editable install)")
+        out = BASELINE_DIR
+    else:
+        if args.out is None:
+            raise ValueError("--out DIR is required: the committed baselines (figures/) are written only with "
+                             "--update-baselines")
+        out = Path(args.out)
+        if _in_baselines(out):
+            raise ValueError(f"--out {args.out} is in the committed baselines folder {BASELINE_DIR}; give another "
+                             f"folder, or --update-baselines (without --out) to regenerate the baselines")
+    _writable_dir("--out", out)
     for fig_id in ids:
         t0 = time.perf_counter()
         trials = args.trials if args.trials is not None and figures.takes_trials(fig_id) else None
-        png, js = figures.write(fig_id, args.out, progress=True, trials=trials)
+        png, js = figures.write(fig_id, out, progress=True, trials=trials)
         print(f"{fig_id}: {png} {js} ({time.perf_counter() - t0:.1f} s)", flush=True)
     return 0
 
 
+# ---- dpe5g profile, deployment, scene -------------------------------------------------------------------------------
+
 def _profile(args) -> int:
     from . import channel
 
-    prof = channel.tdl_profile(args.name, args.delay_spread, args.k_factor_db)
+    try:
+        prof = channel.tdl_profile(args.name, args.delay_spread, args.k_factor_db)
+    except ValueError as err:
+        raise _with_option(err, {"delay_spread_s": "--delay-spread", "k_factor_db": "--k-factor-db"}) from None
     print(f"{prof.name} ({prof.table}) scaled to DS = {prof.delay_spread_s * 1e9:g} ns, K = {prof.k_factor_db}")
     print(f"{'tap':>3} {'delay (ns)':>11} {'power (dB)':>11} {'kind':>9}")
     for i, (d, p, los) in enumerate(zip(prof.delays_s, prof.powers_db, prof.los)):
@@ -65,42 +254,121 @@ def _deployment(args) -> int:
 def _scene(args) -> int:
     from . import figures, scene3d
 
-    path = scene3d.export(figures.compute("fig07_deployment_map"), figures.compute("fig08_urban_correlogram"),
-                          args.out)
+    out = _output_file("--out", args.out, (".html", ".htm"))
+    path = scene3d.export(figures.compute("fig07_deployment_map"), figures.compute("fig08_urban_correlogram"), out)
     print(f"wrote {path}")
     return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="dpe5g", description=__doc__)
+    from . import dpe, paper
+    from .montecarlo import Experiment
+
+    paper_e = Experiment()
+    p = Parser(prog="dpe5g", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
-    f = sub.add_parser("figures", help="regenerate figures: <out>/<id>.png and <out>/data/<id>.json")
-    f.add_argument("--out", default="figures", help="output folder (default: figures)")
+
+    r = sub.add_parser(
+        "run", help="run a Monte Carlo DPE study (RMSE vs SNR and M) and write its per-trial results",
+        description="Run a Monte Carlo DPE study on a deployment: per trial a UE uniform over the region, its M "
+                    "nearest BSs, LoS from eq. (11), TDL-D (LoS) / TDL-C (NLoS), a clock bias, then a DPE fix per "
+                    "SNR and M.  Defaults are the paper's Fig. 9 set-up with the honest receiver; only --trials and "
+                    "--out have no default.  Results are cached (.cache/montecarlo, or DPE5G_CACHE): a rerun, or "
+                    "an interrupted run restarted, computes only the missing trials.  Prints an RMSE table (SNR x "
+                    "M) at the end.",
+        epilog=f"Cost: a truth-centred fix is a few ms per (SNR, M); an honest one (prior, otdoa) tens of ms "
+               f"(certified search), plus a compile of 10-60 s per run.  The paper's Fig. 9 uses "
+               f"{paper.FIG9_HONEST_TRIALS} (honest) and {paper.FIG9_TRUTH_TRIALS} (truth) trials; with exactly "
+               f"those settings the figure's cached results are reused.")
+    r.add_argument("--trials", type=int, required=True, metavar="N",
+                   help="Monte Carlo trials (required; trial t's draws depend only on --seed and t)")
+    r.add_argument("--out", required=True, metavar="FILE",
+                   help="results file, .csv (tidy table, one row per trial, SNR and M) or .json (the same rows and "
+                        "the experiment's config); an existing file is kept unless --force")
+    r.add_argument("--force", action="store_true", help="overwrite --out if it exists")
+    r.add_argument("--deployment", default="tst", metavar="FILE",
+                   help="deployment file, JSON or CSV (see `dpe5g deployment`), or 'tst' for the packaged layout "
+                        "(default)")
+    r.add_argument("--snr", type=float, nargs="+", default=list(paper_e.snrs_db), metavar="DB",
+                   help=f"per-sample SNRs in dB, in [-50, 100] (default: the paper's "
+                        f"{' '.join(f'{s:g}' for s in paper_e.snrs_db)})")
+    r.add_argument("--m", type=int, nargs="+", default=list(paper_e.m_values), metavar="M",
+                   help=f"numbers of nearest BSs used by the DPE, each >= 3 (x, y and the clock bias are unknown) "
+                        f"and <= the deployment's BS count (default: {' '.join(map(str, paper_e.m_values))})")
+    r.add_argument("--taps", type=int, default=dpe.DEFAULT_TAPS, metavar="L",
+                   help=f"receiver window L in taps, 1 to the FFT size (default: {dpe.DEFAULT_TAPS}, chosen in "
+                        f"Chapter 5)")
+    r.add_argument("--delay-spread", type=float, default=paper_e.delay_spread_s, metavar="S",
+                   help=f"RMS delay spread of the TDL channels in SECONDS (default: "
+                        f"{paper_e.delay_spread_s * 1e9:g}e-9, TR 38.901 UMi short)")
+    r.add_argument("--centring", default="prior", metavar="{truth,prior,otdoa}",
+                   help="where the search window is centred: 'prior' (default; the honest receiver of Fig. 9: "
+                        "truth + a Gaussian error of --prior-sigma per axis, certified search), 'otdoa' (on the "
+                        "trial's OTDoA first-path fix, certified search; the OTDoA errors are written too) or "
+                        "'truth' (the paper's own set-up, a labelled comparison: grid centred on the true position "
+                        "and clock bias)")
+    r.add_argument("--prior-sigma", type=float, default=paper.PRIOR_SIGMA_M, metavar="M",
+                   help=f"σ per axis of the prior's error in metres, centring 'prior' (default: "
+                        f"{paper.PRIOR_SIGMA_M:g})")
+    r.add_argument("--seed", type=int, default=paper.URBAN_SEED, help=f"seed (default: {paper.URBAN_SEED}, Fig. 9's)")
+    r.set_defaults(func=_run)
+
+    f = sub.add_parser("figures", help="regenerate figures: <out>/<id>.png and <out>/data/<id>.json",
+                       description="Regenerate figures into --out DIR, or the committed baselines (figures/ of the "
+                                   "repository) with --update-baselines; nothing is written into figures/ otherwise.")
+    f.add_argument("--out", default=None, metavar="DIR",
+                   help="output folder (required unless --update-baselines; must not be in figures/)")
+    f.add_argument("--update-baselines", action="store_true",
+                   help=f"write the committed baselines ({BASELINE_DIR}) with the paper's trial counts (make figures)")
     f.add_argument("--only", nargs="+", metavar="ID", help="figure ids (default: all registered)")
     f.add_argument("--trials", type=int, default=None, metavar="N",
-                   help="Monte Carlo trials per experiment of Figs. 9-10 (default: the committed figures' counts)")
+                   help="Monte Carlo trials per experiment of Figs. 9-10 (default: the committed figures' counts); "
+                        "not with --update-baselines")
     f.set_defaults(func=_figures)
+
     t = sub.add_parser("profile", help="print a TR 38.901 TDL profile scaled to a delay spread")
     t.add_argument("name", help="A, B, C, D or E")
-    t.add_argument("--delay-spread", type=float, default=65e-9, help="desired RMS delay spread in SECONDS (65e-9)")
+    t.add_argument("--delay-spread", type=float, default=65e-9, metavar="S",
+                   help="desired RMS delay spread in SECONDS (65e-9)")
     t.add_argument("--k-factor-db", type=float, default=None, help="K-factor override for D/E, dB")
     t.set_defaults(func=_profile)
+
     d = sub.add_parser("deployment", help="check a deployment file (JSON or CSV) and print a summary")
     d.add_argument("path", nargs="?", default="tst", help="path, or 'tst' for the packaged layout (default)")
     d.set_defaults(func=_deployment)
+
     s = sub.add_parser("scene", help="export the meshcat 3-D scene of the urban example as a static HTML file")
-    s.add_argument("--out", default="urban_scene.html", help="output HTML file (default: urban_scene.html)")
+    s.add_argument("--out", default="urban_scene.html", metavar="FILE.html",
+                   help="output HTML file, overwritten if it exists (default: urban_scene.html)")
     s.set_defaults(func=_scene)
     return p
 
 
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
+    """Run the command line; returns the exit code (0, or 2 after one line on stderr for bad input)."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser()
+    prog = "dpe5g"
     try:
+        args = parser.parse_args(_numbers_as_values(argv))
+        prog = f"dpe5g {args.command}"
         return args.func(args)
+    except UsageError as e:
+        print(f"{e.prog}: error: {_one_line(e)}", file=sys.stderr)
     except ValueError as e:
-        print(f"dpe5g: error: {e}", file=sys.stderr)
-        return 2
+        print(f"{prog}: error: {_one_line(e)}", file=sys.stderr)
+    except OSError as e:
+        where = f": {e.filename}" if e.filename else ""
+        print(f"{prog}: error: {_one_line(e.strerror or e)}{where}", file=sys.stderr)
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted (finished Monte Carlo chunks are cached; the same command resumes)",
+              file=sys.stderr)
+        return 130
+    return 2
 
 
 if __name__ == "__main__":

@@ -178,7 +178,7 @@ def load_deployment(path) -> Deployment:
     if suffix != ".json":
         _fail(src, f"must end in .json or .csv, got {path.suffix!r}")
     try:
-        text = path.read_text()
+        text = path.read_bytes()  # json.loads detects the UTF encoding; a bad one is a decode error below
     except OSError as e:
         _fail(src, f"cannot be read ({e.strerror or e})")
     try:

@@ -1,57 +1,261 @@
+"""The command line: bad input is one line on stderr naming the parameter and exit code 2; ``dpe5g run`` writes its
+tidy results; ``dpe5g figures`` writes the committed baselines only with ``--update-baselines``."""
+
+import csv
+import json
+import os
 import subprocess
 import sys
 
 import pytest
 
+from dpe5g import cli, paper
 
-def run(*args):
-    return subprocess.run([sys.executable, "-m", "dpe5g", *args], capture_output=True, text=True, timeout=300)
+ROOT = cli.BASELINE_DIR.parent
 
-
-@pytest.mark.parametrize(
-    "args, needle",
-    [
-        (("profile", "C", "--delay-spread", "65"), "nanoseconds"),
-        (("profile", "Z"), "profile must be one of"),
-        (("profile", "C", "--delay-spread", "nan"), "finite"),
-        (("figures", "--only", "fig99_nothing"), "figure must be one of"),
-        (("figures", "--only", "fig01_tdl_a", "--trials", "5", "--out", "elsewhere"), "--trials applies to"),
-        (("figures", "--trials", "5"), "holds the committed baselines"),
-        (("figures", "--only", "fig09_rmse_vs_snr", "--trials", "0", "--out", "elsewhere"), "--trials must be"),
-    ],
-)
-def test_bad_input_is_one_line_exit_2(args, needle):
-    r = run(*args)
-    assert r.returncode == 2
-    assert "Traceback" not in r.stderr
-    lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1 and needle in lines[0], r.stderr
+#: a valid deployment of 4 BSs (CSV), and files that are not
+FILES = {
+    "four.csv": "id,x_m,y_m,height_m,power_dbm\nA,0,0,10,24\nB,100,0,10,24\nC,0,100,10,24\nD,100,100,10,24\n",
+    "watts.csv": "id,x_m,y_m,height_m,power_dbm\nA,0,0,10,24\nB,100,0,10,0.25\nC,0,100,10,24\n",
+    "tall.csv": "id,x_m,y_m,height_m,power_dbm\nA,0,0,10,24\nB,100,0,10,24\nC,0,100,10000,24\n",
+    "trunc.json": '{"base_stations": [',
+    "list.json": "[1, 2, 3]",
+    "layout.txt": "x y\n",
+    "existing.csv": "keep me\n",
+    "afile": "not a folder\n",
+}
+TABLE_COLUMNS = ["trial", "snr_db", "m", "error_m", "est_x_m", "est_y_m", "true_x_m", "true_y_m", "n_los",
+                 "los_flags", "edge", "certified"]
+RUN = ("run", "--trials", "2", "--out", "r.csv")
 
 
-def test_bad_deployment_file_is_one_line_exit_2(tmp_path):
-    bad = tmp_path / "mine.csv"
-    bad.write_text("id,x_m,y_m,height_m,power_dbm\nA,0,0,10,24\nB,100,0,10,24\nC,0,100,10000,24\n")
-    r = run("deployment", str(bad))
+@pytest.fixture
+def workdir(tmp_path, monkeypatch):
+    """A temporary working directory holding ``FILES``, a folder ``adir`` and a folder named like a file,
+    ``folder.json``; the Monte Carlo cache inside it."""
+    for name, text in FILES.items():
+        (tmp_path / name).write_text(text)
+    (tmp_path / "notutf.json").write_bytes(b"\xff\xfe\x00{")
+    (tmp_path / "adir").mkdir()
+    (tmp_path / "folder.json").mkdir()
+    (tmp_path / "folder.html").mkdir()
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("DPE5G_CACHE", str(tmp_path / "cache"))
+    return tmp_path
+
+
+BAD = [
+    # profile: delay spread sign, units and range, profile name, K-factor
+    (("profile", "C", "--delay-spread", "-65e-9"), "--delay-spread: delay_spread_s=-6.5e-08 s is outside"),
+    (("profile", "C", "--delay-spread=-65e-9"), "delay_spread_s=-6.5e-08 s"),
+    (("profile", "C", "--delay-spread", "1e-3"), "delay_spread_s=0.001 s is outside the allowed range"),
+    (("profile", "C", "--delay-spread", "65"), "looks like nanoseconds"),
+    (("profile", "C", "--delay-spread", "nan"), "delay_spread_s must be finite"),
+    (("profile", "C", "--delay-spread", "-inf"), "delay_spread_s must be finite"),
+    (("profile", "C", "--delay-spread", "65ns"), "argument --delay-spread: invalid float value"),
+    (("profile", "Z"), "profile must be one of"),
+    (("profile", "D", "--k-factor-db", "inf"), "--k-factor-db"),
+    (("profile",), "required: name"),
+    (("bogus",), "argument command: invalid choice"),
+    # figures: ids, trials, where it may write
+    (("figures", "--only", "fig99_nothing", "--out", "o"), "figure must be one of"),
+    (("figures", "--only"), "argument --only: expected at least one argument"),
+    (("figures",), "--out DIR is required"),
+    (("figures", "--trials", "5"), "--out DIR is required"),
+    (("figures", "--update-baselines", "--trials", "5"), "--trials 5 cannot be used with --update-baselines"),
+    (("figures", "--update-baselines", "--out", "o"), "--out o cannot be used with --update-baselines"),
+    (("figures", "--out", "{baselines}"), "is in the committed baselines folder"),
+    (("figures", "--out", "{baselines}/data"), "is in the committed baselines folder"),
+    (("figures", "--out", "afile"), "--out afile: afile exists and is not a folder"),
+    (("figures", "--only", "fig01_tdl_a", "--trials", "5", "--out", "o"), "--trials applies to"),
+    (("figures", "--only", "fig09_rmse_vs_snr", "--trials", "0", "--out", "o"), "--trials must be"),
+    # scene: the output file
+    (("scene", "--out", "folder.html"), "--out folder.html: is a folder"),
+    (("scene", "--out", "/proc/x.html"), "--out /proc/x.html: cannot write in /proc"),
+    (("scene", "--out", "afile/x.html"), "--out afile/x.html: afile exists and is not a folder"),
+    (("scene", "--out", "scene.png"), "--out scene.png: must end in .html or .htm"),
+    # deployment files
+    (("deployment", "missing.json"), "deployment file missing.json does not exist"),
+    (("deployment", "adir"), "deployment file adir is not a file"),
+    (("deployment", "trunc.json"), "trunc.json: is not valid JSON"),
+    (("deployment", "notutf.json"), "notutf.json: is not valid JSON"),
+    (("deployment", "list.json"), "must hold a JSON object"),
+    (("deployment", "layout.txt"), "must end in .json or .csv"),
+    (("deployment", "watts.csv"), "base station 2 (B): power_dbm must be in [10, 60] dBm"),
+    (("deployment", "tall.csv"), "height_m must be in [1.5, 150] m"),
+    # run: every parameter
+    (("run",), "required: --trials, --out"),
+    (("run", "--trials", "x", "--out", "r.csv"), "argument --trials: invalid int value"),
+    (("run", "--trials", "0", "--out", "r.csv"), "--trials: n_trials must be an integer"),
+    (("run", "--trials", "2", "--out", "r.txt"), "--out r.txt: must end in .csv or .json"),
+    (("run", "--trials", "2", "--out", "existing.csv"), "--out existing.csv: exists; pass --force"),
+    (("run", "--trials", "2", "--out", "folder.json", "--force"), "--out folder.json: is a folder"),
+    (("run", "--trials", "2", "--out", "/proc/r.csv"), "--out /proc/r.csv: cannot write in /proc"),
+    (RUN + ("--snr",), "argument --snr: expected at least one argument"),
+    (RUN + ("--snr", "nan"), "--snr: snr_db must be finite"),
+    (RUN + ("--snr", "10", "inf"), "--snr: snr_db must be finite"),
+    (RUN + ("--snr", "-1e3"), "--snr: snr_db must be in [-50, 100] dB"),
+    (RUN + ("--m", "27"), "--m: m_values must not exceed the deployment's 26 base stations"),
+    (RUN + ("--m", "2", "6"), "--m: m_values entry must be an integer in [3,"),
+    (RUN + ("--m", "6", "--deployment", "four.csv"), "--m: m_values must not exceed the deployment's 4"),
+    (RUN + ("--taps", "0"), "--taps: n_taps must be an integer in [1, 4096]"),
+    (RUN + ("--taps", "4097"), "--taps: n_taps must be an integer in [1, 4096]"),
+    (RUN + ("--centring", "oracle"), "--centring: centring must be one of truth, prior, otdoa"),
+    (RUN + ("--delay-spread", "65"), "--delay-spread: delay_spread_s=65 s is outside"),
+    (RUN + ("--delay-spread", "-65e-9"), "--delay-spread: delay_spread_s=-6.5e-08 s is outside"),
+    (RUN + ("--prior-sigma", "nan"), "--prior-sigma: prior_scale_m must be finite"),
+    (RUN + ("--seed", "-1"), "--seed: seed must be an integer"),
+    (RUN + ("--deployment", "watts.csv"), "--deployment: deployment file"),
+    (RUN + ("--deployment", "missing.csv"), "--deployment: deployment file"),
+]
+
+
+@pytest.mark.parametrize("args, needle", BAD, ids=[" ".join(a) for a, _ in BAD])
+def test_bad_input_is_one_line_naming_the_parameter_exit_2(args, needle, workdir, capsys):
+    args = [a.format(baselines=cli.BASELINE_DIR) for a in args]
+    before = sorted(p.name for p in workdir.iterdir())
+    assert cli.main(args) == 2
+    out, err = capsys.readouterr()
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and needle in lines[0], err
+    assert lines[0].startswith("dpe5g"), err
+    assert sorted(p.name for p in workdir.iterdir()) == before  # nothing written
+    assert (workdir / "existing.csv").read_text() == FILES["existing.csv"]
+
+
+def test_enough_distinct_bad_inputs():
+    assert len({a for a, _ in BAD}) >= 25
+
+
+def sub(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "dpe5g", *args], capture_output=True, text=True, timeout=300,
+                          cwd=cwd)
+
+
+@pytest.mark.parametrize("args", [
+    ("profile", "C", "--delay-spread", "-65e-9"),
+    ("deployment", "watts.csv"),
+    ("scene", "--out", "/proc/x.html"),
+    ("figures", "--out", "afile"),
+    ("run", "--trials", "1", "--out", "existing.csv"),
+])
+def test_no_traceback_in_a_subprocess(args, workdir):
+    r = sub(*args, cwd=workdir)
     assert r.returncode == 2 and "Traceback" not in r.stderr
-    assert len(r.stderr.strip().splitlines()) == 1 and "height_m must be in [1.5, 150] m" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
 
 
 def test_deployment_summary():
-    r = run("deployment")
+    r = sub("deployment")
     assert r.returncode == 0 and "26 BSs" in r.stdout and "227,360 m2" in r.stdout
 
 
-def test_profile_prints_table():
-    r = run("profile", "D")
-    assert r.returncode == 0
-    assert "TDL-D" in r.stdout and "K = 13.3" in r.stdout
+def test_profile_prints_table(capsys):
+    assert cli.main(["profile", "D"]) == 0
+    out = capsys.readouterr().out
+    assert "TDL-D" in out and "K = 13.3" in out
+
+
+def test_run_help(capsys):
+    with pytest.raises(SystemExit) as e:
+        cli.main(["run", "--help"])
+    assert e.value.code == 0
+    out = capsys.readouterr().out
+    for option in ("--trials", "--out", "--force", "--deployment", "--snr", "--m", "--taps", "--delay-spread",
+                   "--centring", "--prior-sigma", "--seed"):
+        assert option in out
+
+
+def test_run_defaults_are_the_papers_experiments():
+    """With the defaults and the paper's trial counts, ``dpe5g run`` is Fig. 9's experiment (and reuses its cache);
+    anything else is its own experiment."""
+    parse = cli.build_parser().parse_args
+    assert cli.run_experiment(parse(["run", "--trials", "400", "--out", "x.csv"])) == paper.fig9_honest(400)
+    truth = parse(["run", "--trials", "7", "--out", "x.csv", "--centring", "truth"])
+    assert cli.run_experiment(truth) == paper.fig9_truth(7)
+    mine = cli.run_experiment(parse(["run", "--trials", "7", "--out", "x.csv", "--m", "12", "6", "6", "--taps", "4",
+                                     "--delay-spread", "1e-7", "--seed", "3"]))
+    assert mine.name == "run" and mine.m_values == (6, 12) and mine.search.n_taps == 4 and mine.seed == 3
+    assert mine.search.method == "bnb" and mine.prior_scale_m == paper.PRIOR_SIGMA_M
+    assert mine.delay_spread_s == 1e-7
+
+
+def read_csv(path):
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_run_writes_csv_and_json_and_refuses_to_overwrite(workdir, capsys):
+    args = ["run", "--trials", "2", "--snr", "10", "30", "--m", "6", "--centring", "truth"]
+    assert cli.main(args + ["--out", "r.csv"]) == 0
+    out = capsys.readouterr().out
+    assert "RMSE (m), DPE:" in out and "M = 6" in out and "wrote r.csv (4 rows" in out
+    rows = read_csv(workdir / "r.csv")
+    assert list(rows[0]) == TABLE_COLUMNS
+    assert len(rows) == 2 * 2 * 1
+    assert {(r["trial"], r["snr_db"], r["m"]) for r in rows} == {(t, s, "6") for t in "01" for s in ("10.0", "30.0")}
+
+    assert cli.main(args + ["--out", "r.json"]) == 0  # from the cache
+    doc = json.loads((workdir / "r.json").read_text())
+    assert doc["experiment"]["n_trials"] == 2 and doc["experiment"]["centring"] == "truth"
+    assert doc["experiment"]["snrs_db"] == [10.0, 30.0] and doc["experiment"]["m_values"] == [6]
+    assert len(doc["rows"]) == 4 and list(doc["rows"][0]) == TABLE_COLUMNS
+    assert [float(r["error_m"]) for r in rows] == pytest.approx([r["error_m"] for r in doc["rows"]], rel=1e-12)
+    capsys.readouterr()
+
+    before = (workdir / "r.csv").read_bytes()
+    assert cli.main(args + ["--out", "r.csv"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--out r.csv: exists; pass --force" in err
+    assert cli.main(args + ["--out", "r.csv", "--force"]) == 0
+    assert (workdir / "r.csv").read_bytes() == before  # same seed, same results
+    assert not list(workdir.glob(".r.csv.*"))  # no temporary file left
+
+
+def test_run_otdoa_centring_on_a_users_deployment(workdir, capsys):
+    """Centring on the OTDoA fix (the honest certified search) on a 4-BS CSV deployment, JSON output."""
+    assert cli.main(["run", "--trials", "1", "--snr", "20", "--m", "4", "--centring", "otdoa",
+                     "--deployment", "four.csv", "--out", "sub/o.json"]) == 0
+    out = capsys.readouterr().out
+    assert "RMSE (m), OTDoA, first_path ToA:" in out and "certified:" in out
+    doc = json.loads((workdir / "sub" / "o.json").read_text())
+    assert doc["experiment"]["deployment"] == str(workdir / "four.csv")
+    assert doc["experiment"]["otdoa"] is True and doc["experiment"]["search"]["method"] == "bnb"
+    (row,) = doc["rows"]
+    assert set(TABLE_COLUMNS) < set(row) and "otdoa_first_path_error_m" in row and row["m"] == 4
+
+
+def test_figures_out_writes_there(tmp_path, capsys):
+    assert cli.main(["figures", "--only", "fig01_tdl_a", "--out", str(tmp_path / "o")]) == 0
+    assert (tmp_path / "o" / "fig01_tdl_a.png").is_file()
+    assert (tmp_path / "o" / "data" / "fig01_tdl_a.json").is_file()
+
+
+def test_figures_update_baselines(tmp_path, monkeypatch, capsys):
+    """--update-baselines writes the baselines folder (here a stand-in in tmp_path), and only it may."""
+    base = tmp_path / "figures"
+    monkeypatch.setattr(cli, "BASELINE_DIR", base)
+    assert cli.main(["figures", "--update-baselines", "--only", "fig01_tdl_a"]) == 2  # no such folder
+    assert "no committed baselines folder" in capsys.readouterr().err
+    base.mkdir()
+    assert cli.main(["figures", "--update-baselines", "--only", "fig01_tdl_a"]) == 0
+    assert (base / "fig01_tdl_a.png").is_file() and (base / "data" / "fig01_tdl_a.json").is_file()
+    for out in (base, base / "data", tmp_path / "x" / ".." / "figures"):
+        assert cli.main(["figures", "--only", "fig02_tdl_b", "--out", str(out)]) == 2
+        assert "committed baselines folder" in capsys.readouterr().err
+    assert not (base / "fig02_tdl_b.png").exists()
+
+
+def test_the_real_baselines_are_not_touched_by_a_refusal(capsys):
+    stamp = {p: p.stat().st_mtime_ns for p in cli.BASELINE_DIR.rglob("*")}
+    for args in (["figures", "--only", "fig01_tdl_a", "--out", str(cli.BASELINE_DIR)],
+                 ["figures", "--only", "fig01_tdl_a", "--out", os.path.relpath(cli.BASELINE_DIR)]):
+        assert cli.main(args) == 2
+    assert {p: p.stat().st_mtime_ns for p in cli.BASELINE_DIR.rglob("*")} == stamp
 
 
 def test_figures_with_a_trial_count(tmp_path):
     """``dpe5g figures --trials N`` runs the paper's experiment (``dpe5g.paper``) with N trials."""
-    import json
-    import os
-
     env = {**os.environ, "DPE5G_CACHE": str(tmp_path / "cache")}
     r = subprocess.run([sys.executable, "-m", "dpe5g", "figures", "--only", "fig09_rmse_vs_snr", "--trials", "3",
                         "--out", str(tmp_path / "out")], capture_output=True, text=True, timeout=600, env=env)
