@@ -12,7 +12,9 @@ import contextlib
 import matplotlib
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib import patheffects
 from matplotlib.figure import Figure
+from matplotlib.ticker import FixedLocator, FormatStrFormatter, MultipleLocator, NullFormatter
 
 #: rcParams on top of matplotlib's "default" style.  Fixed font and hinting keep PNGs byte-stable per version.
 RC = {
@@ -83,44 +85,98 @@ def plot_tdl(payload: dict):
 
 
 def plot_cost_surface(payload: dict):
-    """Fig. 6: eq. (8) normalized to its maximum over (x, y), (a) as a map, (b) cuts through the peak."""
+    """Fig. 6: eq. (10) normalized to its maximum over (x, y), (a) as a map, (b) cuts through the peak."""
     d = payload["data"]
     cfg = payload["config"]
     x, y = np.asarray(d["x_m"]), np.asarray(d["y_m"])
     c = np.asarray(d["cost_norm"])
     ue = cfg["ue_xyz"]
     with style():
-        fig = Figure(figsize=(8.0, 3.4), layout="constrained")
+        fig = Figure(figsize=(8.0, 3.9), layout="constrained")
+        fig.get_layout_engine().set(wspace=0.08)  # room between the colorbar's label and (b)'s y label
         ax_a, ax_b = fig.subplots(1, 2)
         im = ax_a.pcolormesh(x, y, c, shading="nearest", cmap="viridis", vmin=0, vmax=1)
         fig.colorbar(im, ax=ax_a, label="normalized cost")
+        ax_a.plot(*d["peak_xy"], "wx", markersize=8, mew=1.5, label="grid maximum",
+                  path_effects=[patheffects.withStroke(linewidth=3, foreground="k")])
         ax_a.plot(ue[0], ue[1], "r+", markersize=12, mew=2, label="true position")
-        ax_a.plot(*d["peak_xy"], "wx", markersize=8, mew=1.5, label="grid maximum")
         ax_a.set_xlabel("x (m)")
         ax_a.set_ylabel("y (m)")
         ax_a.set_aspect("equal")
-        ax_a.legend(fontsize=7, loc="lower left")
-        ax_a.set_title(f"(a) eq. (8), {cfg['n_bs']} BSs, L = {cfg['n_taps_receiver']} taps")
+        # below the map, not on it (the map has no empty corner)
+        handles, labels = ax_a.get_legend_handles_labels()
+        ax_a.legend(handles[::-1], labels[::-1], fontsize=9, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2,
+                    frameon=False)
+        ax_a.set_title(f"(a) eq. (10), {cfg['n_bs']} BSs, L = {cfg['n_taps_receiver']} taps")
         iy = int(np.argmin(np.abs(y - ue[1])))
         ix = int(np.argmin(np.abs(x - ue[0])))
-        ax_b.plot(x, c[iy, :], label="cut along x at true y")
-        ax_b.plot(y, c[:, ix], "--", label="cut along y at true x")
+        ax_b.plot(x, c[iy, :], label="cut along x")
+        ax_b.plot(y, c[:, ix], "--", label="cut along y")
         ax_b.axvline(0.0, color="r", lw=0.8)
         ax_b.set_xlabel("offset from true position (m)")
         ax_b.set_ylabel("normalized cost")
         ax_b.set_title("(b) cuts through the true position")
-        ax_b.legend(fontsize=7)
+        ax_b.legend(fontsize=9, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2, frameon=False)
     return fig
 
 
+def place_texts(fig, ax, texts, markers=(), pad_px: float = 1.5) -> None:
+    """Greedy, deterministic placement of labels so that no two overlap and none leaves the axes.
+
+    texts : list of (Text, candidates), each candidate a dict of Text properties (``position``, ``ha``, ``va``, ...);
+        the texts are placed in order, each at its first candidate whose box (grown by ``pad_px``) lies inside the
+        axes and clear of the markers and of the texts placed before it; where no candidate is clear, the one with the
+        least overlap.
+    markers : (x, y, half_size_pt) in data coordinates: squares no label may cover.
+    The layout is done first (``fig.draw_without_rendering``) and the texts are kept out of it (``in_layout`` off), so
+    the boxes measured here are where the texts are drawn (up to the layout's last sub-pixel adjustments, which
+    ``pad_px`` absorbs).
+    """
+    from matplotlib.transforms import Bbox
+
+    for t, _ in texts:
+        t.set_in_layout(False)
+    fig.draw_without_rendering()
+    frame = ax.get_window_extent()
+    placed = []
+    for x, y, half in markers:
+        h = half * fig.dpi / 72
+        cx, cy = ax.transData.transform((x, y))
+        placed.append(Bbox.from_extents(cx - h, cy - h, cx + h, cy + h))
+
+    def cost(box):
+        inside = frame.x0 <= box.x0 and box.x1 <= frame.x1 and frame.y0 <= box.y0 and box.y1 <= frame.y1
+        hit = sum(max(0.0, min(box.x1, o.x1) - max(box.x0, o.x0)) * max(0.0, min(box.y1, o.y1) - max(box.y0, o.y0))
+                  for o in placed)
+        return (0.0 if inside else 1e9) + hit
+
+    for t, candidates in texts:
+        best = None
+        for k, cand in enumerate(candidates):
+            t.update(cand)
+            box = t.get_window_extent().padded(pad_px)
+            c = cost(box)
+            if best is None or c < best[0]:
+                best = (c, k, box)
+            if c == 0.0:
+                break
+        t.update(candidates[best[1]])
+        placed.append(best[2])
+
+
 def plot_deployment(payload: dict):
-    """Fig. 7: buildings (shaded by height), streets, BSs, the example UE and its links (LoS solid, NLoS dashed)."""
+    """Fig. 7: buildings (shaded by height), streets, BSs, the example UE and its links (LoS solid, NLoS dashed).
+
+    Street names and BS numbers are placed by ``place_texts``: each street name along its street (the map's edge
+    first, then the blocks between the cross streets), each BS number at one of eight spots around its marker, so
+    that no two labels overlap, none covers a marker and none is cut by the map's border.
+    """
     from matplotlib.patches import Rectangle
 
     d = payload["data"]
     x0, y0, x1, y1 = d["region"]
     with style():
-        fig = Figure(figsize=(6.4, 6.6), layout="constrained")
+        fig = Figure(figsize=(6.4, 6.3), layout="constrained")
         ax = fig.subplots()
         ax.set_facecolor("#f4f4f0")
         heights = [b[4] for b in d["buildings"]]
@@ -132,12 +188,6 @@ def plot_deployment(payload: dict):
         sm = matplotlib.cm.ScalarMappable(norm=norm, cmap=matplotlib.colors.ListedColormap(
             cmap(np.linspace(0.25, 0.85, 64))))
         fig.colorbar(sm, ax=ax, label="building height (m)", shrink=0.7)
-        for s in d["streets"]:
-            if s["axis"] == "north-south":
-                ax.text(s["centre_m"], y1 - 4, s["name"], rotation=90, ha="center", va="top", fontsize=6.5,
-                        color="#555555")
-            else:
-                ax.text(x0 + 4, s["centre_m"], s["name"], ha="left", va="center", fontsize=6.5, color="#555555")
         ue = d["ue_xyz"]
         for b, los in zip(d["link_bs_xyz"], d["link_los"]):
             ax.plot([ue[0], b[0]], [ue[1], b[1]], "-" if los else "--", color="#2ca02c" if los else "#ff7f0e",
@@ -145,8 +195,6 @@ def plot_deployment(payload: dict):
         bs = np.asarray(d["bs_xyz"])
         ax.plot(bs[:, 0], bs[:, 1], "^", color="#d62728", markersize=7, markeredgecolor="k", mew=0.5, zorder=4,
                 label=f"BS ({len(bs)}, 10 m, 24 dBm)")
-        for bid, (bx, by, _) in zip(d["bs_ids"], bs):
-            ax.annotate(bid[2:], (bx, by), xytext=(3, 3), textcoords="offset points", fontsize=6, zorder=5)
         ax.plot(ue[0], ue[1], "o", color="#1f77b4", markersize=8, markeredgecolor="k", zorder=5, label="example UE")
         ax.plot([], [], "-", color="#2ca02c", label="LoS link")
         ax.plot([], [], "--", color="#ff7f0e", label="NLoS link")
@@ -156,9 +204,40 @@ def plot_deployment(payload: dict):
         ax.grid(False)
         ax.set_xlabel("east (m)")
         ax.set_ylabel("north (m)")
-        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.09), ncol=4, frameon=False)
+        ax.legend(fontsize=9, loc="upper center", bbox_to_anchor=(0.5, -0.08), ncol=2, frameon=False)
         c = payload["config"]
-        ax.set_title(f"{c['n_bs']} BSs over {c['area_m2']:,.0f} m², example UE with its {c['m']} nearest links")
+        ax.set_title(f"{c['n_bs']} BSs over {c['area_m2']:,.0f} m², example UE with its {c['m']} nearest links",
+                     fontsize=10)
+
+        # labels: street names first (they may slide along their street), then the BS numbers around their markers
+        halo = [patheffects.withStroke(linewidth=2.5, foreground="w")]
+        streets = sorted(d["streets"], key=lambda s: (s["axis"], s["centre_m"]))
+        ns = sorted(s["centre_m"] for s in streets if s["axis"] == "north-south")
+        ew = sorted(s["centre_m"] for s in streets if s["axis"] == "east-west")
+        mid = lambda cuts, lo, hi: [(a + b) / 2 for a, b in zip([lo, *cuts], [*cuts, hi])]
+        texts = []
+        for s in streets:
+            t = ax.text(0, 0, s["name"], fontsize=7.5, color="#444444", style="italic", zorder=4.5, path_effects=halo,
+                        in_layout=False)
+            if s["axis"] == "north-south":
+                t.set_rotation(90)
+                cands = [dict(position=(s["centre_m"], y1 - 4), ha="center", va="top"),
+                         dict(position=(s["centre_m"], y0 + 4), ha="center", va="bottom")]
+                cands += [dict(position=(s["centre_m"], yy), ha="center", va="center") for yy in mid(ew, y0, y1)[::-1]]
+            else:
+                cands = [dict(position=(x0 + 4, s["centre_m"]), ha="left", va="center"),
+                         dict(position=(x1 - 4, s["centre_m"]), ha="right", va="center")]
+                cands += [dict(position=(xx, s["centre_m"]), ha="center", va="center") for xx in mid(ns, x0, x1)]
+            texts.append((t, cands))
+        spots = [(1, 1, "left", "bottom"), (1, -1, "left", "top"), (-1, 1, "right", "bottom"), (-1, -1, "right", "top"),
+                 (1.4, 0, "left", "center"), (-1.4, 0, "right", "center"), (0, 1.3, "center", "bottom"),
+                 (0, -1.3, "center", "top")]
+        for bid, (bx, by, _) in zip(d["bs_ids"], bs):
+            t = ax.annotate(bid[2:], (bx, by), xytext=(0, 0), textcoords="offset points", fontsize=8, zorder=5,
+                            annotation_clip=False, path_effects=halo, in_layout=False)
+            cands = [dict(position=(r * sx, r * sy), ha=ha, va=va) for r in (4.0, 7.0, 11.0) for sx, sy, ha, va in spots]
+            texts.append((t, cands))
+        place_texts(fig, ax, texts, [(bx, by, 4.5) for bx, by, _ in bs] + [(ue[0], ue[1], 5.0)])
     return fig
 
 
@@ -173,7 +252,7 @@ def plot_urban_correlogram(payload: dict):
         ax = fig.subplots()
         cost = np.asarray(d["cost_norm"])
         im = ax.pcolormesh(x - ue[0], y - ue[1], cost, shading="nearest", cmap="viridis", vmin=cost.min(), vmax=1)
-        fig.colorbar(im, ax=ax, label="normalized cost, eq. (8)")
+        fig.colorbar(im, ax=ax, label="normalized cost, eq. (10)")
         ax.plot(0, 0, "r+", markersize=14, mew=2, label="ground truth")
         ax.plot(est[0] - ue[0], est[1] - ue[1], "wx", markersize=9, mew=2,
                 label=f"DPE fix ({d['error_m']:.2f} m off)")
@@ -188,17 +267,66 @@ def plot_urban_correlogram(payload: dict):
 COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b")
 
 
+#: Values the paper states in its text (Section IV), drawn on Figs. 9 and 10 as black-edged stars (``PAPER_MARKER``;
+#: no curve of ours uses a star) labelled "paper (text)".
+#: Only what the sentences say: Fig. 9 gives one point (M = 6, 10 dB, "within 6 m") and "sub-meter" without an SNR or M;
+#: Fig. 10 gives DPE's 90 % and 99 % points and OTDoA's 90 % point.
+PAPER_FIG9_RMSE_M = {"m": 6, "snr_db": 10.0, "rmse_m": 6.0}  # "an overall RMSE constrained within 6 m, even in the
+#   worst simulation scenario where only 6 candidate BSs are used and the SNR is as low as 10 dB"
+PAPER_FIG9_SUB_METRE_M = 1.0  # "As the number of available positioning sources increases, a sub-meter positioning
+#   accuracy can be achieved, particularly when the propagation environment provides a high signal quality"
+PAPER_FIG10_DPE_M = {0.9: 2.0, 0.99: 7.0}  # "the RMSE obtained by 5G DPE can be constrained within 7 m for 99% of the
+#   use cases, with a 90% probability of achieving an RMSE within 2 m"
+PAPER_FIG10_OTDOA_M = {0.9: 42.0}  # "the conventional OTDoA method results in a 42-meter RMSE for 90% of the use cases"
+PAPER_MARKER = dict(marker="*", color="k", markersize=13, markerfacecolor="#ffd500", markeredgecolor="k", mew=1.0,
+                    ls="none", zorder=6, clip_on=False)
+
+
+def log_ticks(ax, lo: float, hi: float) -> None:
+    """A log y axis over [lo, hi] with enough labelled ticks to read values off.
+
+    Within about a decade and a half: labels at 1, 1.2, 1.5, 2, 3, 4, 5, 6, 8 × 10^k and a light minor grid in
+    between (steps of 0.1 × 10^k up to 2 × 10^k), so a value reads to 0.1 m around 1 m.  Up to three decades: labels
+    at 1, 2, 5 × 10^k, minor grid at the other integers.  Wider: labels at the decades.
+    """
+    ax.set_yscale("log")
+    ax.set_ylim(lo, hi)
+    span = np.log10(hi / lo)
+    if span <= 1.5:
+        major = (1.0, 1.2, 1.5, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0)
+        minor = (1.1, 1.3, 1.4, 1.6, 1.7, 1.8, 1.9, 2.5, 3.5, 4.5, 7.0, 9.0)
+    elif span <= 3.0:
+        major, minor = (1.0, 2.0, 5.0), (3.0, 4.0, 6.0, 7.0, 8.0, 9.0)
+    else:
+        major, minor = (1.0,), (2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0)
+    decades = 10.0 ** np.arange(np.floor(np.log10(lo)) - 1, np.ceil(np.log10(hi)) + 1)
+
+    def at(mantissas):
+        v = np.round(np.outer(decades, mantissas).ravel(), 12)
+        return v[(v >= lo) & (v <= hi)]
+
+    ax.yaxis.set_major_locator(FixedLocator(at(major)))
+    ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))
+    ax.yaxis.set_minor_locator(FixedLocator(at(minor)))
+    ax.yaxis.set_minor_formatter(NullFormatter())
+    ax.grid(True, which="major", alpha=0.45)
+    ax.grid(True, which="minor", alpha=0.15)
+
+
 def plot_rmse_vs_snr(payload: dict):
     """Fig. 9: RMSE of the horizontal error against the per-sample SNR, one colour per M; solid: the honest
     receiver (window on a prior, certified search), dashed: the paper's truth-centred grid.  A payload with one
-    receiver only (the chapters' studies) is drawn solid."""
+    receiver only (the chapters' studies) is drawn solid.  Where the SNR axis holds 10 dB and M = 6 is drawn, the
+    values the paper's text states are drawn as well (``PAPER_FIG9_*``)."""
     d = payload["data"]
     c = payload["config"]
     snr = np.asarray(c["snrs_db"])
     recv = [r for r in ("honest", "truth") if r in d]
     style_of = {"honest": ("-", "honest: prior-centred, certified"), "truth": ("--", "paper's set-up: truth-centred")}
+    pv = PAPER_FIG9_RMSE_M
+    paper_text = snr.min() <= pv["snr_db"] <= snr.max() and pv["m"] in c["m_values"]
     with style():
-        fig = Figure(figsize=(7.4, 4.2), layout="constrained")
+        fig = Figure(figsize=(7.4, 5.2), layout="constrained")
         ax = fig.subplots()
         for r in recv:
             ls, lab = style_of[r] if len(recv) > 1 else ("-", "")
@@ -209,61 +337,68 @@ def plot_rmse_vs_snr(payload: dict):
         for r in recv if len(recv) > 1 else ():
             ax.plot([], [], style_of[r][0], color="0.3",
                     label=f"{style_of[r][1]} ({c['receivers'][r]['n_trials']} trials)")
-        from matplotlib.ticker import FormatStrFormatter, LogLocator, MultipleLocator
-
         vals = np.concatenate([np.asarray(d[r]["rmse_m"]).ravel() for r in recv])
-        if vals.max() / vals.min() < 4:  # a narrow range: linear axis, labelled every 0.1 m
+        if paper_text:
+            ax.plot([pv["snr_db"]], [pv["rmse_m"]], **PAPER_MARKER,
+                    label=f"paper (text): within {pv['rmse_m']:g} m, M = {pv['m']} at {pv['snr_db']:g} dB")
+            ax.axhline(PAPER_FIG9_SUB_METRE_M, color="k", lw=1.0, ls=(0, (1, 2)), zorder=1.5,
+                       label="paper (text): sub-metre with more BSs at high SNR (no SNR given)")
+            vals = np.concatenate([vals, [pv["rmse_m"], PAPER_FIG9_SUB_METRE_M]])
+        lo, hi = vals.min(), vals.max()
+        if hi / lo < 4:  # a narrow range: linear axis, labelled every 0.1 m
             ax.yaxis.set_major_locator(MultipleLocator(0.1))
             ax.yaxis.set_major_formatter(FormatStrFormatter("%.1f"))
-        else:  # a wide range: log axis, labelled at 1, 2, 5 and the values between
-            ax.set_yscale("log")
-            ax.yaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
-            ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))
-            ax.yaxis.set_minor_locator(LogLocator(subs=(3.0, 4.0, 6.0, 7.0, 8.0, 9.0)))
-            ax.yaxis.set_minor_formatter(FormatStrFormatter("%g"))
-            ax.tick_params(axis="y", which="minor", labelsize=7)
-        ax.set_xlabel("SNR per sample (dB)")
+            ax.grid(True, which="major", alpha=0.35)
+        else:  # a wide range: log axis with labelled intermediate ticks
+            log_ticks(ax, lo / 1.15, hi * 1.15)
+        ax.set_xlabel("SNR per time-domain sample, before correlation (dB)")
         ax.set_ylabel("RMSE (m)")
         ax.set_xticks(snr)
-        ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False)
-        ax.grid(True, which="both", alpha=0.3)
-        ax.set_title(f"{100 * d['los_share_all']:.0f} % of links LoS")
+        ax.legend(fontsize=9, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2, frameon=False)
+        ax.set_title(f"{100 * d['los_share_all']:.0f} % of links LoS", fontsize=10)
     return fig
 
 
 def plot_cdf(payload: dict):
     """Fig. 10: error CDFs of the DPE receivers and of OTDoA; left the paper's case (2 of 4 links LoS), right LoS
-    from eq. (9)."""
+    from eq. (11).  Both panels carry the points the paper's text states (``PAPER_FIG10_*``) as stars."""
     grid = np.asarray(payload["config"]["error_grid_m"])
-    titles = {"two_of_four": "(a) 2 of 4 links LoS (paper's case)", "eq9": "(b) LoS from eq. (9)"}
+    data = payload["data"]
+    titles = {"two_of_four": "(a) 2 of 4 links LoS (paper's case)", "pr_los": "(b) LoS from eq. (11)"}
     curves = [("dpe_otdoa", "DPE centred on OTDoA fix", "#1f77b4", "-"),
               ("dpe_prior", "DPE centred on 5 m prior", "#2ca02c", "-"),
               ("dpe_truth", "DPE centred on truth (paper)", "0.45", "--"),
               ("otdoa_first_path", "OTDoA, first-path ToA", "#d62728", "-"),
               ("otdoa_peak", "OTDoA, peak ToA (naive)", "#ff7f0e", ":")]
+    dpe_lab = ", ".join(f"{100 * q:g} % within {v:g} m" for q, v in PAPER_FIG10_DPE_M.items())
+    ot_lab = ", ".join(f"{100 * q:g} % at {v:g} m" for q, v in PAPER_FIG10_OTDOA_M.items())
     with style():
-        fig = Figure(figsize=(10.0, 5.2), layout="constrained")
+        fig = Figure(figsize=(10.0, 5.6), layout="constrained")
         axes = fig.subplots(1, 2, sharey=True)
-        for ax, case in zip(axes, ("two_of_four", "eq9")):
-            d = payload["data"][case]
+        for ax, case in zip(axes, ("two_of_four", "pr_los")):
+            d = data[case]
             for key, lab, col, ls in curves:
                 q = d[key]["p50_p90_p99_m"]
                 ax.step(grid, d[key]["cdf"], ls, where="post", color=col, label=f"{lab}: 90 % {q[1]:.1f} m")
             for lev in (0.9, 0.99):
                 ax.axhline(lev, color="0.5", lw=0.7, ls=":")
-            ax.plot([2.0, 42.0], [0.9, 0.9], "k*", markersize=9, label="paper: DPE 2 m, OTDoA 42 m at 90 %")
+            ax.plot(list(PAPER_FIG10_DPE_M.values()), list(PAPER_FIG10_DPE_M), **PAPER_MARKER,
+                    label=f"paper (text), DPE: {dpe_lab}")
+            ax.plot(list(PAPER_FIG10_OTDOA_M.values()), list(PAPER_FIG10_OTDOA_M),
+                    **{**PAPER_MARKER, "markerfacecolor": "w"}, label=f"paper (text), OTDoA: {ot_lab}")
             ax.set_xscale("log")
             ax.set_xlim(0.03, 1000)
             ax.set_ylim(0, 1.0)
+            ax.set_yticks(np.arange(0, 1.01, 0.1))
             ax.set_xlabel("horizontal position error (m)")
             ax.set_title(titles[case], fontsize=10)
-            ax.legend(fontsize=9, loc="upper left", bbox_to_anchor=(0.0, -0.14), frameon=False)
+            ax.legend(fontsize=9, loc="upper left", bbox_to_anchor=(0.0, -0.12), frameon=False)
         axes[0].set_ylabel("CDF")
     return fig
 
 
 def plot_plateau(payload: dict):
-    """Chapter 3: one BS term of eq. (8) against the candidate ToA offset c (τ − τ₀) for a TDL-D (LoS) and a TDL-C
+    """Chapter 3: one BS term of eq. (10) against the candidate ToA offset c (τ − τ₀) for a TDL-D (LoS) and a TDL-C
     (NLoS) link and several windows L (``studies.plateau_payload``), with the link's sampled CIR power as grey
     stems.  A window of L taps sums the CIR power over [τ, τ + (L − 1) T_s], so where one tap holds the energy the
     cost is flat for (L − 1) T_s before the first path and falls off a cliff after it."""

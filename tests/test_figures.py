@@ -77,3 +77,84 @@ def test_compare_data_catches_a_change():
     changed["data"]["pdp_db"][3] += 1e-3
     ok, where, diff = figures.compare_data(payload, changed, DATA_RTOL, DATA_ATOL)
     assert not ok and "pdp_db[3]" in where and diff == pytest.approx(1e-3)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Readability of the drawn figures (issue 10): drawn from the committed data, so these run in a second.
+
+def _drawn_texts(fig_id, monkeypatch):
+    """Render ``fig_id`` from its committed data, draw it as it is saved, and return (fig, renderer, the non-empty
+    Text artists actually drawn, each once)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.text import Text
+
+    payload = json.loads((BASELINE / "data" / f"{fig_id}.json").read_text())
+    fig = figures.render(payload)
+    FigureCanvasAgg(fig)
+    drawn = {}
+    draw = Text.draw
+
+    def record(self, renderer):
+        if self.get_visible() and self.get_text().strip():
+            drawn[id(self)] = self
+        return draw(self, renderer)
+
+    monkeypatch.setattr(Text, "draw", record)
+    fig.canvas.draw()
+    monkeypatch.setattr(Text, "draw", draw)
+    return fig, fig.canvas.get_renderer(), list(drawn.values())
+
+
+def _overlap_px(a, b) -> float:
+    return min(max(0.0, min(a.x1, b.x1) - max(a.x0, b.x0)), max(0.0, min(a.y1, b.y1) - max(a.y0, b.y0)))
+
+
+def test_fig07_labels_do_not_overlap(monkeypatch):
+    """Fig. 7: no two texts (street names, BS numbers, ticks, labels, legend) overlap, all lie inside the figure,
+    and the map's labels inside the map."""
+    fig, renderer, texts = _drawn_texts("fig07_deployment_map", monkeypatch)
+    boxes = [(t.get_text(), t.get_window_extent(renderer)) for t in texts]
+    assert len(boxes) > 26 + 11  # every BS number and street name is drawn
+    frame = fig.bbox
+    outside = [s for s, b in boxes if b.x0 < frame.x0 or b.y0 < frame.y0 or b.x1 > frame.x1 or b.y1 > frame.y1]
+    assert not outside, f"texts outside the figure: {outside}"
+    ax = fig.axes[0]
+    area = ax.get_window_extent(renderer)
+    cut = [t.get_text() for t in ax.texts
+           if not area.contains(*t.get_window_extent(renderer).p0) or not area.contains(*t.get_window_extent(renderer).p1)]
+    assert not cut, f"labels cut by the map's border: {cut}"
+    overlaps = [(boxes[i][0], boxes[j][0], round(_overlap_px(boxes[i][1], boxes[j][1]), 1))
+                for i in range(len(boxes)) for j in range(i + 1, len(boxes))
+                if _overlap_px(boxes[i][1], boxes[j][1]) > 0.0]
+    assert not overlaps, f"overlapping texts (px): {overlaps}"
+
+
+@pytest.mark.parametrize("fig_id, axes_index", [("fig06_cost_surface", 0), ("fig09_rmse_vs_snr", 0),
+                                                 ("fig10_cdf_dpe_vs_otdoa", 0), ("fig10_cdf_dpe_vs_otdoa", 1)])
+def test_legend_off_the_data_and_ticks_readable(fig_id, axes_index, monkeypatch):
+    """The legend lies outside the data area, and every tick label is at least 9 pt (the book shows the PNGs at about
+    their saved width)."""
+    fig, renderer, texts = _drawn_texts(fig_id, monkeypatch)
+    ax = fig.axes[axes_index]
+    legend = ax.get_legend()
+    assert legend is not None
+    assert _overlap_px(legend.get_window_extent(renderer), ax.get_window_extent(renderer)) == 0.0
+    for a in fig.axes:
+        for lab in a.get_xticklabels() + a.get_yticklabels():
+            if lab.get_text():
+                assert lab.get_fontsize() >= 9, (fig_id, lab.get_text(), lab.get_fontsize())
+
+
+def test_fig09_ticks_and_paper_values(monkeypatch):
+    """Fig. 9: enough labelled RMSE ticks to read a value to 0.1 m around 1 m, and the paper's stated value drawn."""
+    fig, renderer, texts = _drawn_texts("fig09_rmse_vs_snr", monkeypatch)
+    ax = fig.axes[0]
+    lo, hi = ax.get_ylim()
+    labelled = [t for t, lab in zip(ax.get_yticks(), ax.get_yticklabels()) if lo <= t <= hi and lab.get_text()]
+    assert len(labelled) >= 6, labelled
+    assert ax.get_yscale() == "log" and 1.0 in labelled and 6.0 in labelled
+    minor = [t for t in ax.yaxis.get_minorticklocs() if lo <= t <= hi]
+    assert {0.9, 1.1} <= {round(t, 6) for t in minor}
+    assert ax.get_xlabel().startswith("SNR per")
+    paper = [ln for ln in ax.get_lines() if ln.get_label().startswith("paper (text)")]
+    assert any(list(ln.get_xdata()) == [10.0] and list(ln.get_ydata()) == [6.0] for ln in paper)
