@@ -69,7 +69,7 @@ def test_changed_module_re_executes_the_page(tmp_path):
 def test_book_config_watches_the_package_and_the_pins():
     cfg = yaml.safe_load((ROOT / "book" / "_config.yml").read_text())
     assert set(cfg["sphinx"]["config"]["dpe5g_cache_sources"]) == {"dpe5g", "environment.txt"}
-    assert cfg["sphinx"]["local_extensions"] == {"dpe5g_book": "book/_ext"}
+    assert cfg["sphinx"]["local_extensions"] == {"dpe5g_book": "_ext"}  # relative to book/_config.yml
 
 
 def test_sources_digest_follows_bytes(tmp_path):
