@@ -397,7 +397,8 @@ register("fig08_urban_correlogram", "Fig. 8",
          "2-D correlogram (eq. (10), the 12 nearest BSs summed) of the example urban fix at 20 dB.",
          plots.plot_urban_correlogram)(urban_correlogram_payload)
 register("fig09_rmse_vs_snr", "Fig. 9",
-         "DPE RMSE against SNR for M = 6, 12, 18, 24 nearest BSs: the honest receiver (window centred on a 5 m "
+         "DPE RMSE against SNR for M = 6, 12, 18, 24 nearest BSs: the honest receiver (window centred on a "
+         f"{paper.PRIOR_SIGMA_M:g} m "
          "prior, certified search; solid) and the paper's truth-centred grid (dashed).",
          plots.plot_rmse_vs_snr)(
     lambda progress=False, trials=None: rmse_payload(
@@ -446,6 +447,7 @@ def cdf_payload(experiments: dict, progress: bool = False) -> dict:
 
 register("fig10_cdf_dpe_vs_otdoa", "Fig. 10",
          "CDF of the position error of DPE and OTDoA with the 4 nearest BSs, SNR per link from the UMi path loss: "
-         "DPE centred on the OTDoA fix or on a 5 m prior (certified search) and on the truth (the paper's set-up); "
+         f"DPE centred on the OTDoA fix or on a {paper.PRIOR_SIGMA_M:g} m prior (certified search) and on the truth "
+         "(the paper's set-up); "
          "OTDoA with the first-path and the strongest-peak ToA.", plots.plot_cdf)(
     lambda progress=False, trials=None: cdf_payload(paper.fig10() if trials is None else paper.fig10(trials), progress))
