@@ -163,7 +163,7 @@ def test_every_figure_is_numbered_and_captioned(server, browser, page_path):
     page.goto(f"{server}/{page_path}", wait_until="load")
     found = page.evaluate("""() => Array.from(document.querySelectorAll('main img, main iframe')).map(e => {
         const f = e.closest('figure'), c = f && f.querySelector('figcaption');
-        return {src: (e.src || '').slice(-40), caption: c ? c.textContent.trim() : null,
+        return {src: (e.src || '').slice(-40), caption: c ? c.textContent.trim().replace(/\u2019/g, "'") : null,
                 number: c && c.querySelector('.caption-number') ? c.querySelector('.caption-number').textContent : null,
                 alt: e.getAttribute('alt')}; })""")
     for f in found:
