@@ -6,6 +6,7 @@ defect: jupyter-cache keys on the page's cells only); with it the page shows the
 offered for download.
 """
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -28,9 +29,25 @@ kernelspec:
 # Page
 
 ```{code-cell} ipython3
+%matplotlib inline
 import sys; sys.path.insert(0, "pkgx")
 import mod
 print(f"VALUE={mod.VALUE}")
+from IPython.display import Markdown
+from matplotlib.figure import Figure
+from myst_nb import glue
+fig = Figure(figsize=(2, 1)); fig.subplots().plot([0, 1])
+glue("double", 2.0 * mod.VALUE, display=False)
+glue("pic", fig, display=False)
+glue("pic_caption", Markdown("**A caption.**"), display=False)
+```
+
+Twice the value is {glue:text}`double:.1f`.
+
+```{glue:figure} pic
+:name: pic
+
+{glue:md}`pic_caption`
 ```
 """
 
@@ -60,10 +77,16 @@ def test_changed_module_re_executes_the_page(tmp_path):
     html = _book(tmp_path, ["pkgx"])
     assert "VALUE=2" in html and "VALUE=1" not in html
 
-    # the executed notebook is downloadable from the page
-    assert "_sources/page.ipynb" in html
-    nb = (tmp_path / "_build" / "html" / "_sources" / "page.ipynb").read_text()
-    assert "VALUE=2" in nb
+    # the executed notebook is downloadable from the page, with the glued values and figure in its prose
+    assert "_sources/page.ipynb" in html and "Twice the value is 4.0" in re.sub(r"<[^>]+>", "", html)
+    import nbformat
+
+    nb = nbformat.read(tmp_path / "_build" / "html" / "_sources" / "page.ipynb", as_version=4)
+    nbformat.validate(nb)
+    assert "VALUE=2" in str([c.outputs for c in nb.cells if c.cell_type == "code"])
+    prose = "\n".join(c.source for c in nb.cells if c.cell_type == "markdown")
+    assert "{glue" not in prose and "Twice the value is 4.0" in prose and "**A caption.**" in prose
+    assert any("pic.png" in c.get("attachments", {}) for c in nb.cells)
 
 
 def test_book_config_watches_the_package_and_the_pins():

@@ -7,14 +7,17 @@
   outdated, so every chapter is re-executed.  Re-executing is cheap where the Monte Carlo cache (keyed on the code's
   syntax tree, see ``dpe5g.montecarlo``) still holds.  ``tests/test_book_cache.py`` proves it on a one-page book.
 * **Download.**  The executed notebook of every chapter (``<outdir>/../jupyter_execute/<doc>.ipynb``, written by
-  MyST-NB) is copied next to the page's source in ``_sources/`` and offered by the theme's download button as
-  ``.ipynb``; nothing is fetched from the network.
+  MyST-NB) is offered by the theme's download button as ``.ipynb`` (copied next to the page's source in
+  ``_sources/``); nothing is fetched from the network.  MyST-NB moves glued values out of the cells' outputs, so
+  the copy is made readable outside the book: every glue reference in the prose is replaced by its value and every
+  ``{glue:figure}`` by the image (a cell attachment) and its caption (``reader_notebook``).
 """
 
 from __future__ import annotations
 
 import importlib.util
-import shutil
+import json
+import re
 from pathlib import Path
 
 _HERE = Path(__file__).resolve().parent
@@ -57,15 +60,64 @@ def _page_context(app, pagename, templatename, context, doctree):
         context["ipynb_source"] = f"{pagename}.ipynb"
 
 
+_GLUE_FIGURE = re.compile(r"```\{glue:figure\}[ \t]+(\S+)\n(.*?)```", re.S)
+_GLUE_ROLE = re.compile(r"\{glue(?::(text|md|any))?\}`([^`]+)`")
+
+
+def reader_notebook(nb, glue: dict):
+    """Replace the glue references of ``nb``'s Markdown cells by the glued values (in place; returns ``nb``).
+
+    ``glue`` maps a key to its output (``{"data": {mime: value}}``, MyST-NB's ``<doc>.glue.json``).  ``{glue:text}``
+    is formatted as MyST-NB formats it; ``{glue:md}`` pastes the Markdown; ``{glue:figure}`` becomes the image as a
+    cell attachment followed by the caption.  An unknown key raises KeyError: the book build has already checked
+    every key, so one missing here is a bug."""
+    from myst_nb.core.variables import format_plain_text
+
+    def role(mo):
+        kind, ref = mo.group(1), mo.group(2)
+        if kind == "text":
+            key, fmt = ref.rsplit(":", 1) if ":" in ref else (ref, "")
+            return format_plain_text(glue[key]["data"]["text/plain"], fmt)
+        data = glue[ref]["data"]
+        return data.get("text/markdown", data.get("text/plain", "")) if kind == "md" else data.get("text/plain", "")
+
+    for cell in nb.cells:
+        if cell.cell_type != "markdown":
+            continue
+        attachments = {}
+
+        def figure(mo):
+            key, body = mo.group(1), mo.group(2)
+            caption = "\n".join(line for line in body.splitlines() if not line.startswith(":")).strip()
+            data = glue[key]["data"]
+            if "image/png" in data:
+                attachments[f"{key}.png"] = {"image/png": data["image/png"]}
+                shown = f"![{key}](attachment:{key}.png)"
+            else:
+                shown = data.get("text/html", data.get("text/plain", ""))
+            return f"{shown}\n\n{caption}\n"
+
+        cell.source = _GLUE_ROLE.sub(role, _GLUE_FIGURE.sub(figure, cell.source))
+        if attachments:
+            cell["attachments"] = attachments
+    return nb
+
+
 def _copy_notebooks(app, exception):
     if exception is not None or app.builder.format != "html":
         return
+    import nbformat
+
     for docname in sorted(app.env.found_docs):
-        nb = _notebook(app, docname)
-        if nb.exists():
-            dest = Path(app.outdir) / "_sources" / f"{docname}.ipynb"
-            dest.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copyfile(nb, dest)
+        path = _notebook(app, docname)
+        if not path.exists():
+            continue
+        nb = nbformat.read(path, as_version=4)
+        glue_path = path.with_name(path.stem + ".glue.json")
+        reader_notebook(nb, json.loads(glue_path.read_text()) if glue_path.exists() else {})
+        dest = Path(app.outdir) / "_sources" / f"{docname}.ipynb"
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        nbformat.write(nb, dest)
 
 
 def setup(app):
