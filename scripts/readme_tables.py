@@ -129,7 +129,21 @@ def engine_table() -> str:
     return "\n".join(lines)
 
 
-TABLES = {"fig9": fig9_table, "fig10": fig10_table, "bench": bench_table, "engine": engine_table}
+def timing_text() -> str:
+    b = _load("benchmarks/fresh_check.json")
+    ch = sorted(b["chapters_s"].items(), key=lambda kv: -kv[1])
+    budget = 20 * 60
+    verdict = (f"within the project's {budget // 60}-minute budget" if b["make_test_s"] <= budget
+               else f"above the project's {budget // 60}-minute budget")
+    return (f"Measured with `../shared/bin/fresh-check test` (a clean clone, no `.venv`, no cache) at {b['commit']} on "
+            f"{b['machine']['cpus']} CPUs: `make test` {b['make_test_s']} s ({b['make_test_s'] // 60} min "
+            f"{b['make_test_s'] % 60} s), {verdict}; {b['tests_passed']} tests passed"
+            + (f", {b['tests_skipped']} skipped" if b["tests_skipped"] else "") + f", the pytest suite {b['pytest_s']:.0f} s; "
+            "chapter execution: " + ", ".join(f"{k} {v:.0f} s" for k, v in ch) + ".  "
+            "`scripts/fresh_check_times.py` records these from the fresh-check's log.")
+
+
+TABLES = {"timing": timing_text, "fig9": fig9_table, "fig10": fig10_table, "bench": bench_table, "engine": engine_table}
 
 
 def render(text: str) -> str:

@@ -25,3 +25,22 @@ def test_readme_check_notices_a_stale_table(tmp_path, monkeypatch):
     monkeypatch.setattr(mod, "README", fake)
     assert mod.main(["--check"]) == 1
     assert mod.main([]) == 0 and fake.read_text() == (ROOT / "README.md").read_text()
+
+
+def test_fresh_check_log_parsing():
+    import importlib.util
+
+    import pytest
+
+    spec = importlib.util.spec_from_file_location("fresh_check_times", ROOT / "scripts" / "fresh_check_times.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    log = ("/tmp/x/chapters/05_rmse_vs_snr.md: Executed notebook in 512.5 seconds [mystnb]\n"
+           "/tmp/x/chapters/01_tdl_channel.md: Executed notebook in 9.8 seconds [mystnb]\n"
+           "=============== 234 passed, 1 skipped in 197.30s (0:03:17) ===============\n"
+           "fresh-check test: passed in 1234s on a clean clone\n")
+    rec = mod.parse(log)
+    assert rec == {"make_test_s": 1234, "chapters_s": {"05_rmse_vs_snr": 512.5, "01_tdl_channel": 9.8},
+                   "pytest_s": 197.3, "tests_passed": 234, "tests_skipped": 1}
+    with pytest.raises(ValueError, match="lacks"):
+        mod.parse(log.replace("fresh-check test: passed", "fresh-check test: FAILED"))

@@ -1,0 +1,57 @@
+"""Record the time of a fresh-clone ``make test`` from its log, for README's timing line (never typed by hand).
+
+    ../shared/bin/fresh-check test 2>&1 | tee /tmp/fresh.log
+    python scripts/fresh_check_times.py /tmp/fresh.log      # writes benchmarks/fresh_check.json
+
+Reads from the log: the total (``fresh-check test: passed in N s``), each chapter's execution time as MyST-NB logs
+it (``chapters/05_rmse_vs_snr.md: Executed notebook in N seconds``) and pytest's summary (``N passed ... in N s``).
+Records them with the commit and the machine; ``scripts/readme_tables.py`` renders README's timing paragraph from
+the file.  Exit 2 with one line if the log lacks any of them.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+OUT = ROOT / "benchmarks" / "fresh_check.json"
+
+
+def parse(log: str) -> dict:
+    total = re.findall(r"fresh-check test: passed in (\d+)s", log)
+    chapters = {m.group(1): float(m.group(2))
+                for m in re.finditer(r"chapters/(\w+)\.md: Executed notebook in ([\d.]+) seconds", log)}
+    summary = re.findall(r"=+ (\d+) passed(?:, (\d+) skipped)?[^=]* in ([\d.]+)s", log)
+    if not total or not chapters or not summary:
+        raise ValueError("the log lacks the fresh-check total, the chapters' execution times or pytest's summary")
+    passed, skipped, secs = summary[-1]
+    return {"make_test_s": int(total[-1]), "chapters_s": chapters, "pytest_s": float(secs),
+            "tests_passed": int(passed), "tests_skipped": int(skipped or 0)}
+
+
+def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if len(argv) != 1:
+        print("usage: fresh_check_times.py LOG", file=sys.stderr)
+        return 2
+    try:
+        rec = parse(Path(argv[0]).read_text(errors="replace"))
+    except (OSError, ValueError) as exc:
+        print(f"fresh_check_times: {exc}", file=sys.stderr)
+        return 2
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
+                            text=True).stdout.strip()
+    rec = {"commit": commit, "machine": {"cpus": os.cpu_count(), "platform": platform.platform(terse=True)}, **rec}
+    OUT.write_text(json.dumps(rec, indent=1, sort_keys=True) + "\n")
+    print(f"wrote {OUT.relative_to(ROOT)}: make test {rec['make_test_s']} s at {commit}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
