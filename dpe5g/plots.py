@@ -248,18 +248,18 @@ def plot_urban_correlogram(payload: dict):
     x, y = np.asarray(d["x_m"]), np.asarray(d["y_m"])
     ue, est = d["ue_xyz"], d["est_xyz"]
     with style():
-        fig = Figure(figsize=(6.2, 4.8), layout="constrained")
+        fig = Figure(figsize=(6.2, 5.3), layout="constrained")
         ax = fig.subplots()
         cost = np.asarray(d["cost_norm"])
         im = ax.pcolormesh(x - ue[0], y - ue[1], cost, shading="nearest", cmap="viridis", vmin=cost.min(), vmax=1)
         fig.colorbar(im, ax=ax, label="normalized cost, eq. (10)")
         ax.plot(0, 0, "r+", markersize=14, mew=2, label="ground truth")
-        ax.plot(est[0] - ue[0], est[1] - ue[1], "wx", markersize=9, mew=2,
+        ax.plot(est[0] - ue[0], est[1] - ue[1], ls="none", marker="X", markersize=10, mfc="white", mec="k", mew=1.0,
                 label=f"DPE fix ({d['error_m']:.2f} m off)")
         ax.set_xlabel("east offset from the UE (m)")
         ax.set_ylabel("north offset from the UE (m)")
         ax.set_aspect("equal")
-        ax.legend(fontsize=7, loc="lower left")
+        ax.legend(fontsize=9, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2, frameon=False)
         ax.set_title(f"{c['m']} nearest BSs ({d['n_los']} LoS), {c['snr_db']:g} dB, L = {c['n_taps']}")
     return fig
 

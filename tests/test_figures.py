@@ -130,7 +130,7 @@ def test_fig07_labels_do_not_overlap(monkeypatch):
     assert not overlaps, f"overlapping texts (px): {overlaps}"
 
 
-@pytest.mark.parametrize("fig_id, axes_index", [("fig06_cost_surface", 0), ("fig09_rmse_vs_snr", 1),
+@pytest.mark.parametrize("fig_id, axes_index", [("fig06_cost_surface", 0), ("fig08_urban_correlogram", 0), ("fig09_rmse_vs_snr", 1),
                                                  ("fig10_cdf_dpe_vs_otdoa", 0), ("fig10_cdf_dpe_vs_otdoa", 1)])
 def test_legend_off_the_data_and_ticks_readable(fig_id, axes_index, monkeypatch):
     """The legend lies outside the data area, and every tick label is at least 9 pt (the book shows the PNGs at about
