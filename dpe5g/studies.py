@@ -85,12 +85,17 @@ def window_study(sc: RingScenario, taps, seed: int, n_trials: int, cfg: dpe.Sear
     return rows
 
 
+#: grid step of ``coarse_prior``'s fix, metres
+COARSE_PRIOR_STEP_M = 2.0
+
+
 def coarse_prior(sc: RingScenario, y, prs, cfg: dpe.SearchConfig) -> np.ndarray:
-    """A prior from a coarse fix: eq. (10) on a 2 m grid over the whole UE square ± 10 m, centred on the BSs."""
+    """A prior from a coarse fix: eq. (10) on a ``COARSE_PRIOR_STEP_M`` grid over the whole UE square ± 10 m, centred
+    on the BSs."""
     t = y.shape[0]
     coarse = dpe.SearchConfig(n_taps=cfg.n_taps, upsample=cfg.upsample, half_width_m=sc.ue_half_width_m + 10.0,
                               bias_half_width_m=max(cfg.bias_half_width_m, 4 * sc.clock_sigma_s * C),
-                              coarse_step_m=2.0, final_step_m=2.0, polish=False)
+                              coarse_step_m=COARSE_PRIOR_STEP_M, final_step_m=COARSE_PRIOR_STEP_M, polish=False)
     center0 = np.tile([0.0, 0.0, sc.ue_height_m, 0.0], (t, 1))
     est = run_estimates(sc, y, prs, center0, coarse)
     return np.concatenate([est.xyz, est.clock_bias_s[:, None]], axis=-1)
