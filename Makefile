@@ -7,7 +7,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 SOURCES := $(wildcard dpe5g/*.py dpe5g/data/*)
 CHAPTERS := $(wildcard chapters/*.md)
-BOOK_SRC := $(wildcard book/*.md book/*.yml book/*.bib book/_static/* book/_ext/*.py) scripts/book_cache.py $(CHAPTERS)
+BOOK_SRC := $(wildcard book/*.md book/*.yml book/*.bib book/_static/* book/_ext/*.py) $(CHAPTERS)
 HTML := book/_build/html/index.html
 
 .PHONY: all setup figures book chapter test clean

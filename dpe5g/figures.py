@@ -109,7 +109,7 @@ def caption_md(fig_id: str) -> str:
 
 
 def glue(name: str, fig, caption: str) -> None:
-    """Hand a drawn figure and its Markdown caption to a chapter's ``{glue:figure}`` directive (MyST-NB glue).
+    """Hand a drawn figure (or any displayable object, e.g. HTML) and its Markdown caption to a chapter's ``{glue:figure}`` directive (MyST-NB glue).
 
     Glues ``fig`` (a matplotlib Figure) as ``name`` and ``caption`` as ``name + "_caption"``; the chapter then shows
     them as a numbered, captioned figure::

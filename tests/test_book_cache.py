@@ -98,7 +98,7 @@ def test_book_config_watches_the_package_and_the_pins():
 def test_sources_digest_follows_bytes(tmp_path):
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location("book_cache", ROOT / "scripts" / "book_cache.py")
+    spec = importlib.util.spec_from_file_location("dpe5g_book", ROOT / "book" / "_ext" / "dpe5g_book.py")
     bc = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bc)
     (tmp_path / "src").mkdir()

@@ -3,7 +3,7 @@
 * **Fresh outputs.**  jupyter-cache keys a chapter on its own code cells only, so after an edit of ``dpe5g/`` the
   book would show the new code (``literalinclude``) beside outputs computed by the old code.  At the start of every
   build this extension hashes the files named in ``dpe5g_cache_sources`` (relative to the book's source folder;
-  ``scripts/book_cache.py`` does the hashing) and, when they changed, deletes the execution cache and marks every page
+  ``sources_digest``) and, when they changed, deletes the execution cache and marks every page
   outdated, so every chapter is re-executed.  Re-executing is cheap where the Monte Carlo cache (keyed on the code's
   syntax tree, see ``dpe5g.montecarlo``) still holds.  ``tests/test_book_cache.py`` proves it on a one-page book.
 * **Download.**  The executed notebook of every chapter (``<outdir>/../jupyter_execute/<doc>.ipynb``, written by
@@ -15,20 +15,41 @@
 
 from __future__ import annotations
 
-import importlib.util
+import hashlib
 import json
 import re
+import shutil
 from pathlib import Path
 
-_HERE = Path(__file__).resolve().parent
-_SCRIPT = _HERE.parents[1] / "scripts" / "book_cache.py"
+STAMP_SUFFIX = ".sources.sha256"
 
 
-def _book_cache():
-    spec = importlib.util.spec_from_file_location("book_cache", _SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+def sources_digest(paths: list[Path]) -> str:
+    """SHA-256 over the relative names and bytes of every file under ``paths`` (files or folders), sorted;
+    ``__pycache__`` and ``*.pyc`` left out."""
+    h = hashlib.sha256()
+    for root in paths:
+        if not root.exists():
+            raise ValueError(f"dpe5g_cache_sources: {str(root)!r} does not exist")
+        files = [root] if root.is_file() else sorted(
+            p for p in root.rglob("*") if p.is_file() and "__pycache__" not in p.parts and p.suffix != ".pyc")
+        for f in files:
+            h.update(str(f.relative_to(root.parent)).encode() + b"\0")
+            h.update(f.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+def sync(cache: Path, sources: list[Path]) -> bool:
+    """Delete ``cache`` if ``sources`` changed since the digest stored beside it (``<cache>.sources.sha256``);
+    store the current digest.  Returns True when the cache was cleared (or did not exist yet)."""
+    digest = sources_digest(sources)
+    stamp = cache.with_name(cache.name + STAMP_SUFFIX)
+    cleared = not cache.exists() or not stamp.exists() or stamp.read_text().strip() != digest
+    if cleared and cache.exists():
+        shutil.rmtree(cache)
+    stamp.parent.mkdir(parents=True, exist_ok=True)
+    stamp.write_text(digest + "\n")
+    return cleared
 
 
 def _exec_cache(app) -> Path:
@@ -39,7 +60,7 @@ def _exec_cache(app) -> Path:
 
 def _sync(app) -> None:
     sources = [Path(app.srcdir) / s for s in app.config.dpe5g_cache_sources]
-    app._dpe5g_sources_changed = bool(sources) and _book_cache().sync(_exec_cache(app), sources)
+    app._dpe5g_sources_changed = bool(sources) and sync(_exec_cache(app), sources)
     if app._dpe5g_sources_changed:
         print("dpe5g_book: " + ", ".join(app.config.dpe5g_cache_sources)
               + " changed (or no execution cache yet): every chapter is re-executed")
