@@ -161,18 +161,13 @@ def _summary(res) -> str:
 
 def _run(args) -> int:
     from . import montecarlo
+    from ._io import atomic_target
 
     e = run_experiment(args)
     out = _output_file("--out", args.out, (".csv", ".json"), force=args.force)
     res = montecarlo.run(e, progress=True)
-    fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=f".{out.name}.", suffix=".tmp")
-    os.close(fd)
-    try:  # write beside the target and rename, so an existing file is never left half-overwritten
+    with atomic_target(out) as tmp:  # an existing file is never left half-overwritten
         (res.write_csv if out.suffix.lower() == ".csv" else res.write_json)(tmp)
-        os.replace(tmp, out)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
     n_rows = e.n_trials * len(e.snrs_db) * len(e.m_values)
     print(_summary(res))
     print(f"wrote {out} ({n_rows} rows: one per trial, SNR and M)")

@@ -12,7 +12,6 @@ from __future__ import annotations
 import inspect
 import json
 import math
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -21,7 +20,7 @@ import jax
 import numpy as np
 
 from . import channel, paper, plots
-from ._io import atomic_write
+from ._io import atomic_target, atomic_write
 from .nr import PAPER
 
 
@@ -134,10 +133,8 @@ def write(fig_id: str, out_dir, progress: bool = False, trials: int | None = Non
     atomic_write(js, (json.dumps(payload, indent=1, sort_keys=True) + "\n").encode())
     fig = render(payload)
     png = out / f"{fig_id}.png"
-    png.parent.mkdir(parents=True, exist_ok=True)
-    tmp = png.with_name(f".{png.name}.tmp.png")
-    plots.save_png(fig, tmp)
-    os.replace(tmp, png)
+    with atomic_target(png) as tmp:
+        plots.save_png(fig, tmp)  # format="png" is explicit, so the ".tmp" name does not matter
     return png, js
 
 
