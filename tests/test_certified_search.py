@@ -85,6 +85,29 @@ def test_certified_search_does_not_depend_on_the_grid_phase(trials):
     assert compared >= 0.8 * N_TRIALS and moved <= compared // 5, (compared, moved)
 
 
+def test_chunk_size_and_capacity_do_not_change_an_undropped_fix(trials):
+    """The boxes of a level are refined a chunk at a time and a box overtaken by an earlier chunk's best cost is
+    skipped: that changes which boxes are refined, never the fix, since every box that holds a better point is still
+    refined.  So chunk sizes 8 and 64 and a capacity of 256 or 1024 give the same fix wherever no box was dropped;
+    a capacity too small for the boxes alive drops boxes and the fix says it is not certified."""
+    e, items = trials
+    cfgs = [dataclasses.replace(CFG, chunk_boxes=8), dataclasses.replace(CFG, capacity=256, chunk_boxes=64), CFG]
+    tiny = dataclasses.replace(CFG, capacity=8, chunk_boxes=8)
+    runs = [jax.jit(lambda coef, bs, c, cfg=cfg: dpe.certified_search(coef, bs, c, cfg)) for cfg in cfgs + [tiny]]
+    n_tiny_uncertified = 0
+    for ex, center in items[:20]:
+        coef = correlogram.spline_correlogram(ex["y"], ex["prs"], CFG.n_taps, CFG.spline_upsample)
+        args = (coef, jnp.asarray(ex["bs"]), jnp.asarray(center))
+        *rs, small = [run(*args) for run in runs]
+        for r in rs[:-1]:
+            if bool(r["certified"]) and bool(rs[-1]["certified"]):
+                np.testing.assert_array_equal(np.asarray(r["q"]), np.asarray(rs[-1]["q"]))
+                assert float(r["cost"]) == float(rs[-1]["cost"])
+        n_tiny_uncertified += not bool(small["certified"])
+        assert float(small["cost"]) <= float(rs[-1]["cost"]) * (1 + CFG.gap_tol)
+    assert n_tiny_uncertified >= 10
+
+
 def test_spline_correlogram_is_exact_at_the_knots():
     ex = montecarlo.example(montecarlo.Experiment(n_trials=1, m_values=(6,), snrs_db=(20.0,)), 0)
     coef = correlogram.spline_correlogram(ex["y"], ex["prs"], 12, 8)
@@ -102,6 +125,8 @@ def test_bnb_config_rejects_bad_input():
         dpe.SearchConfig(method="bnb", spline_upsample=3)
     with pytest.raises(ValueError, match="method"):
         dpe.SearchConfig(method="exhaustive")
+    with pytest.raises(ValueError, match="chunk_boxes"):
+        dpe.SearchConfig(method="bnb", capacity=1024, chunk_boxes=48)
     with pytest.raises(ValueError, match="z_half_width_m"):
         dpe.SearchConfig(method="bnb", z_half_width_m=2.0)
     with pytest.raises(ValueError, match="otdoa"):
