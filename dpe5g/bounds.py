@@ -1,0 +1,190 @@
+"""Cramér–Rao bounds (CRB) of ToA and of the position: not in the paper, which cites the CRB of DPE but shows none.
+
+Single link, frequency domain (the unitary DFT of eq. (5), Chapter 2): on the pilot subcarriers k ∈ K,
+
+    Y_k = d_k Σ_l a_l e^{-j2π f_k (τ + δ_l)} + W_k,     W_k ~ CN(0, σ²),  |d_k| = 1,
+
+with f_k the subcarrier's baseband frequency, τ the ToA, δ_l known tap delays (δ_0 = 0) and complex gains a_l
+unknown.  The unknown gains are nuisance parameters: the Fisher information of τ is what is left of
+J_ττ = (2/σ²) ‖∂μ/∂τ‖² after projecting ∂μ/∂τ off the span of the gains' columns (the Schur complement of the
+Fisher matrix of (τ, Re a, Im a)),
+
+    J_τ = (2/σ²) Re{ μ̇^H (I − A (A^H A)^{-1} A^H) μ̇ },   μ̇_k = −j2π f_k μ_k,   A_{k,l} = d_k e^{-j2π f_k (τ + δ_l)}
+
+(``toa_fisher``; the pilots' phases cancel, so d_k = 1 below).  With one path (LoS, no other tap) this is the
+classical J_τ = 8π² ρ Σ_k (f_k − f̄)² = 8π² ρ |K| β², ρ = |a_0|²/σ² the per-subcarrier SNR and β the RMS bandwidth
+about the mean frequency (the unknown phase of a_0 absorbs the mean, hence the centring); for N contiguous
+subcarriers β = Δf √((N² − 1)/12) (``rms_bandwidth_hz``).
+
+Position (the paper's search space, x, y and c δt at a known UE height): τ_m = (‖p − b_m‖ + c δt)/c, so the links'
+ToA information adds up as J(θ) = Σ_m J_τ,m g_m g_mᵀ with g_m = ∂τ_m/∂θ = (u_m,x, u_m,y, 1)/c, u_m the unit vector
+from BS m to the UE (``position_fisher``).  That is the DPE bound: every link's gains are its own nuisance
+parameters and only τ_m depends on the position.  The two-step bound (``tdoa_position_crb``) starts instead from
+the links' ToA estimates, efficient with variances 1/J_τ,m, forms differences to a reference link (the clock bias
+cancels) and solves for (x, y) by weighted least squares with the differences' correlated covariance.  The two are
+the same matrix (the clock bias is a nuisance parameter either way; Chapter 8 checks it numerically): with
+independent per-link gains and known tap delays, DPE has no asymptotic advantage over two-step, and its gains lie
+below the threshold SNR, where the CRB does not hold.
+
+Units: frequencies Hz, delays and ToAs s, positions m, SNR dB (per subcarrier), Fisher information of a ToA in
+1/s², of θ = (x, y, c δt) in 1/m².
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import _checks, nr, signal
+from .nr import C, PAPER, Numerology
+
+#: the pilot subcarrier sets ``subcarrier_frequencies_hz`` knows: every FFT bin (the paper's full-band PRS), the
+#: active subcarriers of the carrier (3276 for 273 RB), and a comb of them (the standard's PRS pattern)
+SUBCARRIER_SETS = ("full", "active", "comb")
+
+
+def subcarrier_frequencies_hz(subcarriers: str = "full", comb: int = 4, comb_offset: int = 0,
+                              num: Numerology = PAPER) -> np.ndarray:
+    """Baseband frequencies f_k (Hz) of the pilot subcarriers.
+
+    subcarriers : "full" — all N FFT bins (the paper's PRS, ``nr.prs_symbols(pattern="full")``); "active" — the
+    n_active subcarriers of the carrier (``nr.active_bins``); "comb" — every ``comb``-th active subcarrier from
+    ``comb_offset`` (comb 2, 4, 6 or 12; the bins of ``nr.prs_symbols(pattern="comb")``).
+    FFT bin k sits at k Δf for k < N/2 and at (k − N) Δf above (the negative frequencies).  Returns float (|K|,).
+    """
+    _checks.one_of("subcarriers", subcarriers, SUBCARRIER_SETS)
+    if subcarriers == "full":
+        bins = np.arange(num.n_fft)
+    else:
+        bins = nr.active_bins(num)
+        if subcarriers == "comb":
+            comb = _checks.integer("comb", comb, 2, 12)
+            _checks.one_of("comb", str(comb), ["2", "4", "6", "12"])
+            bins = bins[_checks.integer("comb_offset", comb_offset, 0, comb - 1)::comb]
+    signed = np.where(bins < num.n_fft // 2, bins, bins - num.n_fft)
+    return signed * num.scs_hz
+
+
+def rms_bandwidth_hz(freqs_hz) -> float:
+    """β = √(mean_k (f_k − f̄)²) in Hz, the RMS bandwidth of a subcarrier set about its mean frequency."""
+    f = _check_freqs(freqs_hz)
+    return float(np.sqrt(np.mean((f - f.mean()) ** 2)))
+
+
+def toa_fisher(freqs_hz, snr_db, gains=None, tap_delays_s=None) -> float:
+    """Fisher information J_τ (1/s²) of the ToA of one link from known unit-modulus pilots on ``freqs_hz``, the
+    gains of its taps unknown (the projection formula of the module docstring).
+
+    snr_db : per-subcarrier SNR in dB of a unit-power channel, 10 log10(1/σ²) (the per-sample SNR of Chapter 2 for
+    the full band).  gains : complex (L,) tap gains (default: one path of unit power, the LoS case);
+    tap_delays_s : (L,) their delays relative to the first path in seconds (default 0).
+    """
+    f = _check_freqs(freqs_hz)
+    noise_var = 10.0 ** (-float(signal.check_snr_db(snr_db)) / 10.0)
+    a, delays = _check_taps(gains, tap_delays_s)
+    basis = np.exp(-2j * np.pi * np.outer(f, delays))  # A, (|K|, L): the gains' columns at τ = 0
+    mu = basis @ a
+    return _projected_fisher(-2j * np.pi * f * mu, basis, noise_var)
+
+
+def toa_crb_s(freqs_hz, snr_db, gains=None, tap_delays_s=None) -> float:
+    """√CRB of the ToA in seconds, 1/√J_τ (``toa_fisher``).  One path: 1/(2π β √(2 ρ |K|))."""
+    return float(1.0 / np.sqrt(toa_fisher(freqs_hz, snr_db, gains, tap_delays_s)))
+
+
+def window_model_toa_fisher(freqs_hz, snr_db, n_taps: int, gains=None, num: Numerology = PAPER) -> float:
+    """Fisher information J_τ (1/s²) of the ToA under the channel model of eq. (8): ``n_taps`` = L free complex taps
+    on the sample grid, δ_l = l T_s, the true channel being such a channel (``gains``: its first taps, complex
+    (≤ L,), on δ_l = 0, T_s, …; default one path of unit power).  It is the true signal's derivative projected off
+    the span of the L delayed copies: what is left of the information about τ once every tap of the window is free
+    (Chapter 8: about half of the one-path information for any L ≥ 12, not zero)."""
+    f = _check_freqs(freqs_hz)
+    noise_var = 10.0 ** (-float(signal.check_snr_db(snr_db)) / 10.0)
+    n_taps = _checks.integer("n_taps", n_taps, 1, num.n_fft)
+    a = np.ones(1, dtype=complex) if gains is None else np.atleast_1d(np.asarray(gains, dtype=complex))
+    if a.ndim != 1 or not 1 <= a.size <= n_taps or not np.all(np.isfinite(a)) or not np.any(a != 0):
+        raise ValueError(f"gains must be 1 to n_taps = {n_taps} finite complex taps, not all zero; got {a.shape}")
+    window = np.exp(-2j * np.pi * np.outer(f, np.arange(n_taps) * num.sample_period_s))  # (|K|, L)
+    mu = window[:, : a.size] @ a
+    return _projected_fisher(-2j * np.pi * f * mu, window, noise_var)
+
+
+def _projected_fisher(mu_dot, basis, noise_var) -> float:
+    """(2/σ²) Re{μ̇^H P⊥ μ̇}, P⊥ the projector off the columns of ``basis``."""
+    coef, *_ = np.linalg.lstsq(basis, mu_dot, rcond=None)
+    resid = mu_dot - basis @ coef
+    return float(2.0 / noise_var * np.real(np.vdot(resid, resid)))
+
+
+def position_fisher(ue_xyz, bs_xyz, toa_fisher_s) -> np.ndarray:
+    """Fisher matrix (3, 3) of θ = (x, y, c δt) in 1/m² from the links' ToA information: Σ_m J_τ,m g_m g_mᵀ,
+    g_m = (u_m,x, u_m,y, 1)/c.  ue_xyz : (3,) m; bs_xyz : (M, 3) m; toa_fisher_s : (M,) 1/s² (``toa_fisher``)."""
+    ue, bs, j = _check_geometry(ue_xyz, bs_xyz, toa_fisher_s)
+    d = ue - bs
+    g = np.column_stack([d[:, 0], d[:, 1], np.linalg.norm(d, axis=1)]) / np.linalg.norm(d, axis=1)[:, None] / C
+    return (g * j[:, None]).T @ g
+
+
+def position_crb(ue_xyz, bs_xyz, toa_fisher_s) -> np.ndarray:
+    """CRB (3, 3) of θ = (x, y, c δt) in m², the inverse of ``position_fisher``: the DPE bound."""
+    return np.linalg.inv(position_fisher(ue_xyz, bs_xyz, toa_fisher_s))
+
+
+def horizontal_rmse_bound_m(crb) -> float:
+    """√(CRB_xx + CRB_yy) in metres: the bound on the RMS horizontal error (what Fig. 9 plots)."""
+    crb = np.asarray(crb, dtype=np.float64)
+    return float(np.sqrt(crb[..., 0, 0] + crb[..., 1, 1]))
+
+
+def tdoa_position_crb(ue_xyz, bs_xyz, toa_fisher_s, reference: int = 0) -> np.ndarray:
+    """CRB (2, 2) of (x, y) in m² of the two-step receiver: ToA estimates with variances 1/J_τ,m, their differences
+    to link ``reference`` (the clock bias cancels), weighted least squares with the differences' covariance
+    Σ = D diag(1/J_τ) Dᵀ: (Hᵀ Σ⁻¹ H)⁻¹, H the derivatives of the differences with respect to (x, y)."""
+    ue, bs, j = _check_geometry(ue_xyz, bs_xyz, toa_fisher_s)
+    m = bs.shape[0]
+    reference = _checks.integer("reference", reference, 0, m - 1)
+    d = ue - bs
+    u = d[:, :2] / np.linalg.norm(d, axis=1)[:, None] / C  # ∂τ_m/∂(x, y)
+    others = [i for i in range(m) if i != reference]
+    diff = np.zeros((m - 1, m))
+    diff[np.arange(m - 1), others] = 1.0
+    diff[:, reference] = -1.0
+    cov = diff @ np.diag(1.0 / j) @ diff.T
+    h = diff @ u
+    return np.linalg.inv(h.T @ np.linalg.solve(cov, h))
+
+
+def _check_freqs(freqs_hz) -> np.ndarray:
+    f = np.asarray(freqs_hz, dtype=np.float64)
+    if f.ndim != 1 or f.size < 2 or not np.all(np.isfinite(f)):
+        raise ValueError(f"freqs_hz must be a finite 1-D array of at least 2 frequencies in Hz, got shape {f.shape}")
+    if np.ptp(f) == 0:
+        raise ValueError("freqs_hz must hold at least two different frequencies (one frequency carries no ToA)")
+    return f
+
+
+def _check_taps(gains, tap_delays_s):
+    a = np.ones(1, dtype=complex) if gains is None else np.atleast_1d(np.asarray(gains, dtype=complex))
+    delays = np.zeros(a.shape) if tap_delays_s is None else np.atleast_1d(np.asarray(tap_delays_s, dtype=np.float64))
+    if a.ndim != 1 or delays.shape != a.shape:
+        raise ValueError(f"gains and tap_delays_s must be 1-D of equal length, got {a.shape} and {delays.shape}")
+    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(delays))) or not np.any(a != 0):
+        raise ValueError("gains must be finite and not all zero, tap_delays_s finite (seconds)")
+    if np.any(np.abs(delays) > 1e-4):
+        raise ValueError(f"tap_delays_s must be in seconds, |δ| ≤ 1e-4 s; got up to {np.max(np.abs(delays))!r}")
+    return a, delays
+
+
+def _check_geometry(ue_xyz, bs_xyz, toa_fisher_s):
+    ue = np.asarray(ue_xyz, dtype=np.float64)
+    bs = np.asarray(bs_xyz, dtype=np.float64)
+    j = np.atleast_1d(np.asarray(toa_fisher_s, dtype=np.float64))
+    if ue.shape != (3,) or bs.ndim != 2 or bs.shape[1] != 3 or j.shape != (bs.shape[0],):
+        raise ValueError(f"ue_xyz must be (3,), bs_xyz (M, 3) and toa_fisher_s (M,); got {ue.shape}, {bs.shape}, "
+                         f"{j.shape}")
+    if bs.shape[0] < 3:
+        raise ValueError(f"at least 3 base stations are needed for (x, y, c δt), got M = {bs.shape[0]}")
+    if not (np.all(np.isfinite(ue)) and np.all(np.isfinite(bs)) and np.all(np.isfinite(j)) and np.all(j > 0)):
+        raise ValueError("ue_xyz and bs_xyz must be finite and toa_fisher_s finite and > 0 (1/s²)")
+    if np.any(np.linalg.norm(ue - bs, axis=1) == 0):
+        raise ValueError("ue_xyz must not coincide with a base station")
+    return ue, bs, j
