@@ -81,9 +81,13 @@ def toa_fisher(freqs_hz, snr_db, gains=None, tap_delays_s=None) -> float:
     f = _check_freqs(freqs_hz)
     noise_var = 10.0 ** (-float(signal.check_snr_db(snr_db)) / 10.0)
     a, delays = _check_taps(gains, tap_delays_s)
-    basis = np.exp(-2j * np.pi * np.outer(f, delays))  # A, (|K|, L): the gains' columns at τ = 0
-    mu = basis @ a
-    return _projected_fisher(-2j * np.pi * f * mu, basis, noise_var)
+    # A, (|K|, L'): the gains' columns at τ = 0, one per distinct delay (taps at one delay share a column: TDL-D's
+    # specular and Rayleigh parts, zero-gain padding), and the gains summed per column
+    distinct, col = np.unique(delays, return_inverse=True)
+    a_col = np.zeros(distinct.size, dtype=complex)
+    np.add.at(a_col, col, a)
+    basis = np.exp(-2j * np.pi * np.outer(f, distinct))
+    return _projected_fisher(-2j * np.pi * f * (basis @ a_col), basis, noise_var)
 
 
 def toa_crb_s(freqs_hz, snr_db, gains=None, tap_delays_s=None) -> float:
@@ -151,6 +155,34 @@ def tdoa_position_crb(ue_xyz, bs_xyz, toa_fisher_s, reference: int = 0) -> np.nd
     cov = diff @ np.diag(1.0 / j) @ diff.T
     h = diff @ u
     return np.linalg.inv(h.T @ np.linalg.solve(cov, h))
+
+
+def rmse_bound_m(e, n_trials: int, snrs_db=None) -> np.ndarray:
+    """The DPE bound on the horizontal error of an urban experiment, as an RMSE over its trials 0 … n_trials−1:
+    √(mean_t (CRB_xx + CRB_yy)) per (SNR, M), shape (S, J) in metres, the same (S, J) as ``Results.rmse_m``.
+
+    e : ``montecarlo.Experiment``.  Each trial's links are the engine's (``montecarlo.example``: positions, channels
+    with their tap delays known, per-link SNR); the pilots are the full band (the paper's, the engine's).  The
+    Fisher information of a link scales with its linear SNR, so it is computed once per link and scaled.
+    snrs_db : (S,) per-sample SNRs in dB to use instead of ``e.snrs_db`` (snr_mode "fixed" only: every link at
+    each; the trials' links do not depend on the SNR, so one call serves several experiments of the same trials)."""
+    from . import montecarlo  # the engine's draws; montecarlo does not import this module
+
+    n_trials = _checks.integer("n_trials", n_trials, 1, e.n_trials)
+    if snrs_db is not None and e.snr_mode != "fixed":
+        raise ValueError("snrs_db replaces the SNRs of a 'fixed' experiment; this one takes them from the path loss")
+    f = subcarrier_frequencies_hz("full")
+    snrs = np.asarray(e.snrs_db if e.snr_mode == "fixed" else (0.0,), dtype=np.float64)
+    out = snrs if snrs_db is None else signal.check_snr_db(np.atleast_1d(snrs_db))
+    var = np.zeros((n_trials, out.size, len(e.m_values)))
+    for t in range(n_trials):
+        ex = montecarlo.example(e, t)
+        j0 = np.array([toa_fisher(f, 0.0, ex["gains"][i], ex["delays"][i]) for i in range(ex["bs"].shape[0])])
+        for s in range(out.size):
+            j = j0 * 10 ** ((np.asarray(ex["link_snr"]) + out[s] - snrs[0]) / 10)  # link_snr is SNR index 0's
+            for jm, m in enumerate(e.m_values):
+                var[t, s, jm] = np.trace(position_crb(ex["ue"], ex["bs"][:m], j[:m])[:2, :2])
+    return np.sqrt(np.mean(var, axis=0))
 
 
 def _check_freqs(freqs_hz) -> np.ndarray:

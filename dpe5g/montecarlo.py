@@ -42,7 +42,7 @@ DEFAULT_CACHE = Path(__file__).resolve().parent.parent / ".cache" / "montecarlo"
 _SOURCES = ("channel.py", "correlogram.py", "deployment.py", "dpe.py", "montecarlo.py", "nr.py", "otdoa.py", "scenario.py",
             "signal.py")
 
-LOS_MODES = ("pr_los", "two_of_four")
+LOS_MODES = ("pr_los", "two_of_four", "all_los")
 #: OTDoA ToA detector settings used by the engine (``dpe5g.otdoa.toa``'s defaults)
 OTDOA_UPSAMPLE = 8
 OTDOA_THRESHOLD_DB = -10.0
@@ -63,7 +63,8 @@ class Experiment:
         "link_budget" — each link's SNR from the UMi path loss and shadow fading (``link``), ``snrs_db`` must be ().
     m_values : numbers of nearest BSs used by the DPE (each ≤ the deployment's BS count).
     los_mode : "pr_los" — each link LoS with the probability of eq. (11); "two_of_four" — the paper's stated case for
-        Fig. 10: of the four nearest links, two (chosen at random) LoS and two NLoS (needs max(m_values) = 4).
+        Fig. 10: of the four nearest links, two (chosen at random) LoS and two NLoS (needs max(m_values) = 4);
+        "all_los" — every link LoS (TDL-D; not the paper's: Chapter 8 compares it with the Cramér–Rao bound).
     centring : where the receiver centres its search window.  "truth" — on the true position and clock bias (the
         paper's set-up, a labelled comparison only: the window's position and grid phase then carry the truth);
         "prior" — on truth + an error drawn from the stated prior (``prior_kind``, ``prior_scale_m``), keyed per trial;
@@ -320,6 +321,8 @@ def _draw_fn(e: Experiment, dep: deployment.Deployment):
         bs = bs_all[idx]
         if e.los_mode == "pr_los":
             los = jax.random.uniform(k_los, (m_max,)) < scenario.los_probability(d2d[idx])
+        elif e.los_mode == "all_los":
+            los = jnp.ones(m_max, dtype=bool)
         else:  # two of the four nearest LoS, which two at random
             los = jax.random.permutation(k_los, jnp.array([True, True, False, False]))
         g_c = jax.vmap(lambda kk: channel.draw_gains(nlos, kk))(jax.random.split(k_c, m_max))

@@ -473,3 +473,33 @@ def plot_window_study(rows: list[dict]):
             ax.set_ylabel(lab)
         axes[1].legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False)
     return fig
+
+
+def plot_rmse_and_bound(payload: dict):
+    """Chapter 8 (not in the paper): RMSE of receivers against the per-sample SNR beside the Cramér–Rao bound, log
+    axis, one colour per M.  payload: snrs_db (S,), m_values (J,), curves {label: (S, J) RMSE in m} drawn solid,
+    dashed, …, bound (S, J) in m drawn dotted."""
+    snr = np.asarray(payload["snrs_db"])
+    bound = np.asarray(payload["bound_m"])
+    styles = ("-", "--", "-.")
+    with style():
+        fig = Figure(figsize=(7.4, 5.4), layout="constrained")
+        ax = fig.subplots()
+        vals = [bound.ravel()]
+        for k, (label, rmse) in enumerate(payload["curves"].items()):
+            rmse = np.asarray(rmse)
+            vals.append(rmse.ravel())
+            for j, (m, marker, col) in enumerate(zip(payload["m_values"], "osd^v<>", COLORS)):
+                ax.plot(snr, rmse[:, j], styles[k % len(styles)], marker=marker, color=col, ms=5,
+                        label=f"M = {m}" if k == 0 else None)
+            ax.plot([], [], styles[k % len(styles)], color="0.3", label=label)
+        for j, col in zip(range(bound.shape[1]), COLORS):
+            ax.plot(snr, bound[:, j], ":", color=col, lw=2)
+        ax.plot([], [], ":", color="0.3", lw=2, label="Cramér–Rao bound (tap delays known)")
+        vals = np.concatenate(vals)
+        log_ticks(ax, vals.min() / 1.3, vals.max() * 1.3)
+        ax.set_xlabel("SNR per time-domain sample, before correlation (dB)")
+        ax.set_ylabel("RMSE of the horizontal position (m)")
+        ax.set_xticks(snr)
+        ax.legend(fontsize=9, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2, frameon=False)
+    return fig

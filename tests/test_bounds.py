@@ -119,3 +119,24 @@ def test_bounds_reject_bad_input():
         bounds.position_crb(np.zeros(3), np.ones((2, 3)), np.ones(2))
     with pytest.raises(ValueError, match="n_taps"):
         bounds.window_model_toa_fisher(f, 10.0, 2, gains=[1.0, 0.5, 0.2])
+
+
+def test_experiment_bound_is_the_mean_of_its_trials_bounds():
+    """``rmse_bound_m`` over an experiment: the RMS over trials of each trial's bound, which scales as 1/√SNR."""
+    from dpe5g import montecarlo
+
+    e = montecarlo.Experiment(n_trials=2, snrs_db=(10.0, 30.0), m_values=(3, 6), los_mode="all_los")
+    got = bounds.rmse_bound_m(e, 2)
+    assert got.shape == (2, 2)
+    f = bounds.subcarrier_frequencies_hz("full")
+    var = []
+    for t in range(2):
+        ex = montecarlo.example(e, t)
+        assert ex["los"].all()
+        j = np.array([bounds.toa_fisher(f, 10.0, ex["gains"][i], ex["delays"][i]) for i in range(6)])
+        var.append([np.trace(bounds.position_crb(ex["ue"], ex["bs"][:m], j[:m])[:2, :2]) for m in (3, 6)])
+    np.testing.assert_allclose(got[0], np.sqrt(np.mean(var, axis=0)), rtol=1e-9)
+    np.testing.assert_allclose(got[1], got[0] / 10, rtol=1e-9)
+    np.testing.assert_allclose(bounds.rmse_bound_m(e, 2, snrs_db=[0.0, 30.0]), [got[0] * 10 ** 0.5, got[1]], rtol=1e-9)
+    with pytest.raises(ValueError, match="snrs_db"):
+        bounds.rmse_bound_m(montecarlo.Experiment(n_trials=2, snr_mode="link_budget", snrs_db=()), 2, snrs_db=[0.0])
