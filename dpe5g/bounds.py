@@ -34,7 +34,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import _checks, nr, signal
+import jax
+import jax.numpy as jnp
+
+from . import _checks, correlogram, nr, otdoa, signal
 from .nr import C, PAPER, Numerology
 
 #: the pilot subcarrier sets ``subcarrier_frequencies_hz`` knows: every FFT bin (the paper's full-band PRS), the
@@ -155,6 +158,31 @@ def tdoa_position_crb(ue_xyz, bs_xyz, toa_fisher_s, reference: int = 0) -> np.nd
     cov = diff @ np.diag(1.0 / j) @ diff.T
     h = diff @ u
     return np.linalg.inv(h.T @ np.linalg.solve(cov, h))
+
+
+def ml_toa_errors_s(n_trials: int, snr_db: float, seed: int, upsample: int = 64) -> np.ndarray:
+    """Monte Carlo of the ML ToA of one path (unit power, random phase, ToA uniform within one sample) on the paper's
+    full-band PRS at per-sample SNR ``snr_db``: the peak of |ĥ(τ)|² (eq. (10) with L = 1 for one link) on a
+    T_s/``upsample`` grid, refined by a parabola (``otdoa.toa_from_spectrum`` in complex128).  Trial t draws from
+    fold_in(PRNGKey(seed), t), so a longer run extends a shorter one.  Returns the errors (n_trials,) in seconds, to
+    compare with ``toa_crb_s(subcarrier_frequencies_hz("full"), snr_db)``."""
+    _checks.require_x64()
+    n_trials = _checks.integer("n_trials", n_trials, 2, 1_000_000)
+    snr_db = float(signal.check_snr_db(snr_db))
+    _checks.integer("seed", seed, 0, 2**31 - 1)
+    upsample = _checks.integer("upsample", upsample, 1, 256)
+    prs = jnp.asarray(nr.prs_matrix([0]))
+    ts = PAPER.sample_period_s
+
+    def one(t):
+        k_tau, k_phi, k_n = jax.random.split(jax.random.fold_in(jax.random.PRNGKey(seed), t), 3)
+        tau = jax.random.uniform(k_tau, maxval=ts)
+        gain = jnp.exp(2j * jnp.pi * jax.random.uniform(k_phi))
+        spec = signal.received_spectrum(prs, gain * jnp.ones((1, PAPER.n_fft)), tau[None])
+        g = correlogram.ls_spectrum(spec + signal.awgn(k_n, spec.shape, signal.noise_variance(snr_db, prs)), prs)
+        return otdoa.toa_from_spectrum(g, "peak", upsample, -10.0, 64, ts, dtype=jnp.complex128)[0] - tau
+
+    return np.asarray(jax.jit(lambda ts_: jax.lax.map(one, ts_, batch_size=8))(jnp.arange(n_trials)))
 
 
 def rmse_bound_m(e, n_trials: int, snrs_db=None) -> np.ndarray:
