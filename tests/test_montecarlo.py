@@ -183,3 +183,25 @@ def test_cache_key_follows_code_not_prose(tmp_path):
     c = tmp_path / "c.py"
     c.write_text('"""Doc."""\n\ndef f(x):\n    """Say."""\n    return x + 2  # one\n')
     assert montecarlo.code_digest(a) == montecarlo.code_digest(b) != montecarlo.code_digest(c)
+
+
+def test_nested_grid_fixes_equal_one_fix_per_m():
+    """The engine's grid search shares its first level between the M values (``dpe.nested_grid_fixes``); each M's
+    fix must equal ``dpe.fix`` run on that M's BSs alone, on urban trials at several SNRs and on a shifted centre."""
+    import jax.numpy as jnp
+
+    e = montecarlo.Experiment(name="n", n_trials=4, seed=12, snrs_db=(10.0, 40.0), m_values=(3, 6, 12))
+    cfg = e.receiver_search()
+    for t in range(e.n_trials):
+        for s in range(2):
+            ex = montecarlo.example(e, t, snr_index=s)
+            g = correlogram.ls_spectrum(signal.demodulate(ex["y"]), jnp.asarray(ex["prs"]))
+            corr = dpe.receiver_correlogram(g, cfg)
+            center = jnp.asarray(np.concatenate([ex["ue"] + [1.3 * t, -0.7 * s, 0.0], [299_792_458.0 * ex["bias"]]]))
+            nested = dpe.nested_grid_fixes(corr, g, jnp.asarray(ex["bs"]), center, cfg, e.m_values)
+            for j, m in enumerate(e.m_values):
+                one = dpe.fix(g[:m], jnp.asarray(ex["bs"][:m]), center, cfg, corr=corr[:m])
+                np.testing.assert_array_equal(np.asarray(nested["q"][j]), np.asarray(one["q"]), err_msg=f"{t} {s} {m}")
+                assert bool(nested["edge"][j]) == bool(one["edge"])
+    with pytest.raises(ValueError, match="cfg.method must be 'grid'"):
+        dpe.nested_grid_fixes(corr, g, jnp.asarray(ex["bs"]), center, dpe.SearchConfig(method="bnb"), e.m_values)
