@@ -34,6 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _checks, signal
+from .nr import PAPER
 
 
 #: precision of the grid correlograms the receivers read (``dpe.receiver_correlogram`` for the grid search,
@@ -97,13 +98,42 @@ def energy_grid(g, n_taps: int, upsample: int) -> jax.Array:
     return w.reshape(w.shape[:-2] + (n * upsample,))
 
 
-def window_spectrum(n_taps: int, n_fft: int) -> np.ndarray:
-    """The L-tap window sum e(τ) + e(τ + T_s) + … + e(τ + (L−1)T_s) as a multiplier on the harmonics q = 0 … N of
-    Δf of the energy e(τ): Σ_{l<L} e^{j2πql/N}, with the Nyquist harmonic q = N set to 0.  Returns complex (N + 1,).
-    ``spline_coefficients`` takes it as an input, so one compiled Monte Carlo serves every L."""
+#: longest decay of the first-path-aware window's tap weights, seconds (``tap_weights``): a microsecond is longer than
+#: any TR 38.901 delay spread; a larger value is most likely nanoseconds passed as seconds
+MAX_WINDOW_DECAY_S = 1e-6
+
+
+def tap_weights(n_taps: int, decay_s: float = 0.0, sample_period_s: float = PAPER.sample_period_s) -> np.ndarray:
+    """Weights w_l (L,) of the receiver window's taps.  decay_s = 0: all 1, eq. (8)'s window (the ML cost of
+    eq. (10), L free taps).  decay_s > 0: the first-path-aware window (our extension, not the paper's; Chapter 8),
+    w_l = exp(−l T_s / decay_s), the low-SNR limit of the MAP cost when the taps are independent CN(0, p_l) with an
+    exponential power-delay profile p_l ∝ exp(−l T_s / decay_s).  sample_period_s : T_s (the paper's by default)."""
+    _checks.integer("n_taps", n_taps, 1, 1 << 20)
+    _checks.in_range("decay_s", decay_s, 0.0, MAX_WINDOW_DECAY_S, "s")
+    _checks.in_range("sample_period_s", sample_period_s, 1e-12, 1e-3, "s")
+    if decay_s == 0:
+        return np.ones(n_taps)
+    return np.exp(-np.arange(n_taps) * sample_period_s / decay_s)
+
+
+def check_weights(weights, n_taps: int) -> np.ndarray:
+    """Validate window tap weights: L finite, non-negative numbers, not all zero.  Returns float (L,)."""
+    w = np.asarray(weights, dtype=float)
+    if w.shape != (n_taps,) or not np.all(np.isfinite(w)) or np.any(w < 0) or not np.any(w > 0):
+        raise ValueError(f"weights must be {n_taps} finite non-negative numbers, not all 0 (one per window tap), "
+                         f"got shape {w.shape}")
+    return w
+
+
+def window_spectrum(n_taps: int, n_fft: int, weights=None) -> np.ndarray:
+    """The L-tap window sum w_0 e(τ) + w_1 e(τ + T_s) + … + w_{L−1} e(τ + (L−1)T_s) as a multiplier on the
+    harmonics q = 0 … N of Δf of the energy e(τ): Σ_{l<L} w_l e^{j2πql/N}, with the Nyquist harmonic q = N set to
+    0.  weights : w (L,) from ``tap_weights``; None: all 1 (eq. (8)'s window).  Returns complex (N + 1,).
+    ``spline_coefficients`` takes it as an input, so one compiled Monte Carlo serves every L and every weighting."""
     _checks.integer("n_taps", n_taps, 1, n_fft)
+    w = np.ones(n_taps) if weights is None else check_weights(weights, n_taps)
     q = np.arange(n_fft + 1)
-    window = np.exp(2j * np.pi * np.outer(q, np.arange(n_taps)) / n_fft).sum(axis=1)
+    window = (np.exp(2j * np.pi * np.outer(q, np.arange(n_taps)) / n_fft) * w).sum(axis=1)
     window[n_fft] = 0.0  # no harmonic N: the Nyquist bin of the 2N samples is zero
     return window
 
@@ -146,17 +176,18 @@ def correlogram(y, prs, n_taps: int, upsample: int) -> jax.Array:
     return energy_grid(ls_spectrum(signal.demodulate(y), prs), n_taps, upsample)
 
 
-def spline_correlogram(y, prs, n_taps: int, upsample: int = 8) -> jax.Array:
+def spline_correlogram(y, prs, n_taps: int, upsample: int = 8, weights=None) -> jax.Array:
     """Cubic B-spline coefficients of the per-BS terms of eq. (10) (``spline_coefficients``) from time-domain samples.
 
-    y, prs : complex (M, N); n_taps : L; upsample : U, even.  Returns real (M, N·U).
+    y, prs : complex (M, N); n_taps : L; upsample : U, even; weights : the L taps' weights (``tap_weights``), None
+    for eq. (10)'s equal weights.  Returns real (M, N·U).
     """
     y, prs = check_inputs(y, prs, n_taps)
     _checks.integer("upsample", upsample, 2, 64)
     if upsample % 2:
         raise ValueError(f"upsample must be an even integer in [2, 64], got {upsample!r}")
     g = ls_spectrum(signal.demodulate(y), prs)
-    return _spline_jit(g, jnp.asarray(window_spectrum(n_taps, y.shape[1])), upsample)
+    return _spline_jit(g, jnp.asarray(window_spectrum(n_taps, y.shape[1], weights)), upsample)
 
 
 _spline_jit = jax.jit(spline_coefficients, static_argnames=("upsample",))

@@ -67,34 +67,41 @@ def ml_cost_literal(y, prs, tau, n_taps: int, scs_hz: float) -> np.ndarray:
     return out
 
 
-def _ml_cost_terms(g, tau, n_taps, scs_hz):
-    """Per-BS terms of eq. (10): ‖S_m(τ_m)^H y_m‖², shape (..., M); g = D^H F^H y (M, N), ``ls_spectrum``."""
+def _ml_cost_terms(g, tau, n_taps, scs_hz, weights=None):
+    """Per-BS terms of eq. (10): ‖S_m(τ_m)^H y_m‖², shape (..., M); g = D^H F^H y (M, N), ``ls_spectrum``;
+    weights (L,): the taps' weights (``correlogram.tap_weights``), None for eq. (10)'s equal weights."""
     n = g.shape[-1]
     k = jnp.arange(n)
     z = g * jnp.exp(2j * jnp.pi * scs_hz * tau[..., None] * k)  # Γ^H D^H F^H y, (..., M, N)
     h = jnp.fft.ifft(z, axis=-1)[..., :n_taps] * jnp.sqrt(n)  # F_L^H (...): windowed CIR estimate
-    return jnp.sum(h.real**2 + h.imag**2, axis=-1)
+    e = h.real**2 + h.imag**2
+    return jnp.sum(e if weights is None else e * weights, axis=-1)
 
 
 @partial(jax.jit, static_argnames=("n_taps",))
-def _ml_cost(g, tau, n_taps, scs_hz):
-    return jnp.sum(_ml_cost_terms(g, tau, n_taps, scs_hz), axis=-1)
+def _ml_cost(g, tau, n_taps, scs_hz, weights=None):
+    return jnp.sum(_ml_cost_terms(g, tau, n_taps, scs_hz, weights), axis=-1)
 
 
-def ml_cost(y, prs, tau, n_taps: int, scs_hz: float) -> jax.Array:
+def ml_cost(y, prs, tau, n_taps: int, scs_hz: float, weights=None) -> jax.Array:
     """Eq. (10), fast: the energy of the delay-compensated LS CIR estimate in an L-tap window, summed over BSs.
 
     Σ_m Σ_{l<L} |√N · IDFT_l(conj(d_{m,k}) Y_{m,k} e^{+j2πkΔfτ_m})|², Y_m = DFT(y_m) (unitary).
 
     Same arguments and values as ``ml_cost_literal`` (agreement ≤ 1e-9 relative is tested), one FFT per BS and
     candidate instead of N × N matrices.  Differentiable in ``tau`` (used by the autodiff polish).
+    weights : (L,) weights of the window's taps (``correlogram.tap_weights``: the first-path-aware cost, Chapter 8,
+    not the paper's), Σ_l w_l |ĥ_l|²; None for eq. (10).
     """
     _checks.require_x64()
     y, prs = correlogram.check_inputs(y, prs, n_taps)
     tau = jnp.asarray(tau, dtype=jnp.float64)
     if tau.shape[-1:] != (y.shape[0],):
         raise ValueError(f"tau must have shape (..., M) with M = {y.shape[0]}, got {tau.shape}")
-    return _ml_cost(correlogram.ls_spectrum(signal.demodulate(y), jnp.asarray(prs)), tau, n_taps, float(scs_hz))
+    if weights is not None:
+        weights = jnp.asarray(correlogram.check_weights(weights, n_taps))
+    return _ml_cost(correlogram.ls_spectrum(signal.demodulate(y), jnp.asarray(prs)), tau, n_taps, float(scs_hz),
+                    weights)
 
 
 def correlogram_lookup(corr, tau, sample_period_s: float, upsample: int) -> jax.Array:
@@ -160,6 +167,9 @@ class SearchConfig:
         Where no box is dropped the fix does not depend on it: every box holding a point better than the best cost
         found is refined, whatever the order (ties aside).
     gap_tol : a fix is certified when its upper bound exceeds its cost by at most gap_tol × cost.
+    window_decay_s : 0 (default) — eq. (10)'s window, its L taps weighted equally; > 0 (seconds, "bnb" only) — the
+        first-path-aware window, our extension and not the paper's (Chapter 8): tap l weighted by
+        exp(−l T_s / window_decay_s) (``correlogram.tap_weights``).
     """
 
     n_taps: int = DEFAULT_TAPS
@@ -179,6 +189,7 @@ class SearchConfig:
     capacity: int = 1024
     chunk_boxes: int = 64
     gap_tol: float = 1e-4
+    window_decay_s: float = 0.0
 
     def __post_init__(self):
         _checks.integer("n_taps", self.n_taps, 1, 4096)
@@ -201,8 +212,16 @@ class SearchConfig:
         if self.capacity % self.chunk_boxes:
             raise ValueError(f"chunk_boxes must divide capacity ({self.capacity}), got {self.chunk_boxes!r}")
         _checks.in_range("gap_tol", self.gap_tol, 0.0, 1.0)
+        _checks.in_range("window_decay_s", self.window_decay_s, 0.0, correlogram.MAX_WINDOW_DECAY_S, "s")
+        if self.window_decay_s > 0 and self.method != "bnb":
+            raise ValueError(f"window_decay_s > 0 (the first-path-aware window) needs method 'bnb', got "
+                             f"method {self.method!r}")
         if self.method == "bnb" and self.z_half_width_m > 0:
             raise ValueError("z_half_width_m must be 0 with method 'bnb' (it searches x, y, c δt at the known height)")
+
+    def tap_weights(self, num: Numerology = PAPER) -> np.ndarray:
+        """The weights (L,) of the window's taps (``correlogram.tap_weights``)."""
+        return correlogram.tap_weights(self.n_taps, self.window_decay_s, num.sample_period_s)
 
     def steps(self) -> tuple[float, ...]:
         """Grid step of each level in metres."""
@@ -614,10 +633,11 @@ def receiver_correlogram(g, cfg: SearchConfig, window=None):
     ``correlogram.energy_grid`` on T_s/upsample (in ``correlogram.GRID_DTYPE``) for "grid",
     ``correlogram.spline_coefficients`` (float64) for "bnb".  Rows are
     per BS, so the M nearest of them serve any M.  window : for "bnb", ``correlogram.window_spectrum(cfg.n_taps, N)``
-    passed as an array (then ``cfg.n_taps`` is not read, and a compiled caller serves every L); None computes it."""
+    passed as an array (then ``cfg.n_taps`` and ``cfg.window_decay_s`` are not read, and a compiled caller serves
+    every window); None computes it from them."""
     if cfg.method == "bnb":
         if window is None:
-            window = jnp.asarray(correlogram.window_spectrum(cfg.n_taps, g.shape[-1]))
+            window = jnp.asarray(correlogram.window_spectrum(cfg.n_taps, g.shape[-1], cfg.tap_weights()))
         return correlogram.spline_coefficients(g, window, cfg.spline_upsample)
     return correlogram.energy_grid(g.astype(correlogram.GRID_DTYPE), cfg.n_taps, cfg.upsample)
 
@@ -626,7 +646,7 @@ def receiver_correlogram(g, cfg: SearchConfig, window=None):
 def _estimate_one(y, prs, bs_xyz, center, cfg: SearchConfig, num: Numerology):
     g = correlogram.ls_spectrum(signal.demodulate(y), prs)
     r = fix(g, bs_xyz, center.at[3].multiply(C), cfg, num)
-    cost = _ml_cost(g, _tau_of(r["q"], bs_xyz), cfg.n_taps, num.scs_hz)
+    cost = _ml_cost(g, _tau_of(r["q"], bs_xyz), cfg.n_taps, num.scs_hz, jnp.asarray(cfg.tap_weights(num)))
     return r["q"], cost, r["gap"], r["certified"], r["edge"]
 
 

@@ -400,10 +400,11 @@ def _toa_fn(e: Experiment, dep: deployment.Deployment):
 def _window_free(e: Experiment) -> Experiment:
     """``e`` without what the per-trial function does not read: the name, the seed (it enters through the trial
     keys), the trial and chunk counts, how a non-truth window centre is obtained (it enters as an input), and, for
-    the "bnb" search, the receiver window L (it enters as ``correlogram.window_spectrum``, an input).  Experiments
+    the "bnb" search, the receiver window L and its weights (they enter as ``correlogram.window_spectrum``, an input).  Experiments
     that differ only in these share one compiled function (and, through JAX's persistent compilation cache, one
     compiled executable across processes)."""
-    search = dataclasses.replace(e.search, n_taps=1) if e.search.method == "bnb" else e.search
+    search = (dataclasses.replace(e.search, n_taps=1, window_decay_s=0.0) if e.search.method == "bnb"
+              else e.search)
     d = Experiment()
     centre = {} if e.centring == "truth" else dict(centring="prior", prior_kind=d.prior_kind,
                                                     prior_scale_m=d.prior_scale_m, otdoa=False,
@@ -560,7 +561,8 @@ class _ChunkRunner:
         self.toa_fn = _toa_fn(e, self.dep) if e.otdoa else None
         self.prior_fn = _prior_fn(e, self.dep) if e.centring == "prior" else None
         cfg = e.receiver_search()
-        self.window = jnp.asarray(correlogram.window_spectrum(cfg.n_taps, PAPER.n_fft) if cfg.method == "bnb"
+        self.window = jnp.asarray(correlogram.window_spectrum(cfg.n_taps, PAPER.n_fft, cfg.tap_weights(PAPER))
+                                  if cfg.method == "bnb"
                                   else np.zeros(1, dtype=complex))
 
     def __call__(self, start: int, stop: int, batch_size: int) -> dict:

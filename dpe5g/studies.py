@@ -169,3 +169,29 @@ def choose_window(rows: list[dict]) -> int:
     taps = sorted({r["n_taps"] for r in rows})
     score = {n: np.mean([r["rmse_rel"] for r in rows if r["n_taps"] == n]) for n in taps}
     return min(taps, key=lambda n: score[n])
+
+
+def error_summary(err, edge=None, certified=None) -> dict:
+    """Horizontal errors err (T,) m → RMSE, median, 90 % and 99 % errors (m), and the shares of fixes flagged on the
+    window's edge and certified (when given, booleans (T,))."""
+    err = np.asarray(err, dtype=float)
+    out = {"rmse_m": float(np.sqrt(np.mean(err**2))), "median_m": float(np.median(err)),
+           "p90_m": float(np.quantile(err, 0.9)), "p99_m": float(np.quantile(err, 0.99))}
+    if edge is not None:
+        out["edge_share"] = float(np.mean(edge))
+    if certified is not None:
+        out["certified_share"] = float(np.mean(certified))
+    return out
+
+
+def range_offsets_m(res) -> np.ndarray:
+    """c·(τ_m(fix) − τ_m(truth)) in metres for every link of a ``montecarlo.Results``: the ToA each fix assigns to a
+    link (its clock bias included) minus the true one, (T, S, J, I); links beyond the J-th M are NaN.  A positive
+    offset means the fix places the link's window start after its first path."""
+    bs = res.experiment.load_deployment().bs_xyz[res.bs_index]  # (T, I, 3)
+    true = np.linalg.norm(res.ue_xyz[:, None, :] - bs, axis=-1) + C * res.clock_bias_s[:, None]  # (T, I)
+    est = (np.linalg.norm(res.est_xyz[..., None, :] - bs[:, None, None], axis=-1)
+           + C * res.est_bias_s[..., None])  # (T, S, J, I)
+    out = est - true[:, None, None, :]
+    used = np.arange(bs.shape[1])[None, :] < np.asarray(res.experiment.m_values)[:, None]  # (J, I)
+    return np.where(used[None, None], out, np.nan)

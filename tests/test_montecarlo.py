@@ -205,3 +205,28 @@ def test_nested_grid_fixes_equal_one_fix_per_m():
                 assert bool(nested["edge"][j]) == bool(one["edge"])
     with pytest.raises(ValueError, match="cfg.method must be 'grid'"):
         dpe.nested_grid_fixes(corr, g, jnp.asarray(ex["bs"]), center, dpe.SearchConfig(method="bnb"), e.m_values)
+
+
+def test_range_offsets_and_error_summary(tmp_path):
+    """``studies.range_offsets_m`` reads each fix's ToA of each used link (NaN beyond M) against ``dpe.toa`` at the
+    truth; ``studies.error_summary`` against NumPy."""
+    from dpe5g import studies
+
+    e = montecarlo.Experiment(name="o", n_trials=3, seed=2, snrs_db=(20.0,), m_values=(3, 5))
+    res = montecarlo.run(e, cache=tmp_path, progress=False)
+    off = studies.range_offsets_m(res)
+    assert off.shape == (3, 1, 2, 5)
+    assert np.all(np.isnan(off[:, :, 0, 3:])) and not np.any(np.isnan(off[:, :, 0, :3]))
+    bs = e.load_deployment().bs_xyz
+    c = 299_792_458.0
+    for t in range(3):
+        for j in range(2):
+            ref = c * (np.asarray(dpe.toa(res.est_xyz[t, 0, j], bs[res.bs_index[t]], res.est_bias_s[t, 0, j]))
+                       - np.asarray(dpe.toa(res.ue_xyz[t], bs[res.bs_index[t]], res.clock_bias_s[t])))
+            m = e.m_values[j]
+            np.testing.assert_allclose(off[t, 0, j, :m], ref[:m], atol=1e-6)
+    err = np.array([0.0, 1.0, 2.0, 10.0])
+    s = studies.error_summary(err, edge=np.array([0, 0, 1, 1], bool), certified=np.ones(4, bool))
+    assert s["rmse_m"] == pytest.approx(np.sqrt(105 / 4)) and s["median_m"] == 1.5
+    assert s["p99_m"] == pytest.approx(np.quantile(err, 0.99)) and s["edge_share"] == 0.5
+    assert s["certified_share"] == 1.0
