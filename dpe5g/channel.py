@@ -156,7 +156,14 @@ def rms_delay_spread(delays_s, powers) -> float:
     return float(np.sqrt(max(np.sum(p * d * d) - mean * mean, 0.0)))
 
 
-def tdl_profile(name: str, delay_spread_s: float, k_factor_db: float | None = None) -> TDLProfile:
+#: what the delay spread a profile is scaled to means: "rms" — TR 38.901's RMS delay spread (eq. (2), the paper's
+#: figures' captions and Table I); "span" — the time between the earliest and the latest tap, as the paper's text
+#: defines DS_desired below eq. (2) (a reading the readings table of Chapter 7 tries)
+DELAY_SPREAD_DEFS = ("rms", "span")
+
+
+def tdl_profile(name: str, delay_spread_s: float, k_factor_db: float | None = None,
+                definition: str = "rms") -> TDLProfile:
     """Scale TR 38.901 TDL-``name`` to ``delay_spread_s`` seconds (eq. (2)) with unit total power.
 
     name : "A" … "E" (or "TDL-A" … "TDL-E"), TR 38.901 Tables 7.7.2-1 … 7.7.2-5.
@@ -165,6 +172,9 @@ def tdl_profile(name: str, delay_spread_s: float, k_factor_db: float | None = No
         Otherwise TR 38.901 §7.7.6: the Rayleigh taps are shifted by K_model - K_desired dB, powers renormalized,
         and the normalized delays divided by the new profile's RMS spread so the scaled profile still has
         DS_desired.
+    definition : "rms" (TR 38.901) — the profile's RMS delay spread is ``delay_spread_s``; "span" (the paper's
+        text) — its last tap comes ``delay_spread_s`` after the first (the normalized delays divided by the
+        largest; TDL-C's taps then span 65 ns instead of 562 ns).  ``DELAY_SPREAD_DEFS``.
 
     Returns a TDLProfile whose delays_s, powers, los have shape (L,), L = 23, 23, 24, 14, 15 entries.
     """
@@ -173,6 +183,7 @@ def tdl_profile(name: str, delay_spread_s: float, k_factor_db: float | None = No
         raise ValueError(f"profile must be one of A, B, C, D, E (TR 38.901 TDL-A…E); got {name!r}")
     tab = TABLES[key]
     ds = check_delay_spread(delay_spread_s)
+    _checks.one_of("definition", definition, DELAY_SPREAD_DEFS)
     delays_norm = np.asarray(tab.delays_norm, dtype=np.float64)
     powers_db = np.asarray(tab.powers_db, dtype=np.float64)
     los = np.zeros(delays_norm.size, dtype=bool)
@@ -191,6 +202,8 @@ def tdl_profile(name: str, delay_spread_s: float, k_factor_db: float | None = No
         raise ValueError(f"k_factor_db applies to the LoS profiles D and E only; profile {tab.name} is NLoS")
     powers = 10 ** (powers_db / 10)
     powers = powers / powers.sum()
+    if definition == "span":
+        delays_norm = delays_norm / delays_norm.max()
     return TDLProfile(tab.name, tab.table, ds, k_out, delays_norm * ds, powers, los)
 
 

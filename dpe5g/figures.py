@@ -448,3 +448,76 @@ register("fig10_cdf_dpe_vs_otdoa", "Fig. 10",
          "(the paper's set-up); "
          "OTDoA with the first-path and the strongest-peak ToA.", plots.plot_cdf)(
     lambda progress=False, trials=None: cdf_payload(paper.fig10() if trials is None else paper.fig10(trials), progress))
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Chapter 7: the readings of the paper against its claims about Figs. 9 and 10 (not a figure of the paper).
+
+#: short names of the claims and readings for the table's axes
+CLAIM_SHORT = {"fig9_6m": "Fig. 9: ≤ 6 m\n10 dB, M = 6", "fig9_falls": "Fig. 9: falls\nwith SNR (< ½)",
+               "fig9_submetre": "Fig. 9: < 1 m\n40 dB, M ≥ 18", "fig9_more_hurts": "Fig. 9: more BSs\nhurt (> 1)",
+               "fig9_saturation": "Fig. 9: saturates\n18 → 24 (≤ 10 %)", "fig10_dpe_p90": "Fig. 10: DPE\np90 ≤ 2 m",
+               "fig10_dpe_p99": "Fig. 10: DPE\np99 ≤ 7 m", "fig10_otdoa_p90": "Fig. 10: OTDoA\np90 ≈ 42 m",
+               "fig10_gain": "Fig. 10: gain\n≈ 95.24 %"}
+READING_SHORT = {"as_read": "as this book reads it", "peak_otdoa": "… peak-ToA OTDoA", "span": "… DS = span",
+                 "total_snr": "… total SNR", "span_total": "… span and total SNR", "honest": "honest receiver"}
+
+
+def readings_payload(progress: bool = False, trials: int | None = None) -> dict:
+    """Each reading of ``paper.READINGS`` tested on each claim of ``paper.CLAIMS`` (``paper.claim_values``), from
+    its experiments' results (run or loaded from the cache)."""
+    from . import montecarlo
+
+    data = {}
+    for name, (label, changes) in paper.READINGS.items():
+        ex = paper.reading_experiments(name, trials)
+        r9 = montecarlo.run(ex["fig9"], progress=progress)
+        e9 = ex["fig9"]
+        si = [list(e9.snrs_db).index(s) for s in paper.READING_SNRS_DB]
+        r10 = montecarlo.run(ex["fig10_dpe"], progress=progress)
+        o10 = montecarlo.run(ex["fig10_otdoa"], progress=progress)
+        det = montecarlo.OTDOA_DETECTORS.index(ex["otdoa_detector"])
+        claims = paper.claim_values(r9.rmse_m()[si], paper.READING_SNRS_DB, e9.m_values, r10.error_m[:, 0, 0],
+                                    o10.otdoa_error_m[:, 0, det, 0])
+        data[name] = {"label": label, "short": READING_SHORT[name], "changes": changes,
+                      "n_trials": {"fig9": e9.n_trials, "fig10_dpe": ex["fig10_dpe"].n_trials,
+                                   "fig10_otdoa": ex["fig10_otdoa"].n_trials},
+                      "values": {k: v for k, (v, _) in claims.items()},
+                      "reproduced": {k: ok for k, (_, ok) in claims.items()}}
+    return {"seed": {"fig9": paper.URBAN_SEED, "fig10": paper.FIG10_SEED},
+            "config": {"snrs_db": paper.READING_SNRS_DB, "claim_order": list(paper.CLAIMS),
+                       "reading_order": list(paper.READINGS), "claims": {k: {"claim": c, "paper": v,
+                                                                        "short": CLAIM_SHORT[k]}
+                                                                    for k, (c, v) in paper.CLAIMS.items()}},
+            "data": data}
+
+
+register("readings_table", "Figs. 9–10 (claims)",
+         "Which reading of the paper reproduces which of its claims about Figs. 9 and 10: the set-up as this book "
+         "reads it (window centred on the truth, RMS delay spread, per-sample SNR, L = 12, first-path OTDoA), one "
+         "reading changed at a time, and the honest receiver.", plots.plot_readings)(readings_payload)
+
+
+def readings_summary(p: dict) -> dict:
+    """Counts of a ``readings_payload``: {"counts": {reading: claims reproduced}, "n_claims", "best" (the most
+    reproduced by one reading), "best_readings", "never": the claims no reading reproduces}."""
+    counts = {n: int(sum(p["data"][n]["reproduced"].values())) for n in p["config"]["reading_order"]}
+    best = max(counts.values())
+    never = [c for c in p["config"]["claim_order"] if not any(d["reproduced"][c] for d in p["data"].values())]
+    return {"counts": counts, "n_claims": len(p["config"]["claim_order"]), "best": best,
+            "best_readings": [n for n, c in counts.items() if c == best], "never": never}
+
+
+def readings_markdown(p: dict) -> str:
+    """The readings table of a ``readings_payload`` as Markdown: a row per reading, a column per claim, each cell
+    the value and ✓ (reproduced) or ✗ (differs)."""
+    claims, order = p["config"]["claims"], p["config"]["claim_order"]
+    short = lambda c: claims[c]["short"].replace("\n", " ")
+    lines = ["| reading | trials (Fig. 9 / Fig. 10) | " + " | ".join(short(c) for c in order) + " |",
+             "|---" * (len(order) + 2) + "|"]
+    for n in p["config"]["reading_order"]:
+        d, t = p["data"][n], p["data"][n]["n_trials"]
+        lines.append(f"| {d['label']} | {t['fig9']} / {t['fig10_dpe']} | "
+                     + " | ".join(f"{plots.format_claim(c, d['values'][c])} {'✓' if d['reproduced'][c] else '✗'}"
+                                  for c in order) + " |")
+    return "\n".join(lines)

@@ -73,7 +73,12 @@ class Experiment:
         · c (``receiver_search``), so nothing about the truth reaches the search.
     prior_kind, prior_scale_m : "gaussian" — an isotropic horizontal error with σ = prior_scale_m per axis;
         "disc" — uniform over a disc of radius prior_scale_m.
-    delay_spread_s, k_factor_db : TDL-C (NLoS) / TDL-D (LoS) at this RMS delay spread; TDL-D's K.
+    delay_spread_s, k_factor_db : TDL-C (NLoS) / TDL-D (LoS) at this delay spread; TDL-D's K.
+    delay_spread_def : what delay_spread_s means for both profiles (``channel.DELAY_SPREAD_DEFS``): "rms", TR
+        38.901's RMS spread (default), or "span", first to last tap (the paper's text; Chapter 7's readings).
+    snr_convention : what the SNRs mean (``signal.SNR_CONVENTIONS``), in both SNR modes: "per_sample" (default) or
+        "total", after correlation over the N samples (the per-sample SNR is then 10 log10 N dB lower).  The results'
+        link_snr_db is always the per-sample SNR the links were simulated at.
     clock_sigma_s, clock_bound_sigmas : UE clock bias, Gaussian σ truncated at ± bound · σ.
     search : the DPE search; link : the link budget; deployment : "tst" or a path to a JSON/CSV deployment.
     otdoa : also run the OTDoA baseline (``dpe5g.otdoa``) on the same received signals, for every SNR and M, with
@@ -93,6 +98,8 @@ class Experiment:
     prior_kind: str = "gaussian"
     prior_scale_m: float = 5.0
     delay_spread_s: float = 65e-9
+    delay_spread_def: str = "rms"
+    snr_convention: str = "per_sample"
     k_factor_db: float = 13.3
     clock_sigma_s: float = 5e-9
     clock_bound_sigmas: float = 3.0
@@ -112,6 +119,8 @@ class Experiment:
         _checks.one_of("centring", self.centring, CENTRINGS)
         _checks.one_of("toa_method", self.toa_method, otdoa.TOA_METHODS)
         _checks.one_of("prior_kind", self.prior_kind, PRIOR_KINDS)
+        _checks.one_of("delay_spread_def", self.delay_spread_def, channel.DELAY_SPREAD_DEFS)
+        _checks.one_of("snr_convention", self.snr_convention, signal.SNR_CONVENTIONS)
         _checks.in_range("prior_scale_m", self.prior_scale_m, 0.0, 1000.0, "m")
         if self.centring == "otdoa" and not self.otdoa:
             raise ValueError("centring 'otdoa' centres the search on the OTDoA fix; set otdoa=True")
@@ -275,7 +284,8 @@ class Results:
 
 def _profiles(e: Experiment):
     """The NLoS (TDL-C) and LoS (TDL-D) profiles of the experiment."""
-    return channel.tdl_profile("C", e.delay_spread_s), channel.tdl_profile("D", e.delay_spread_s, e.k_factor_db)
+    return (channel.tdl_profile("C", e.delay_spread_s, definition=e.delay_spread_def),
+            channel.tdl_profile("D", e.delay_spread_s, e.k_factor_db, definition=e.delay_spread_def))
 
 
 def trial_key(seed: int, t) -> jax.Array:
@@ -339,6 +349,7 @@ def _draw_fn(e: Experiment, dep: deployment.Deployment):
             sf = jax.random.normal(k_sf, (m_max,)) * jnp.where(los, scenario.SIGMA_SF_LOS_DB,
                                                                scenario.SIGMA_SF_NLOS_DB)
             link_snr = e.link.model_snr_db(e.link.snr_db(pw_all[idx], pl, sf))[None, :]
+        link_snr = signal.per_sample_snr_db(link_snr, e.snr_convention)
         gains = jnp.where(los[:, None], jnp.pad(g_d, ((0, 0), (0, n_taps - g_d.shape[1]))),
                           jnp.pad(g_c, ((0, 0), (0, n_taps - g_c.shape[1]))))
         delays = jnp.where(los[:, None], delays_d, delays_c)

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import numpy as np
+
 from . import dpe
 from .montecarlo import Experiment
 
@@ -175,3 +177,85 @@ def first_path_comparison(fig9_trials: int = FIRST_PATH_FIG9_TRIALS,
         flat = f10[(case, "otdoa")]
         out[f"fig10_{case}"] = (flat, first_path_aware(flat, fig10_trials))
     return out
+
+
+#: Chapter 7's readings of the paper: the SNRs of Fig. 9 its claims are tested at (10 dB: "within 6 m", "more BSs
+#: hurt"; 25 and 40 dB: saturation, sub-metre), and the trials per experiment the issue asks for (≥ 1000)
+READING_SNRS_DB = (10.0, 25.0, 40.0)
+READING_TRIALS = 1000
+#: the readings, in the order of the table: name → (label, changes to the paper's set-up as we read it).  Set-up as
+#: we read it: window centred on the truth (the paper's centring), RMS delay spread, per-sample SNR, L = 12,
+#: first-path OTDoA, Fig. 10's stated case (two of the four nearest links LoS)
+READINGS = {
+    "as_read": ("the paper's set-up as this book reads it", {}),
+    "peak_otdoa": ("… with a strongest-peak ToA for OTDoA", {"otdoa_detector": "peak"}),
+    "span": ("… with the delay spread as the first-to-last span (the paper's text)", {"delay_spread_def": "span"}),
+    "total_snr": ("… with the SNR after correlation (total)", {"snr_convention": "total"}),
+    "span_total": ("… with both", {"delay_spread_def": "span", "snr_convention": "total"}),
+    "honest": ("the honest receiver (window on a prior / the OTDoA fix, certified search)", {"centring": "honest"}),
+}
+
+
+def reading_experiments(name: str, n_trials: int | None = None) -> dict:
+    """The experiments of reading ``name`` (``READINGS``): {"fig9": Experiment, "fig10_dpe": Experiment,
+    "fig10_otdoa": Experiment holding the OTDoA fixes, "otdoa_detector": "first_path" or "peak"}; Fig. 10 is its
+    stated case (two of the four nearest links LoS).  Readings that change only the receiver's centring or the OTDoA
+    detector read the figures' own experiments (and caches), at the figures' trial counts; the others run
+    ``READING_TRIALS`` trials of Fig. 9's set-up at ``READING_SNRS_DB`` and of Fig. 10's, truth-centred, with the
+    OTDoA baseline on the same signals.  n_trials : run every experiment with this many trials instead (a quick
+    look; the book uses the defaults)."""
+    if name not in READINGS:
+        raise ValueError(f"reading must be one of {', '.join(READINGS)}, got {name!r}")
+    kw = dict(READINGS[name][1])
+    detector = kw.pop("otdoa_detector", "first_path")
+    f10 = fig10() if n_trials is None else fig10(n_trials)
+    if kw.pop("centring", None) == "honest":
+        return {"fig9": fig9_honest() if n_trials is None else fig9_honest(n_trials),
+                "fig10_dpe": f10[("two_of_four", "otdoa")], "fig10_otdoa": f10[("two_of_four", "otdoa")],
+                "otdoa_detector": detector}
+    if not kw:
+        return {"fig9": fig9_truth() if n_trials is None else fig9_truth(n_trials),
+                "fig10_dpe": f10[("two_of_four", "truth")], "fig10_otdoa": f10[("two_of_four", "otdoa")],
+                "otdoa_detector": detector}
+    n = READING_TRIALS if n_trials is None else n_trials
+    tag = "-".join(str(v).replace("_", "-") for v in kw.values())
+    e10 = replace(f10[("two_of_four", "truth")], name=f"fig10-two-of-four-truth-{tag}", n_trials=n, otdoa=True, **kw)
+    return {"fig9": replace(fig9_truth(n), name=f"fig09-{tag}", snrs_db=READING_SNRS_DB, **kw),
+            "fig10_dpe": e10, "fig10_otdoa": e10, "otdoa_detector": detector}
+
+
+#: the paper's quantitative claims about Figs. 9 and 10 (Section IV, abstract), tested per reading: id → (claim with
+#: its test, the paper's value).  The tests are those of Chapter 7's claim table, at the readings' SNRs.
+CLAIMS = {
+    "fig9_6m": ("Fig. 9: RMSE within 6 m at 10 dB, M = 6", "≤ 6 m"),
+    "fig9_falls": ("Fig. 9: RMSE falls with SNR, M = 6 (40 dB over 10 dB below ½)", "≈ 6 m → < 1 m"),
+    "fig9_submetre": ("Fig. 9: sub-metre at 40 dB with M ≥ 18 (the better M)", "< 1 m"),
+    "fig9_more_hurts": ("Fig. 9: more BSs hurt at 10 dB (RMSE M = 24 over M = 6 above 1)", "> 1"),
+    "fig9_saturation": ("Fig. 9: saturation 18 → 24 BSs (largest change at 25 and 40 dB within 10 %)", "≈ 0"),
+    "fig10_dpe_p90": ("Fig. 10: DPE, 90 % of errors within 2 m", "2 m"),
+    "fig10_dpe_p99": ("Fig. 10: DPE, 99 % of errors within 7 m", "7 m"),
+    "fig10_otdoa_p90": ("Fig. 10: OTDoA 90 % point 42 m (within 20 %)", "42 m"),
+    "fig10_gain": ("Fig. 10: 1 − p90(DPE) / p90(OTDoA) = 95.24 % (within 2 points)", "95.24 %"),
+}
+
+
+def claim_values(rmse_m, snrs_db, m_values, dpe_err_m, otdoa_err_m) -> dict:
+    """Test ``CLAIMS`` on one reading's results: rmse_m (S, J) Fig. 9's RMSE at SNRs snrs_db (must hold 10, 25 and
+    40 dB) and M m_values (must hold 6, 18, 24); dpe_err_m, otdoa_err_m (T,) Fig. 10's horizontal errors.
+    Returns {claim id: (value, reproduced)}: metres, a ratio or a share as the claim states it."""
+    snrs, ms = [float(s) for s in snrs_db], [int(m) for m in m_values]
+    missing = {10.0, 25.0, 40.0} - set(snrs), {6, 18, 24} - set(ms)
+    if missing[0] or missing[1]:
+        raise ValueError(f"claim_values needs Fig. 9 at 10, 25, 40 dB and M = 6, 18, 24; missing SNRs "
+                         f"{sorted(missing[0])}, M {sorted(missing[1])}")
+    r = lambda snr, m: float(np.asarray(rmse_m)[snrs.index(snr), ms.index(m)])
+    d90, d99 = (float(q) for q in np.quantile(dpe_err_m, [0.9, 0.99]))
+    o90 = float(np.quantile(otdoa_err_m, 0.9))
+    sat = max(abs(r(s, 24) / r(s, 18) - 1) for s in (25.0, 40.0))
+    return {"fig9_6m": (r(10, 6), r(10, 6) <= 6), "fig9_falls": (r(40, 6) / r(10, 6), r(40, 6) < r(10, 6) / 2),
+            "fig9_submetre": (min(r(40, 18), r(40, 24)), min(r(40, 18), r(40, 24)) < 1),
+            "fig9_more_hurts": (r(10, 24) / r(10, 6), r(10, 24) > r(10, 6)),
+            "fig9_saturation": (sat, sat <= 0.10),
+            "fig10_dpe_p90": (d90, d90 <= 2), "fig10_dpe_p99": (d99, d99 <= 7),
+            "fig10_otdoa_p90": (o90, abs(o90 - 42) <= 0.2 * 42),
+            "fig10_gain": (1 - d90 / o90, abs(1 - d90 / o90 - 0.9524) <= 0.02)}

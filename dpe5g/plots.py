@@ -503,3 +503,37 @@ def plot_rmse_and_bound(payload: dict):
         ax.set_xticks(snr)
         ax.legend(fontsize=9, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2, frameon=False)
     return fig
+
+
+def format_claim(claim_id: str, value: float) -> str:
+    """A claim's value as the readings table prints it: metres, a ratio, or a percentage."""
+    if claim_id in ("fig9_falls", "fig9_more_hurts"):
+        return f"{value:.2f}×"
+    if claim_id in ("fig9_saturation", "fig10_gain"):
+        return f"{100 * value:.1f} %"
+    return f"{value:.1f} m" if value >= 10 else f"{value:.2f} m"
+
+
+def plot_readings(payload: dict):
+    """The readings table (Chapter 7): one row per reading of the paper, one column per claim of Figs. 9–10, each
+    cell its value, green where it meets the claim and red where it differs."""
+    claims, data = payload["config"]["claims"], payload["data"]
+    ids, names = payload["config"]["claim_order"], payload["config"]["reading_order"]
+    ok = np.array([[data[n]["reproduced"][c] for c in ids] for n in names], dtype=float)
+    with style():
+        fig = Figure(figsize=(12.0, 0.55 * len(names) + 2.6), layout="constrained")
+        ax = fig.subplots()
+        ax.imshow(ok, cmap=matplotlib.colors.ListedColormap(["#f4c7c3", "#c6e9c6"]), vmin=0, vmax=1, aspect="auto")
+        for i, n in enumerate(names):
+            for j, c in enumerate(ids):
+                ax.text(j, i, format_claim(c, data[n]["values"][c]), ha="center", va="center", fontsize=9)
+        ax.set_xticks(range(len(ids)), [claims[c]["short"] for c in ids], rotation=30, ha="right", fontsize=9)
+        ax.set_yticks(range(len(names)), [data[n]["short"] for n in names], fontsize=9)
+        ax.set_xticks(np.arange(len(ids) + 1) - 0.5, minor=True)
+        ax.set_yticks(np.arange(len(names) + 1) - 0.5, minor=True)
+        ax.grid(which="major", visible=False)
+        ax.grid(which="minor", color="w", lw=2)
+        ax.tick_params(which="both", length=0)
+        ax.set_title("Which reading of the paper reproduces which claim (green: reproduced, red: differs)",
+                     fontsize=10)
+    return fig

@@ -49,6 +49,20 @@ def noise_variance(snr_db, prs) -> jax.Array:
     return pilot_power * 10.0 ** (-jnp.asarray(snr_db) / 10.0)
 
 
+#: what a stated SNR means: "per_sample" — signal power over noise variance per time sample (the SNR of
+#: ``noise_variance``, this book's convention); "total" — the SNR after correlating the N samples of the symbol, the
+#: energy of the whole pilot over the noise variance, 10 log10 N dB above the per-sample SNR (a reading of the paper's
+#: SNR, which it does not define; Chapter 7)
+SNR_CONVENTIONS = ("per_sample", "total")
+
+
+def per_sample_snr_db(snr_db, convention: str, num: Numerology = PAPER):
+    """The per-sample SNR (dB) of an SNR ``snr_db`` stated in ``convention`` (``SNR_CONVENTIONS``): unchanged for
+    "per_sample", minus 10 log10 N (36.1 dB for the paper's N = 4096) for "total".  Traceable in ``snr_db``."""
+    _checks.one_of("convention", convention, SNR_CONVENTIONS)
+    return snr_db - 10.0 * np.log10(num.n_fft) if convention == "total" else snr_db
+
+
 def check_snr_db(snr_db) -> np.ndarray:
     """Validate an SNR in dB (scalar or array): finite and within [-50, 100] dB."""
     s = np.asarray(snr_db, dtype=np.float64)

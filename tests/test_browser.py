@@ -117,7 +117,7 @@ def test_chapters_have_figures_and_math(server, browser):
 
 #: pages whose computed tables a reader must see as HTML tables, and how many at least
 TABLES = {"chapters/01_tdl_channel.html": 1, "chapters/03_dpe.html": 2, "chapters/05_rmse_vs_snr.html": 5,
-          "chapters/06_otdoa.html": 2, "chapters/07_reproduction.html": 2, "chapters/08_bounds.html": 3}
+          "chapters/06_otdoa.html": 2, "chapters/07_reproduction.html": 3, "chapters/08_bounds.html": 3}
 
 
 @pytest.mark.parametrize("page_path", list(TABLES))

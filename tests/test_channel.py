@@ -84,3 +84,18 @@ def test_sampled_cir_integer_taps():
 def test_bad_input(args, kwargs, match):
     with pytest.raises(ValueError, match=match):
         channel.tdl_profile(*args, **kwargs)
+
+
+def test_span_definition_of_the_delay_spread():
+    """"span" (the paper's text): last tap delay_spread_s after the first, powers unchanged; "rms" (TR 38.901): RMS
+    spread delay_spread_s."""
+    for name in ("A", "B", "C", "D", "E"):
+        rms = channel.tdl_profile(name, 65e-9)
+        span = channel.tdl_profile(name, 65e-9, definition="span")
+        assert span.delays_s.max() - span.delays_s.min() == pytest.approx(65e-9, rel=1e-12)
+        np.testing.assert_allclose(span.powers, rms.powers)
+        np.testing.assert_allclose(span.delays_s / span.delays_s.max(), rms.delays_s / rms.delays_s.max())
+    assert channel.rms_delay_spread(channel.tdl_profile("C", 65e-9).delays_s,
+                                    channel.tdl_profile("C", 65e-9).powers) == pytest.approx(65e-9, rel=1e-4)
+    with pytest.raises(ValueError, match="definition"):
+        channel.tdl_profile("C", 65e-9, definition="mean")

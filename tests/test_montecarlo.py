@@ -230,3 +230,30 @@ def test_range_offsets_and_error_summary(tmp_path):
     assert s["rmse_m"] == pytest.approx(np.sqrt(105 / 4)) and s["median_m"] == 1.5
     assert s["p99_m"] == pytest.approx(np.quantile(err, 0.99)) and s["edge_share"] == 0.5
     assert s["certified_share"] == 1.0
+
+
+def test_readings_delay_spread_definition_and_snr_convention():
+    """The readings of Chapter 7 as Experiment fields: "span" scales both profiles so their last tap comes
+    delay_spread_s after the first; "total" SNRs are 10 log10 N dB above the per-sample SNR they simulate, in both
+    SNR modes; bad values name the field."""
+    import dataclasses
+
+    base = montecarlo.Experiment(name="r", n_trials=2, seed=3, snrs_db=(30.0,), m_values=(6,))
+    span = montecarlo.example(dataclasses.replace(base, delay_spread_def="span"), 0)
+    rms = montecarlo.example(base, 0)
+    assert np.max(span["delays"]) == pytest.approx(65e-9, rel=1e-12)
+    assert np.max(rms["delays"]) > 500e-9  # TDL-C's last tap at 8.65 RMS spreads
+    np.testing.assert_array_equal(span["los"], rms["los"])
+    gain = 10 * np.log10(4096)
+    for kw in (dict(snrs_db=(30.0,)), dict(snr_mode="link_budget", snrs_db=())):
+        per = montecarlo.example(dataclasses.replace(base, **kw), 1)
+        tot = montecarlo.example(dataclasses.replace(base, snr_convention="total", **kw), 1)
+        np.testing.assert_allclose(tot["link_snr"], per["link_snr"] - gain, atol=1e-12)
+        np.testing.assert_array_equal(tot["y0"], per["y0"])
+    same = montecarlo.example(dataclasses.replace(base, snrs_db=(30.0 - gain,)), 1)
+    tot = montecarlo.example(dataclasses.replace(base, snr_convention="total"), 1)
+    np.testing.assert_allclose(tot["y"], same["y"], atol=1e-12 * np.abs(same["y"]).max())
+    with pytest.raises(ValueError, match="delay_spread_def"):
+        montecarlo.Experiment(delay_spread_def="first_to_last")
+    with pytest.raises(ValueError, match="snr_convention"):
+        montecarlo.Experiment(snr_convention="post_correlation")

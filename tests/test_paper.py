@@ -1,0 +1,47 @@
+"""The paper's experiments and claims (``dpe5g.paper``): the readings and the claim tests of Chapter 7."""
+
+import numpy as np
+import pytest
+
+from dpe5g import channel, paper, signal
+
+
+def test_claim_values_apply_each_claims_test():
+    snrs, ms = (10.0, 25.0, 40.0), (6, 12, 18, 24)
+    rmse = np.array([[5.9, 5.0, 6.0, 6.5],   # 10 dB: within 6 m at M = 6, more BSs hurt
+                     [2.0, 1.5, 1.0, 1.05],  # 25 dB: 5 % from 18 to 24
+                     [0.9, 0.8, 0.7, 0.72]])  # 40 dB: below half of 10 dB, sub-metre
+    dpe_err = np.linspace(0, 2.2, 1001)  # p90 1.98 m, p99 2.178 m
+    otdoa_err = np.linspace(0, 46, 1001)  # p90 41.4 m
+    v = paper.claim_values(rmse, snrs, ms, dpe_err, otdoa_err)
+    assert set(v) == set(paper.CLAIMS)
+    assert v["fig9_6m"] == (5.9, True) and v["fig9_more_hurts"][1] and v["fig9_falls"][1]
+    assert v["fig9_submetre"] == (0.7, True)
+    assert v["fig9_saturation"][0] == pytest.approx(0.05) and v["fig9_saturation"][1]
+    assert v["fig10_dpe_p90"][1] and v["fig10_dpe_p99"][1] and v["fig10_otdoa_p90"][1]
+    assert v["fig10_gain"][0] == pytest.approx(1 - 1.98 / 41.4) and v["fig10_gain"][1]
+    worse = paper.claim_values(rmse * 2, snrs, ms, dpe_err * 4, otdoa_err / 10)
+    assert not any(ok for k, (_, ok) in worse.items() if k not in ("fig9_falls", "fig9_more_hurts",
+                                                                      "fig9_saturation"))
+    with pytest.raises(ValueError, match="missing SNRs"):
+        paper.claim_values(rmse[:2], snrs[:2], ms, dpe_err, otdoa_err)
+
+
+def test_readings_are_experiments_that_differ_in_their_reading_only():
+    base = paper.reading_experiments("as_read")
+    assert base["fig9"] == paper.fig9_truth() and base["otdoa_detector"] == "first_path"
+    assert paper.reading_experiments("peak_otdoa")["otdoa_detector"] == "peak"
+    both = paper.reading_experiments("span_total")
+    for k in ("fig9", "fig10_dpe"):
+        assert both[k].delay_spread_def == "span" and both[k].snr_convention == "total"
+        assert both[k].centring == "truth" and both[k].seed == base[k].seed
+    assert both["fig10_dpe"].otdoa and both["fig10_dpe"].los_mode == "two_of_four"
+    assert both["fig9"].snrs_db == paper.READING_SNRS_DB and both["fig9"].n_trials == paper.READING_TRIALS
+    assert paper.reading_experiments("honest")["fig9"] == paper.fig9_honest()
+    assert paper.reading_experiments("span", n_trials=7)["fig10_dpe"].n_trials == 7
+    with pytest.raises(ValueError, match="reading must be one of"):
+        paper.reading_experiments("literal")
+    assert set(channel.DELAY_SPREAD_DEFS) == {"rms", "span"}
+    assert signal.per_sample_snr_db(40.0, "total") == pytest.approx(40 - 10 * np.log10(4096))
+    with pytest.raises(ValueError, match="convention"):
+        signal.per_sample_snr_db(40.0, "after_correlation")
