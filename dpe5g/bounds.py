@@ -32,6 +32,9 @@ Units: frequencies Hz, delays and ToAs s, positions m, SNR dB (per subcarrier), 
 
 from __future__ import annotations
 
+import io
+from pathlib import Path
+
 import numpy as np
 
 import jax
@@ -194,23 +197,52 @@ def rmse_bound_m(e, n_trials: int, snrs_db=None) -> np.ndarray:
     Fisher information of a link scales with its linear SNR, so it is computed once per link and scaled.
     snrs_db : (S,) per-sample SNRs in dB to use instead of ``e.snrs_db`` (snr_mode "fixed" only: every link at
     each; the trials' links do not depend on the SNR, so one call serves several experiments of the same trials)."""
-    from . import montecarlo  # the engine's draws; montecarlo does not import this module
-
     n_trials = _checks.integer("n_trials", n_trials, 1, e.n_trials)
     if snrs_db is not None and e.snr_mode != "fixed":
         raise ValueError("snrs_db replaces the SNRs of a 'fixed' experiment; this one takes them from the path loss")
-    f = subcarrier_frequencies_hz("full")
     snrs = np.asarray(e.snrs_db if e.snr_mode == "fixed" else (0.0,), dtype=np.float64)
     out = snrs if snrs_db is None else signal.check_snr_db(np.atleast_1d(snrs_db))
+    links = link_information(e, n_trials)
     var = np.zeros((n_trials, out.size, len(e.m_values)))
     for t in range(n_trials):
-        ex = montecarlo.example(e, t)
-        j0 = np.array([toa_fisher(f, 0.0, ex["gains"][i], ex["delays"][i]) for i in range(ex["bs"].shape[0])])
         for s in range(out.size):
-            j = j0 * 10 ** ((np.asarray(ex["link_snr"]) + out[s] - snrs[0]) / 10)  # link_snr is SNR index 0's
+            j = links["info_0db"][t] * 10 ** ((links["link_snr_db"][t] + out[s] - snrs[0]) / 10)
             for jm, m in enumerate(e.m_values):
-                var[t, s, jm] = np.trace(position_crb(ex["ue"], ex["bs"][:m], j[:m])[:2, :2])
+                var[t, s, jm] = np.trace(position_crb(links["ue"][t], links["bs"][t, :m], j[:m])[:2, :2])
     return np.sqrt(np.mean(var, axis=0))
+
+
+def link_information(e, n_trials: int) -> dict:
+    """The links of an urban experiment's trials 0 … n_trials−1 as ``rmse_bound_m`` reads them: ue (T, 3) and bs
+    (T, I, 3) metres, info_0db (T, I) each link's ToA Fisher information (s⁻²) at 0 dB per subcarrier on the full
+    band with its channel's tap delays known, link_snr_db (T, I) its SNR of the experiment's first SNR index.
+
+    Computing the information costs a projection per link, so the arrays are kept beside the experiment's Monte
+    Carlo results (``montecarlo.cache_dir``, whose key covers the engine's code and the experiment) in a file keyed
+    by this module's code; a later call with at most as many trials reads them."""
+    from . import montecarlo  # the engine's draws; montecarlo does not import this module
+    from ._io import atomic_write
+
+    n_trials = _checks.integer("n_trials", n_trials, 1, e.n_trials)
+    path = montecarlo.cache_dir(e) / f"link-information-{montecarlo.code_digest(Path(__file__)).hex()[:16]}.npz"
+    if path.exists():
+        with np.load(path) as z:
+            if z["info_0db"].shape[0] >= n_trials:
+                return {k: z[k][:n_trials] for k in z.files}
+    f = subcarrier_frequencies_hz("full")
+    out = {"ue": [], "bs": [], "info_0db": [], "link_snr_db": []}
+    for t in range(n_trials):
+        ex = montecarlo.example(e, t)
+        out["ue"].append(ex["ue"])
+        out["bs"].append(ex["bs"])
+        out["info_0db"].append([toa_fisher(f, 0.0, ex["gains"][i], ex["delays"][i]) for i in range(ex["bs"].shape[0])])
+        out["link_snr_db"].append(np.asarray(ex["link_snr"]))
+    out = {k: np.asarray(v, dtype=np.float64) for k, v in out.items()}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    buf = io.BytesIO()
+    np.savez(buf, **out)
+    atomic_write(path, buf.getvalue())
+    return out
 
 
 def _check_freqs(freqs_hz) -> np.ndarray:

@@ -19,7 +19,7 @@ from typing import Any, Callable
 import jax
 import numpy as np
 
-from . import channel, paper, plots
+from . import bounds, channel, paper, plots
 from ._io import atomic_target, atomic_write
 from .nr import PAPER
 
@@ -27,7 +27,7 @@ from .nr import PAPER
 @dataclass(frozen=True)
 class FigureSpec:
     id: str
-    paper_ref: str
+    paper_ref: str | None  # None: not a figure of the paper (the readings table)
     caption: str
     compute: Callable[[], dict]
     plot: Callable[[dict], Any]
@@ -36,7 +36,7 @@ class FigureSpec:
 REGISTRY: dict[str, FigureSpec] = {}
 
 
-def register(fig_id: str, paper_ref: str, caption: str, plot: Callable[[dict], Any]):
+def register(fig_id: str, paper_ref: str | None, caption: str, plot: Callable[[dict], Any]):
     """Decorator registering ``compute`` as the producer of figure ``fig_id``."""
 
     def wrap(compute: Callable[[], dict]) -> Callable[[], dict]:
@@ -104,6 +104,8 @@ def render(payload: dict):
 def caption_md(fig_id: str) -> str:
     """The book's caption of a registered figure (Markdown): the paper's figure it reproduces, then its caption."""
     spec = get(fig_id)
+    if spec.paper_ref is None:
+        return f"**Our table, not a figure of the paper.** {spec.caption}"
     return f"**Reproduces the paper's {spec.paper_ref}.** {spec.caption}"
 
 
@@ -378,12 +380,18 @@ def rmse_payload(experiments: dict, progress: bool = False) -> dict:
         data[name] = error_stats(res)
         config[name] = experiment_config(e)
     e = next(iter(experiments.values()))
+    bound, bound_cfg = {}, {}
+    if "honest" in experiments and experiments["honest"].snr_mode == "fixed":  # Chapter 8's bound, on the same trials
+        n_b = min(paper.BOUND_TRIALS, experiments["honest"].n_trials)
+        bound, bound_cfg = {"bound_m": bounds.rmse_bound_m(experiments["honest"], n_b)}, {"bound_trials": n_b}
     return {
         "seed": e.seed,
         "config": {"snrs_db": e.snrs_db, "m_values": e.m_values, "los_mode": e.los_mode,
                    "delay_spread_s": e.delay_spread_s, "k_factor_db": e.k_factor_db, "clock_sigma_s": e.clock_sigma_s,
-                   "clock_bound_sigmas": e.clock_bound_sigmas, "deployment": e.deployment, "receivers": config},
-        "data": {**data, "los_share_all": res.los_share(), "los_share_by_m": [res.los_share(m) for m in e.m_values]},
+                   "clock_bound_sigmas": e.clock_bound_sigmas, "deployment": e.deployment, "receivers": config,
+                   **bound_cfg},
+        "data": {**data, **bound, "los_share_all": res.los_share(),
+                 "los_share_by_m": [res.los_share(m) for m in e.m_values]},
     }
 
 
@@ -394,9 +402,10 @@ register("fig08_urban_correlogram", "Fig. 8",
          "2-D correlogram (eq. (10), the 12 nearest BSs summed) of the example urban fix at 20 dB.",
          plots.plot_urban_correlogram)(urban_correlogram_payload)
 register("fig09_rmse_vs_snr", "Fig. 9",
-         "DPE RMSE against SNR for M = 6, 12, 18, 24 nearest BSs: the honest receiver (window centred on a "
+         "(a) DPE RMSE against SNR for M = 6, 12, 18, 24 nearest BSs: the honest receiver (window centred on a "
          f"{paper.PRIOR_SIGMA_M:g} m "
-         "prior, certified search; solid) and the paper's truth-centred grid (dashed).",
+         "prior, certified search; solid) and the paper's truth-centred grid (dashed); (b) the honest receiver beside the "
+         "Cramér–Rao bound (Chapter 8), log axis.",
          plots.plot_rmse_vs_snr)(
     lambda progress=False, trials=None: rmse_payload(
         paper.fig9() if trials is None else paper.fig9(honest_trials=trials, truth_trials=trials), progress))
@@ -492,7 +501,7 @@ def readings_payload(progress: bool = False, trials: int | None = None) -> dict:
             "data": data}
 
 
-register("readings_table", "Figs. 9–10 (claims)",
+register("readings_table", None,
          "Which reading of the paper reproduces which of its claims about Figs. 9 and 10: the set-up as this book "
          "reads it (window centred on the truth, RMS delay spread, per-sample SNR, L = 12, first-path OTDoA), one "
          "reading changed at a time, and the honest receiver.", plots.plot_readings)(readings_payload)
@@ -508,10 +517,22 @@ def readings_summary(p: dict) -> dict:
             "best_readings": [n for n, c in counts.items() if c == best], "never": never}
 
 
-def readings_markdown(p: dict) -> str:
+def readings_markdown(p: dict, by_claim: bool = False) -> str:
     """The readings table of a ``readings_payload`` as Markdown: a row per reading, a column per claim, each cell
-    the value and ✓ (reproduced) or ✗ (differs)."""
+    the value and ✓ (reproduced) or ✗ (differs); by_claim: transposed, a row per claim and a column per reading
+    (narrower: the book's page)."""
     claims, order = p["config"]["claims"], p["config"]["claim_order"]
+    cell = lambda n, c: (f"{plots.format_claim(c, p['data'][n]['values'][c])} "
+                         f"{'✓' if p['data'][n]['reproduced'][c] else '✗'}")
+    if by_claim:
+        names = p["config"]["reading_order"]
+        lines = ["| claim (paper) | " + " | ".join(p["data"][n]["short"] for n in names) + " |",
+                 "|---" * (len(names) + 1) + "|"]
+        lines += [f"| {claims[c]['claim']} ({claims[c]['paper']}) | " + " | ".join(cell(n, c) for n in names) + " |"
+                  for c in order]
+        lines.append("| trials (Fig. 9 / Fig. 10) | " + " | ".join(
+            f"{p['data'][n]['n_trials']['fig9']} / {p['data'][n]['n_trials']['fig10_dpe']}" for n in names) + " |")
+        return "\n".join(lines)
     short = lambda c: claims[c]["short"].replace("\n", " ")
     lines = ["| reading | trials (Fig. 9 / Fig. 10) | " + " | ".join(short(c) for c in order) + " |",
              "|---" * (len(order) + 2) + "|"]

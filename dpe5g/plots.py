@@ -325,12 +325,17 @@ def plot_rmse_vs_snr(payload: dict):
     style_of = {"honest": ("-", "honest: prior-centred, certified"), "truth": ("--", "paper's set-up: truth-centred")}
     pv = PAPER_FIG9_RMSE_M
     paper_text = snr.min() <= pv["snr_db"] <= snr.max() and pv["m"] in c["m_values"]
+    with_bound = "bound_m" in d and "honest" in d
     with style():
-        fig = Figure(figsize=(7.4, 6.0 if paper_text else 5.2), layout="constrained")
-        if paper_text:  # a broken axis: the paper's 6 m on a short top panel, our curves readable to 0.1 m below
-            ax_top, ax = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [1, 5], "hspace": 0.02})
+        fig = Figure(figsize=(7.4, (6.0 if paper_text else 5.2) + (4.4 if with_bound else 0.0)), layout="constrained")
+        if with_bound:  # panel (b) below: the honest RMSE beside the Cramér–Rao bound on a log axis
+            top, bottom = fig.subfigures(2, 1, height_ratios=[6.0 if paper_text else 5.2, 4.4])
         else:
-            ax_top, ax = None, fig.subplots()
+            top, bottom = fig, None
+        if paper_text:  # a broken axis: the paper's 6 m on a short top panel, our curves readable to 0.1 m below
+            ax_top, ax = top.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [1, 5], "hspace": 0.02})
+        else:
+            ax_top, ax = None, top.subplots()
         for r in recv:
             ls, lab = style_of[r] if len(recv) > 1 else ("-", "")
             rmse = np.asarray(d[r]["rmse_m"])
@@ -374,7 +379,16 @@ def plot_rmse_vs_snr(payload: dict):
             handles, labels = handles + h2, labels + l2
         ax.legend(handles, labels, fontsize=9, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2,
                   frameon=False)
-        (ax_top or ax).set_title(f"{100 * d['los_share_all']:.0f} % of links LoS", fontsize=10)
+        (ax_top or ax).set_title(("(a) " if with_bound else "") + f"{100 * d['los_share_all']:.0f} % of links LoS",
+                                 fontsize=10)
+        if with_bound:
+            axb = bottom.subplots()
+            _draw_rmse_and_bound(axb, snr, c["m_values"], {"": d["honest"]["rmse_m"]}, d["bound_m"])
+            axb.set_title(f"(b) honest receiver (solid), Cramér–Rao bound (dotted, {c['bound_trials']} trials)",
+                          fontsize=10)
+            axb.set_xlabel("SNR per time-domain sample, before correlation (dB)")
+            axb.set_ylabel("RMSE (m)")
+            axb.set_xticks(snr)
     return fig
 
 
@@ -475,29 +489,35 @@ def plot_window_study(rows: list[dict]):
     return fig
 
 
+def _draw_rmse_and_bound(ax, snr, m_values, curves: dict, bound, styles=("-", "--", "-.")) -> None:
+    """RMSE curves {label: (S, J)} (one colour per M, one line style per curve) and the bound (S, J) dotted, on a
+    log axis with labelled ticks."""
+    bound = np.asarray(bound)
+    vals = [bound.ravel()]
+    for k, (label, rmse) in enumerate(curves.items()):
+        rmse = np.asarray(rmse)
+        vals.append(rmse.ravel())
+        for j, (m, marker, col) in enumerate(zip(m_values, "osd^v<>", COLORS)):
+            ax.plot(snr, rmse[:, j], styles[k % len(styles)], marker=marker, color=col, ms=5,
+                    label=f"M = {m}" if k == 0 else None)
+        if label:
+            ax.plot([], [], styles[k % len(styles)], color="0.3", label=label)
+    for j, col in zip(range(bound.shape[1]), COLORS):
+        ax.plot(snr, bound[:, j], ":", color=col, lw=2)
+    ax.plot([], [], ":", color="0.3", lw=2, label="Cramér–Rao bound (tap delays known)")
+    vals = np.concatenate(vals)
+    log_ticks(ax, vals.min() / 1.3, vals.max() * 1.3)
+
+
 def plot_rmse_and_bound(payload: dict):
     """Chapter 8 (not in the paper): RMSE of receivers against the per-sample SNR beside the Cramér–Rao bound, log
     axis, one colour per M.  payload: snrs_db (S,), m_values (J,), curves {label: (S, J) RMSE in m} drawn solid,
     dashed, …, bound (S, J) in m drawn dotted."""
     snr = np.asarray(payload["snrs_db"])
-    bound = np.asarray(payload["bound_m"])
-    styles = ("-", "--", "-.")
     with style():
         fig = Figure(figsize=(7.4, 5.4), layout="constrained")
         ax = fig.subplots()
-        vals = [bound.ravel()]
-        for k, (label, rmse) in enumerate(payload["curves"].items()):
-            rmse = np.asarray(rmse)
-            vals.append(rmse.ravel())
-            for j, (m, marker, col) in enumerate(zip(payload["m_values"], "osd^v<>", COLORS)):
-                ax.plot(snr, rmse[:, j], styles[k % len(styles)], marker=marker, color=col, ms=5,
-                        label=f"M = {m}" if k == 0 else None)
-            ax.plot([], [], styles[k % len(styles)], color="0.3", label=label)
-        for j, col in zip(range(bound.shape[1]), COLORS):
-            ax.plot(snr, bound[:, j], ":", color=col, lw=2)
-        ax.plot([], [], ":", color="0.3", lw=2, label="Cramér–Rao bound (tap delays known)")
-        vals = np.concatenate(vals)
-        log_ticks(ax, vals.min() / 1.3, vals.max() * 1.3)
+        _draw_rmse_and_bound(ax, snr, payload["m_values"], payload["curves"], payload["bound_m"])
         ax.set_xlabel("SNR per time-domain sample, before correlation (dB)")
         ax.set_ylabel("RMSE of the horizontal position (m)")
         ax.set_xticks(snr)
