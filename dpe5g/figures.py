@@ -105,7 +105,7 @@ def caption_md(fig_id: str) -> str:
     """The book's caption of a registered figure (Markdown): the paper's figure it reproduces, then its caption."""
     spec = get(fig_id)
     if spec.paper_ref is None:
-        return f"**Our table, not a figure of the paper.** {spec.caption}"
+        return f"**Our table, not in the paper.** {spec.caption}"
     return f"**Reproduces the paper's {spec.paper_ref}.** {spec.caption}"
 
 
