@@ -195,7 +195,7 @@ def rmse_bound_m(e, n_trials: int, snrs_db=None) -> np.ndarray:
     e : ``montecarlo.Experiment``.  Each trial's links are the engine's (``montecarlo.example``: positions, channels
     with their tap delays known, per-link SNR); the pilots are the full band (the paper's, the engine's).  The
     Fisher information of a link scales with its linear SNR, so it is computed once per link and scaled.
-    snrs_db : (S,) per-sample SNRs in dB to use instead of ``e.snrs_db`` (snr_mode "fixed" only: every link at
+    snrs_db : (S,) SNRs in dB, in the experiment's ``snr_convention``, to use instead of ``e.snrs_db`` (snr_mode "fixed" only: every link at
     each; the trials' links do not depend on the SNR, so one call serves several experiments of the same trials)."""
     n_trials = _checks.integer("n_trials", n_trials, 1, e.n_trials)
     if snrs_db is not None and e.snr_mode != "fixed":

@@ -441,7 +441,9 @@ def _trial_fn(e: Experiment, dep: deployment.Deployment):
     OTDoA fixes; window is ``correlogram.window_spectrum`` of the receiver's L for the "bnb" search."""
     draw = _draw_fn(e, dep)
     cfg = e.receiver_search()
-    shared_centre = e.centring != "otdoa"  # truth, or the trial's prior centre: the same window for every M
+    # one window centre for every M only when it is the truth: the window-free experiment this function is built
+    # from (``_window_free``) names both external centrings "prior", and the OTDoA fixes differ between the M values
+    shared_centre = e.centring == "truth"
 
     def one(key, ext_center, window):
         d = draw(key)
@@ -452,9 +454,8 @@ def _trial_fn(e: Experiment, dep: deployment.Deployment):
             g = correlogram.ls_spectrum(_noisy(d, s), d["prs"])
             corr = dpe.receiver_correlogram(g, cfg, window if cfg.method == "bnb" else None)  # once for all M
             if shared_centre and cfg.method == "grid":  # one first level for every M
-                c = c0 if e.centring == "truth" else ext_center[s, 0]
-                r = dpe.nested_grid_fixes(corr, g, bs, c, cfg, e.m_values, PAPER)
-                return r, jnp.broadcast_to(c, (len(e.m_values), 4))
+                r = dpe.nested_grid_fixes(corr, g, bs, c0, cfg, e.m_values, PAPER)
+                return r, jnp.broadcast_to(c0, (len(e.m_values), 4))
             fixes, centers = [], []
             for j, m in enumerate(e.m_values):
                 c = c0 if e.centring == "truth" else ext_center[s, j]

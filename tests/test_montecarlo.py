@@ -257,3 +257,23 @@ def test_readings_delay_spread_definition_and_snr_convention():
         montecarlo.Experiment(delay_spread_def="first_to_last")
     with pytest.raises(ValueError, match="snr_convention"):
         montecarlo.Experiment(snr_convention="post_correlation")
+
+
+def test_grid_search_centred_on_each_m_otdoa_fix(tmp_path):
+    """Centring "otdoa" with the grid search and two M values: each M's window is centred on that M's own OTDoA fix
+    (the first level is shared between the M values only around the truth), and its fix is ``dpe.fix`` there."""
+    import jax.numpy as jnp
+
+    e = montecarlo.Experiment(name="g", n_trials=2, seed=6, snr_mode="link_budget", snrs_db=(), m_values=(4, 8),
+                              centring="otdoa", otdoa=True, search=dpe.SearchConfig(half_width_m=4.0))
+    res = montecarlo.run(e, cache=tmp_path, progress=False)
+    det = montecarlo.OTDOA_DETECTORS.index(e.toa_method)
+    for t in range(e.n_trials):
+        ex = montecarlo.example(e, t)
+        g = correlogram.ls_spectrum(signal.demodulate(ex["y"]), jnp.asarray(ex["prs"]))
+        for j, m in enumerate(e.m_values):
+            np.testing.assert_allclose(res.center_xyz[t, 0, j, :2], res.otdoa_xyz[t, 0, det, j, :2], atol=1e-9)
+            center = jnp.asarray(np.concatenate([res.center_xyz[t, 0, j], [0.0]]))
+            r = dpe.fix(g[:m], jnp.asarray(ex["bs"][:m]), center, e.receiver_search())
+            np.testing.assert_allclose(res.est_xyz[t, 0, j], np.asarray(r["q"])[:3], atol=1e-9)
+    assert not np.allclose(res.center_xyz[:, 0, 0], res.center_xyz[:, 0, 1])
