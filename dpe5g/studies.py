@@ -175,8 +175,7 @@ def error_summary(err, edge=None, certified=None) -> dict:
     """Horizontal errors err (T,) m → RMSE, median, 90 % and 99 % errors (m), and the shares of fixes flagged on the
     window's edge and certified (when given, booleans (T,))."""
     err = np.asarray(err, dtype=float)
-    out = {"rmse_m": float(np.sqrt(np.mean(err**2))), "median_m": float(np.median(err)),
-           "p90_m": float(np.quantile(err, 0.9)), "p99_m": float(np.quantile(err, 0.99))}
+    out = {**summary(err), "p99_m": float(np.quantile(err, 0.99))}
     if edge is not None:
         out["edge_share"] = float(np.mean(edge))
     if certified is not None:
