@@ -5,10 +5,15 @@ Each figure has one ``compute`` function (config + seed → JSON-able payload of
 figure-diff test and the book's chapters all go through ``REGISTRY``, so they cannot drift apart.
 
 Payload layout: ``{"id", "paper_ref", "caption", "seed", "config": {...}, "data": {...}}``.
+
+``compute`` keeps each payload in a cache (``payload_path``) keyed by the code of the whole package, so within one
+state of the code a payload is computed once: by the first chapter that shows it, then read by the other chapters,
+the figure-diff and ``make figures``.
 """
 
 from __future__ import annotations
 
+import hashlib
 import inspect
 import json
 import math
@@ -19,7 +24,7 @@ from typing import Any, Callable
 import jax
 import numpy as np
 
-from . import bounds, channel, paper, plots
+from . import bounds, channel, montecarlo, paper, plots
 from ._io import atomic_target, atomic_write
 from .nr import PAPER
 
@@ -75,8 +80,24 @@ def takes_trials(fig_id: str) -> bool:
     return "trials" in inspect.signature(get(fig_id).compute).parameters
 
 
+def payload_path(fig_id: str, trials: int | None = None, cache=None) -> Path:
+    """Where ``compute`` keeps the payload of ``fig_id`` (with ``trials``): ``<cache root>/payloads/<id>-<key>.json``
+    beside the Monte Carlo results (``montecarlo.cache_root``).  The key hashes the figure id, the trial count, the
+    code of every module of the package (``montecarlo.code_digest``: docstrings and comments left out), its data
+    files and the numerical libraries' versions: everything a payload is computed from, so a stored payload is
+    exactly what computing it again would give, and any change of code computes it anew."""
+    here = Path(__file__).resolve().parent
+    h = hashlib.sha256(json.dumps([fig_id, trials, montecarlo.numerics()], sort_keys=True).encode())
+    for path in sorted(here.glob("*.py")):
+        h.update(path.name.encode() + montecarlo.code_digest(path))
+    for path in sorted(p for p in (here / "data").rglob("*") if p.is_file()):
+        h.update(path.name.encode() + path.read_bytes())
+    return montecarlo.cache_root(cache) / "payloads" / f"{fig_id}-{h.hexdigest()[:16]}.json"
+
+
 def compute(fig_id: str, progress: bool = False, trials: int | None = None) -> dict:
-    """Run the producer of ``fig_id`` and return its JSON-able payload.
+    """Run the producer of ``fig_id`` and return its JSON-able payload, or read it from ``payload_path`` where this
+    code computed it before (the Monte Carlo figures then need no Monte Carlo results either).
 
     progress : show a progress bar (stderr) where the producer runs a long Monte Carlo (the CLI turns it on).
     trials : Monte Carlo trials per experiment instead of the committed figure's (``dpe5g.paper``); only for the
@@ -91,9 +112,13 @@ def compute(fig_id: str, progress: bool = False, trials: int | None = None) -> d
             raise ValueError(f"trials: figure {fig_id} has no Monte Carlo; trials applies to "
                              f"{', '.join(f for f in REGISTRY if takes_trials(f))}")
         kwargs["trials"] = int(trials)
+    stored = payload_path(fig_id, kwargs.get("trials"))
+    if stored.exists():
+        return json.loads(stored.read_text())
     payload = spec.compute(**kwargs)
-    payload = {"id": spec.id, "paper_ref": spec.paper_ref, "caption": spec.caption, **payload}
-    return _jsonable(payload)
+    payload = _jsonable({"id": spec.id, "paper_ref": spec.paper_ref, "caption": spec.caption, **payload})
+    atomic_write(stored, json.dumps(payload).encode())
+    return payload
 
 
 def render(payload: dict):

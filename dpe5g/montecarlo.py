@@ -177,7 +177,7 @@ class Experiment:
         for name in _SOURCES:
             h.update(code_digest(here / name))
         h.update(_deployment_digest(self).encode())
-        h.update(json.dumps(_numerics()).encode())
+        h.update(json.dumps(numerics()).encode())
         return h.hexdigest()[:16]
 
 
@@ -194,11 +194,12 @@ def code_digest(path: Path) -> bytes:
     return ast.dump(tree).encode()
 
 
-def _numerics() -> dict:
-    """What else the numbers depend on: the versions of the numerical libraries and JAX's float precision."""
-    import jaxlib
+def numerics() -> dict:
+    """What else the numbers depend on: the versions of the numerical libraries (the OTDoA baseline's convex solver
+    included) and JAX's float precision."""
+    from importlib.metadata import version
 
-    return {"jax": jax.__version__, "jaxlib": jaxlib.__version__, "numpy": np.__version__,
+    return {**{lib: version(lib) for lib in ("jax", "jaxlib", "numpy", "cvxpy", "clarabel")},
             "x64": bool(jax.config.jax_enable_x64)}
 
 
@@ -513,11 +514,14 @@ def _run_chunk(args, fn, batch_size, shared=()):
     return jax.lax.map(lambda a: fn(*a, *shared), args, batch_size=batch_size)
 
 
+def cache_root(cache: str | os.PathLike | None = None) -> Path:
+    """The cache's root directory: the argument, else DPE5G_CACHE, else ``DEFAULT_CACHE``."""
+    return Path(cache or os.environ.get("DPE5G_CACHE") or DEFAULT_CACHE)
+
+
 def cache_dir(e: Experiment, cache: str | os.PathLike | None = None) -> Path:
-    """The experiment's cache directory: ``<cache>/<name>-<key>`` (cache: the argument, else DPE5G_CACHE, else
-    ``DEFAULT_CACHE``)."""
-    root = Path(cache or os.environ.get("DPE5G_CACHE") or DEFAULT_CACHE)
-    return root / f"{e.name}-{e.key()}"
+    """The experiment's cache directory: ``<cache root>/<name>-<key>`` (``cache_root``)."""
+    return cache_root(cache) / f"{e.name}-{e.key()}"
 
 
 class ChunkCache:

@@ -1,4 +1,8 @@
-"""Figure-diff: regenerate every registered figure from scratch and compare with the committed baseline.
+"""Figure-diff: regenerate every registered figure and compare with the committed baseline.
+
+Each payload comes from ``figures.compute``, which computes it once per state of the code (its cache key hashes the
+code of the whole package): in ``make test`` the book's chapters computed most of them minutes earlier, from the same
+code.
 
 Data (figures/data/<id>.json): every number within |a - e| <= DATA_ATOL + DATA_RTOL |e|, everything else equal.
 Image (figures/<id>.png): matplotlib's compare_images RMS over pixels (0–255 scale) <= IMAGE_RMS_TOL.
@@ -162,3 +166,23 @@ def test_fig09_ticks_and_paper_values(monkeypatch):
     assert any(list(ln.get_xdata()) == [10.0] and list(ln.get_ydata()) == [6.0] for ln in paper)
     assert top.get_ylim()[0] > hi  # the break: the top panel starts above the data panel
     assert any(ln.get_label().startswith("paper (text): sub-metre") for ln in ax.get_lines())
+
+
+def test_payload_is_computed_once_per_state_of_the_code(tmp_path, monkeypatch):
+    """compute stores a payload under a key of the figure, its trial count and the package's code, and reads it back
+    instead of computing it again: the stored payload is what a new computation gives, and a different figure or trial
+    count has its own entry."""
+    monkeypatch.setenv("DPE5G_CACHE", str(tmp_path))
+    path = figures.payload_path("fig01_tdl_a")
+    assert path.parent == tmp_path / "payloads" and not path.exists()
+    first = figures.compute("fig01_tdl_a")
+    assert path.exists() and json.loads(path.read_text()) == first
+    stored = json.loads(path.read_text())
+    stored["data"]["pdp_db"][0] = 123.0  # a marker: a second compute must return the stored payload
+    path.write_text(json.dumps(stored))
+    assert figures.compute("fig01_tdl_a")["data"]["pdp_db"][0] == 123.0
+    others = {figures.payload_path("fig02_tdl_b"), figures.payload_path("fig09_rmse_vs_snr", 50),
+              figures.payload_path("fig09_rmse_vs_snr", 60), path}
+    assert len(others) == 4
+    path.unlink()
+    assert figures.compute("fig01_tdl_a") == first
