@@ -23,10 +23,10 @@ URBAN_TRIALS = 5000
 #: window from the clock model, certified branch-and-bound search
 HONEST_SEARCH_HALF_WIDTH_M = 30.0
 PRIOR_SIGMA_M = 5.0
-#: trial counts of the committed Fig. 9: 1000 each, the count Chapter 7's readings table tests the paper's claims
-#: with (``READING_TRIALS``), so the honest row of that table reads Fig. 9's own results; the truth-centred
-#: comparison uses the same seed, so its trials are the same signals
-FIG9_HONEST_TRIALS = 1000
+#: trial counts of the committed Fig. 9: the honest receiver's are set by what the 2-core CI machine can afford (each
+#: of its fixes is a certified global search; 1000 took a fresh `make test` to 1231 s, over its 20-minute budget);
+#: the truth-centred comparison uses the same seed, so its first trials are the same signals
+FIG9_HONEST_TRIALS = 400
 FIG9_TRUTH_TRIALS = 1000
 #: Fig. 10 (Section IV-B)
 FIG10_SEED = 10
