@@ -12,7 +12,8 @@ It also turns on JAX's persistent compilation cache in ``.cache/jax`` next to th
 an editable install; DPE5G_JAX_CACHE overrides the directory, "off" leaves JAX's setting alone), unless a directory
 is already configured.  A compiled program is stored under a key of its code, shapes, options and the jax version,
 so it changes no result; it saves the 10–30 s compile of each Monte Carlo engine in every later process (each
-chapter of the book runs in its own).
+chapter of the book runs in its own).  Every program is stored, however quick its compile: a chapter re-executed
+with a warm cache runs Chapter 3 in 40 s instead of 74 s, most of that in sub-second compiles.
 """
 
 import os
@@ -25,6 +26,6 @@ jax.config.update("jax_enable_x64", True)
 _jax_cache = os.environ.get("DPE5G_JAX_CACHE", str(Path(__file__).resolve().parent.parent / ".cache" / "jax"))
 if _jax_cache != "off" and not jax.config.jax_compilation_cache_dir:
     jax.config.update("jax_compilation_cache_dir", _jax_cache)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 __version__ = "0.1.0"

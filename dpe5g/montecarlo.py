@@ -431,6 +431,14 @@ def _compiled_trial_fn(e: Experiment, deployment_digest: str):
     return _trial_fn(e, e.load_deployment())
 
 
+@lru_cache(maxsize=8)
+def _compiled_step_fn(step: str, e: Experiment, deployment_digest: str):
+    """The OTDoA step-1 function (step "toa", ``_toa_fn``) or the prior-centre function ("prior", ``_prior_fn``) of
+    ``e`` (name, seed and trial counts cleared by the caller), one object per experiment and deployment content, so
+    the runs of one process that share it trace and compile it once."""
+    return (_toa_fn if step == "toa" else _prior_fn)(e, e.load_deployment())
+
+
 def _deployment_digest(e: Experiment) -> str:
     dep = deployment.TST_FILE if e.deployment == "tst" else Path(e.deployment)
     return hashlib.sha256(dep.read_bytes()).hexdigest()
@@ -508,10 +516,26 @@ def draw_links(e: Experiment, n_trials: int) -> dict:
     return {"los": np.asarray(los), "link_snr_db": np.asarray(snr), "d2d_m": np.asarray(dist)}
 
 
-@partial(jax.jit, static_argnames=("fn", "batch_size"))
-def _run_chunk(args, fn, batch_size, shared=()):
-    """fn(*a, *shared) for each a of ``args`` mapped over its leading axis; ``shared`` goes to every call."""
-    return jax.lax.map(lambda a: fn(*a, *shared), args, batch_size=batch_size)
+@partial(jax.jit, static_argnames=("fn",))
+def _run_batch(args, fn, shared=()):
+    """fn(*a, *shared) for each a of ``args``, vmapped over their leading axis (the batch); ``shared`` goes to every
+    call."""
+    return jax.vmap(lambda *a: fn(*a, *shared))(*args)
+
+
+def _run_chunk(args, fn, batch_size: int, shared=()) -> dict | tuple:
+    """fn(*a, *shared) for each a of ``args`` (NumPy arrays, trials on the leading axis), ``batch_size`` trials per
+    call of one compiled batch function; the last batch is filled up by repeating its last trial, whose copies are
+    dropped.  So the compiled program depends on the batch size, never on the chunk's length: a run of 3 trials
+    reuses the executable of a run of 5000 (in this process, and through JAX's persistent cache in others).
+    Returns fn's outputs as NumPy arrays, trials on the leading axis."""
+    n = args[0].shape[0]
+    parts = []
+    for a in range(0, n, batch_size):
+        take = np.minimum(np.arange(a, a + batch_size), n - 1)
+        out = _run_batch(tuple(x[take] for x in args), fn, shared)
+        parts.append(jax.tree.map(lambda o, k=min(batch_size, n - a): np.asarray(o)[:k], out))
+    return jax.tree.map(lambda *p: np.concatenate(p), *parts)
 
 
 def cache_root(cache: str | os.PathLike | None = None) -> Path:
@@ -574,8 +598,9 @@ class _ChunkRunner:
         self.e = e
         self.dep = e.load_deployment()
         self.fn = _compiled_trial_fn(_window_free(e), _deployment_digest(e))
-        self.toa_fn = _toa_fn(e, self.dep) if e.otdoa else None
-        self.prior_fn = _prior_fn(e, self.dep) if e.centring == "prior" else None
+        plain = dataclasses.replace(e, name="", seed=0, n_trials=1, chunk_trials=1)  # what the draws depend on
+        self.toa_fn = _compiled_step_fn("toa", plain, _deployment_digest(e)) if e.otdoa else None
+        self.prior_fn = _compiled_step_fn("prior", plain, _deployment_digest(e)) if e.centring == "prior" else None
         cfg = e.receiver_search()
         self.window = jnp.asarray(correlogram.window_spectrum(cfg.n_taps, PAPER.n_fft, cfg.tap_weights(PAPER))
                                   if cfg.method == "bnb"
@@ -583,18 +608,18 @@ class _ChunkRunner:
 
     def __call__(self, start: int, stop: int, batch_size: int) -> dict:
         e = self.e
-        keys, bsz = _trial_keys(e.seed, start, stop), min(batch_size, stop - start)
+        keys = np.asarray(_trial_keys(e.seed, start, stop))
         ext = np.zeros((stop - start, e.n_snr, len(e.m_values), 4))
         ot = {}
         if e.otdoa:  # step 1 on the same signals (regenerated from the same keys), then the convex fixes
-            toas, ue, idx = (np.asarray(a) for a in _run_chunk((keys,), self.toa_fn, bsz))
+            toas, ue, idx = _run_chunk((keys,), self.toa_fn, batch_size)
             ot = _otdoa_fixes(e, self.dep, toas, ue, idx)
             if e.centring == "otdoa":
                 ext = _otdoa_centers(e, self.dep, ot, idx)
         if e.centring == "prior":
-            ext[:] = np.asarray(_run_chunk((keys,), self.prior_fn, bsz))[:, None, None, :]
-        out = _run_chunk((keys, jnp.asarray(ext)), self.fn, bsz, (self.window,))
-        return {**{k: np.asarray(v) for k, v in out.items()}, **ot}
+            ext[:] = _run_chunk((keys,), self.prior_fn, batch_size)[:, None, None, :]
+        out = _run_chunk((keys, ext), self.fn, batch_size, (self.window,))
+        return {**out, **ot}
 
 
 #: trials vmapped together by ``run``, per search method (speed only; results do not depend on it): the grid search

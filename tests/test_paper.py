@@ -1,5 +1,7 @@
 """The paper's experiments and claims (``dpe5g.paper``): the readings and the claim tests of Chapter 7."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -37,7 +39,10 @@ def test_readings_are_experiments_that_differ_in_their_reading_only():
         assert both[k].centring == "truth" and both[k].seed == base[k].seed
     assert both["fig10_dpe"].otdoa and both["fig10_dpe"].los_mode == "two_of_four"
     assert both["fig9"].snrs_db == paper.READING_SNRS_DB and both["fig9"].n_trials == paper.READING_TRIALS
-    assert paper.reading_experiments("honest")["fig9"] == paper.fig9_honest()
+    honest = paper.reading_experiments("honest")["fig9"]
+    assert honest == paper.fig9_honest_readings() and honest.n_trials == paper.READING_TRIALS
+    assert dataclasses.replace(honest, name="fig09-honest", snrs_db=paper.fig9_honest().snrs_db,
+                               n_trials=paper.FIG9_HONEST_TRIALS) == paper.fig9_honest()
     assert paper.reading_experiments("span", n_trials=7)["fig10_dpe"].n_trials == 7
     with pytest.raises(ValueError, match="reading must be one of"):
         paper.reading_experiments("literal")
