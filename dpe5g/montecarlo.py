@@ -516,31 +516,25 @@ def draw_links(e: Experiment, n_trials: int) -> dict:
     return {"los": np.asarray(los), "link_snr_db": np.asarray(snr), "d2d_m": np.asarray(dist)}
 
 
-#: batches of trials per call of the compiled chunk function: the call maps over them (``lax.map``), which lets XLA
-#: hoist work that does not depend on the trial out of the loop; one call per batch was 10–17 % slower for the grid
-#: search on this CPU (and no faster for the certified search)
-CALL_BATCHES = 10
-
-
-@partial(jax.jit, static_argnames=("fn", "batch_size"))
-def _run_call(args, fn, batch_size, shared=()):
-    """fn(*a, *shared) for each a of ``args`` mapped over its leading axis, ``batch_size`` trials vmapped together;
-    ``shared`` goes to every call."""
-    return jax.lax.map(lambda a: fn(*a, *shared), args, batch_size=batch_size)
+@partial(jax.jit, static_argnames=("fn",))
+def _run_batch(args, fn, shared=()):
+    """fn(*a, *shared) for each a of ``args``, vmapped over their leading axis (the batch); ``shared`` goes to every
+    call."""
+    return jax.vmap(lambda *a: fn(*a, *shared))(*args)
 
 
 def _run_chunk(args, fn, batch_size: int, shared=()) -> dict | tuple:
-    """fn(*a, *shared) for each a of ``args`` (NumPy arrays, trials on the leading axis), in calls of one compiled
-    function over ``CALL_BATCHES`` batches of ``batch_size`` trials; the last call is filled up by repeating its last
-    trial, whose copies are dropped.  So the compiled program depends on the batch size, never on the chunk's
-    length: a run of 3 trials reuses the executable of a run of 5000 (in this process, and through JAX's persistent
-    cache in others).  Returns fn's outputs as NumPy arrays, trials on the leading axis."""
-    n, size = args[0].shape[0], batch_size * CALL_BATCHES
+    """fn(*a, *shared) for each a of ``args`` (NumPy arrays, trials on the leading axis), ``batch_size`` trials per
+    call of one compiled batch function; the last batch is filled up by repeating its last trial, whose copies are
+    dropped.  So the compiled program depends on the batch size, never on the chunk's length: a run of 3 trials
+    reuses the executable of a run of 5000 (in this process, and through JAX's persistent cache in others).
+    Returns fn's outputs as NumPy arrays, trials on the leading axis."""
+    n = args[0].shape[0]
     parts = []
-    for a in range(0, n, size):
-        take = np.minimum(np.arange(a, a + size), n - 1)
-        out = _run_call(tuple(x[take] for x in args), fn, batch_size, shared)
-        parts.append(jax.tree.map(lambda o, k=min(size, n - a): np.asarray(o)[:k], out))
+    for a in range(0, n, batch_size):
+        take = np.minimum(np.arange(a, a + batch_size), n - 1)
+        out = _run_batch(tuple(x[take] for x in args), fn, shared)
+        parts.append(jax.tree.map(lambda o, k=min(batch_size, n - a): np.asarray(o)[:k], out))
     return jax.tree.map(lambda *p: np.concatenate(p), *parts)
 
 
