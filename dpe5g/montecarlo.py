@@ -432,11 +432,11 @@ def _compiled_trial_fn(e: Experiment, deployment_digest: str):
 
 
 @lru_cache(maxsize=8)
-def _compiled_step_fn(step: str, e: Experiment, deployment_digest: str):
-    """The OTDoA step-1 function (step "toa", ``_toa_fn``) or the prior-centre function ("prior", ``_prior_fn``) of
-    ``e`` (name, seed and trial counts cleared by the caller), one object per experiment and deployment content, so
-    the runs of one process that share it trace and compile it once."""
-    return (_toa_fn if step == "toa" else _prior_fn)(e, e.load_deployment())
+def _compiled_step_fn(build, e: Experiment, deployment_digest: str):
+    """``build(e, deployment)``: the OTDoA step-1 function (``_toa_fn``) or the prior-centre function
+    (``_prior_fn``) of ``e`` (name, seed and trial counts cleared by the caller), one object per experiment and
+    deployment content, so the runs of one process that share it trace and compile it once."""
+    return build(e, e.load_deployment())
 
 
 def _deployment_digest(e: Experiment) -> str:
@@ -599,8 +599,8 @@ class _ChunkRunner:
         self.dep = e.load_deployment()
         self.fn = _compiled_trial_fn(_window_free(e), _deployment_digest(e))
         plain = dataclasses.replace(e, name="", seed=0, n_trials=1, chunk_trials=1)  # what the draws depend on
-        self.toa_fn = _compiled_step_fn("toa", plain, _deployment_digest(e)) if e.otdoa else None
-        self.prior_fn = _compiled_step_fn("prior", plain, _deployment_digest(e)) if e.centring == "prior" else None
+        self.toa_fn = _compiled_step_fn(_toa_fn, plain, _deployment_digest(e)) if e.otdoa else None
+        self.prior_fn = _compiled_step_fn(_prior_fn, plain, _deployment_digest(e)) if e.centring == "prior" else None
         cfg = e.receiver_search()
         self.window = jnp.asarray(correlogram.window_spectrum(cfg.n_taps, PAPER.n_fft, cfg.tap_weights(PAPER))
                                   if cfg.method == "bnb"

@@ -211,8 +211,8 @@ def reading_experiments(name: str, n_trials: int | None = None) -> dict:
     centring read the figures' own experiments (and caches), at the figures' trial counts, except the honest
     reading's Fig. 9, which runs ``fig9_honest_readings`` (``READING_TRIALS`` trials, more than the committed Fig. 9's
     honest curves can afford); the others run ``READING_TRIALS`` trials of Fig. 9's set-up at ``READING_SNRS_DB`` and
-    of Fig. 10's, truth-centred, with the OTDoA baseline on the same signals.  n_trials : run every experiment with this many trials instead (a quick
-    look; the book uses the defaults)."""
+    of Fig. 10's, truth-centred, with the OTDoA baseline on the same signals.  n_trials : run every experiment with
+    this many trials instead (a quick look; the book uses the defaults)."""
     if name not in READINGS:
         raise ValueError(f"reading must be one of {', '.join(READINGS)}, got {name!r}")
     kw = dict(READINGS[name][1])
