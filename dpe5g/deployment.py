@@ -77,11 +77,50 @@ class Deployment:
                              f"{y1:g}] m; got ({bad[0]:g}, {bad[1]:g})")
         return xy
 
+    def prs_plan(self, reuse: int) -> tuple[np.ndarray, np.ndarray]:
+        """The PRS resource and ID of every BS for frequency reuse ``reuse`` (``prs_plan``)."""
+        return prs_plan(self.bs_xyz, reuse)
+
     def nearest(self, ue_xy, m: int) -> np.ndarray:
         """Indices (..., m) of the m BSs nearest to the UE in 2-D distance, nearest first."""
         _checks.integer("m", m, 1, self.n_bs)
         d = np.linalg.norm(np.asarray(ue_xy)[..., None, :] - self.bs_xyz[:, :2], axis=-1)
         return np.argsort(d, axis=-1, kind="stable")[..., :m]
+
+
+#: PRS sequence IDs n_ID^PRS per resource, 0 … 4095 (TS 38.211 §7.4.1.7.2)
+N_PRS_IDS = 4096
+
+
+def prs_plan(bs_xyz, reuse: int) -> tuple[np.ndarray, np.ndarray]:
+    """PRS frequency reuse: each BS gets one of ``reuse`` orthogonal resources and a PRS ID.
+
+    The resources are the comb offsets 0 … reuse − 1 of a comb of size ``reuse`` (``nr.PrsPattern(reuse)``): in the
+    fully staggered pattern every offset still covers the whole band, so each link keeps the paper's resolution, and
+    the offsets never share an RE.  The assignment colours the BS graph greedily, in the order of the deployment: each
+    BS takes the resource whose nearest BS already holding it is farthest away (ties: the lowest resource), so the
+    first ``reuse`` BSs take distinct resources and near neighbours differ.  Its PRS ID n_ID is its rank among the
+    BSs of its resource (0, 1, …), so co-channel BSs carry different sequences.
+
+    bs_xyz : (B, 3) metres; reuse : in ``nr.PRS_COMB_SIZES``.  Returns (resource (B,) int, prs_id (B,) int).
+    Deterministic: a function of the BS positions and their order.
+    """
+    from . import nr
+
+    _checks.one_of("reuse", reuse, nr.PRS_COMB_SIZES)
+    xy = np.asarray(bs_xyz, dtype=np.float64)[:, :2]
+    n_bs = xy.shape[0]
+    if n_bs > reuse * N_PRS_IDS:
+        raise ValueError(f"n_bs must be at most reuse × PRS IDs = {reuse} × {N_PRS_IDS} = {reuse * N_PRS_IDS} for "
+                         f"reuse {reuse}, got {n_bs} base stations")
+    res = np.zeros(n_bs, dtype=int)
+    nearest = np.full((n_bs, reuse), np.inf)  # nearest[b, r]: distance from b to the closest BS on resource r so far
+    for b in range(n_bs):
+        score = np.where(np.bincount(res[:b], minlength=reuse) < N_PRS_IDS, nearest[b], -np.inf)
+        res[b] = int(np.argmax(score))
+        nearest[:, res[b]] = np.minimum(nearest[:, res[b]], np.linalg.norm(xy - xy[b], axis=-1))
+    ids = np.array([np.count_nonzero(res[:b] == res[b]) for b in range(n_bs)], dtype=int)
+    return res, ids
 
 
 def _fail(source, msg):

@@ -47,7 +47,10 @@ LOS_MODES = ("pr_los", "two_of_four", "all_los")
 OTDOA_UPSAMPLE = 8
 OTDOA_THRESHOLD_DB = -10.0
 OTDOA_MAX_LEAD = 64
-SNR_MODES = ("fixed", "link_budget")
+SNR_MODES = ("fixed", "link_budget", "nearest")
+#: PRS frequency reuse factors: 0 — the paper's model (full-band PRS on all N bins, one symbol, every link received
+#: alone); R in ``nr.PRS_COMB_SIZES`` — TS 38.211's comb R, fully staggered over R symbols, BSs on R resources
+PRS_REUSES = (0,) + nr.PRS_COMB_SIZES
 CENTRINGS = ("truth", "prior", "otdoa")
 PRIOR_KINDS = ("gaussian", "disc")
 #: both OTDoA ToA detectors run on the same signals; the first is the main baseline, the second the naive one
@@ -60,7 +63,10 @@ class Experiment:
 
     name : label (cache directory prefix).  n_trials, seed : trials t = 0 … n_trials-1 draw from fold_in(seed, t).
     snr_mode : "fixed" — every link at each SNR of ``snrs_db`` (per-sample SNR of ``dpe5g.signal``, dB), as Fig. 9;
-        "link_budget" — each link's SNR from the UMi path loss and shadow fading (``link``), ``snrs_db`` must be ().
+        "link_budget" — each link's SNR from the UMi path loss and shadow fading (``link``), ``snrs_db`` must be ();
+        "nearest" — the nearest BS's link at each SNR of ``snrs_db``, every other BS (interferers included) at its
+        received-power difference from it (transmit power, path loss and shadow fading of ``link``'s model): Fig. 9's
+        SNR axis with per-link power from the path loss.
     m_values : numbers of nearest BSs used by the DPE (each ≤ the deployment's BS count).
     los_mode : "pr_los" — each link LoS with the probability of eq. (11); "two_of_four" — the paper's stated case for
         Fig. 10: of the four nearest links, two (chosen at random) LoS and two NLoS (needs max(m_values) = 4);
@@ -84,6 +90,15 @@ class Experiment:
     otdoa : also run the OTDoA baseline (``dpe5g.otdoa``) on the same received signals, for every SNR and M, with
         both ToA detectors of ``OTDOA_DETECTORS``;
     toa_method : the detector whose OTDoA fix centres the search in centring "otdoa".
+    prs_reuse : ``PRS_REUSES``.  0 (default) — the paper's model: every link's PRS on all N bins in one symbol,
+        received alone (its own noise, no other BS).  R > 0 — Table I's PRS frequency reuse: the PRS of TS 38.211
+        with comb R over R symbols on the 3276 active subcarriers (``nr.PrsPattern(R)``, the pilot energy of the
+        paper's symbol), each BS on the comb offset and with the PRS ID of ``deployment.prs_plan`` (R resources).
+        Every BS of the deployment transmits; the UE receives on each resource the sum of its BSs' signals through
+        their own channels, path loss and ToA, plus one noise (co-channel links share their REs and so their noise).
+        Needs per-BS power: snr_mode "link_budget" or "nearest".
+    co_channel : with prs_reuse > 0, whether the co-channel BSs' signals are received (True, default) or left out
+        (the pattern and the shared noise alone, for comparison).
     chunk_trials : trials per cache file (results do not depend on it; resuming needs the same value).
     """
 
@@ -108,6 +123,8 @@ class Experiment:
     deployment: str = "tst"
     otdoa: bool = False
     toa_method: str = "first_path"
+    prs_reuse: int = 0
+    co_channel: bool = True
     chunk_trials: int = 100
 
     def __post_init__(self):
@@ -124,9 +141,15 @@ class Experiment:
         _checks.in_range("prior_scale_m", self.prior_scale_m, 0.0, 1000.0, "m")
         if self.centring == "otdoa" and not self.otdoa:
             raise ValueError("centring 'otdoa' centres the search on the OTDoA fix; set otdoa=True")
-        if self.snr_mode == "fixed":
+        _checks.one_of("prs_reuse", self.prs_reuse, PRS_REUSES)
+        if not isinstance(self.co_channel, bool):
+            raise ValueError(f"co_channel must be True or False, got {self.co_channel!r}")
+        if self.prs_reuse and self.snr_mode == "fixed":
+            raise ValueError("prs_reuse > 0 needs each BS's received power for its interference: snr_mode must be "
+                             "'link_budget' or 'nearest', got 'fixed'")
+        if self.snr_mode != "link_budget":
             if len(self.snrs_db) == 0:
-                raise ValueError("snrs_db must list at least one SNR (dB) when snr_mode is 'fixed'")
+                raise ValueError(f"snrs_db must list at least one SNR (dB) when snr_mode is {self.snr_mode!r}")
             signal.check_snr_db(np.asarray(self.snrs_db))
         elif len(self.snrs_db):
             raise ValueError(f"snrs_db must be empty when snr_mode is 'link_budget' (the SNR comes from the path "
@@ -208,7 +231,8 @@ class Results:
     """Per-trial results of an experiment (arrays over trials t, SNR index s, M index j, link i of the nearest).
 
     ue_xyz (T, 3) m; clock_bias_s (T,); bs_index (T, I) deployment index of the i-th nearest BS; los (T, I) bool;
-    link_snr_db (T, S, I) per-sample SNR of each link; est_xyz (T, S, J, 3) m; est_bias_s (T, S, J);
+    link_snr_db (T, S, I) per-sample SNR of each link; link_sinr_db (T, S, I) its SINR (co-channel interference of
+    ``prs_reuse`` and thermal noise; equal to the SNR without interference); est_xyz (T, S, J, 3) m; est_bias_s (T, S, J);
     error_m (T, S, J) horizontal error; center_xyz (T, S, J, 3) the search window's centre; edge (T, S, J) the fix
     lies on the window's boundary (flagged); gap (T, S, J) the certified relative gap (NaN for the grid search);
     certified (T, S, J).  With ``otdoa``, per detector d of ``OTDOA_DETECTORS``: otdoa_toa_s (T, S, D, I) the
@@ -222,6 +246,7 @@ class Results:
     bs_index: np.ndarray
     los: np.ndarray
     link_snr_db: np.ndarray
+    link_sinr_db: np.ndarray
     est_xyz: np.ndarray
     est_bias_s: np.ndarray
     error_m: np.ndarray
@@ -234,7 +259,7 @@ class Results:
     otdoa_error_m: np.ndarray | None = None
     otdoa_ok: np.ndarray | None = None
 
-    FIELDS = ("ue_xyz", "clock_bias_s", "bs_index", "los", "link_snr_db", "est_xyz", "est_bias_s", "error_m",
+    FIELDS = ("ue_xyz", "clock_bias_s", "bs_index", "los", "link_snr_db", "link_sinr_db", "est_xyz", "est_bias_s", "error_m",
               "center_xyz", "edge", "gap", "certified")
     OTDOA_FIELDS = ("otdoa_toa_s", "otdoa_xyz", "otdoa_error_m", "otdoa_ok")
 
@@ -247,10 +272,12 @@ class Results:
         return float(np.mean(self.los if m is None else self.los[:, :m]))
 
     def table(self) -> list[dict]:
-        """Tidy rows: one per (trial, SNR, M) with the error, the estimate, the LoS count of the links used and their
-        LoS flags nearest first ("L" LoS, "N" NLoS)."""
+        """Tidy rows: one per (trial, SNR, M) with the error, the estimate, the LoS count of the links used, their
+        LoS flags nearest first ("L" LoS, "N" NLoS) and their per-sample SNR and SINR in dB, nearest first
+        (";"-separated)."""
         e = self.experiment
-        snrs = e.snrs_db if e.snr_mode == "fixed" else ("link",)
+        snrs = e.snrs_db if e.snr_mode != "link_budget" else ("link",)
+        per_link = lambda a: ";".join(f"{v:.2f}" for v in a)
         rows = []
         for t in range(self.error_m.shape[0]):
             for s, snr in enumerate(snrs):
@@ -260,6 +287,8 @@ class Results:
                                  "true_x_m": float(self.ue_xyz[t, 0]), "true_y_m": float(self.ue_xyz[t, 1]),
                                  "n_los": int(self.los[t, :m].sum()),
                                  "los_flags": "".join("L" if f else "N" for f in self.los[t, :m]),
+                                 "link_snr_db": per_link(self.link_snr_db[t, s, :m]),
+                                 "link_sinr_db": per_link(self.link_sinr_db[t, s, :m]),
                                  "edge": bool(self.edge[t, s, j]), "certified": bool(self.certified[t, s, j])})
                     if self.otdoa_error_m is not None:
                         for d, name in enumerate(OTDOA_DETECTORS):
@@ -309,26 +338,54 @@ def _draw_fn(e: Experiment, dep: deployment.Deployment):
     is its inverse DFT, which a test checks against the engine).
 
     Returns a dict: ue (3,), bias (), idx (I,), bs (I, 3), los (I,), prs (I, N), gains (I, L), delays (I, L) s,
-    y0 (I, N) noise-free received spectrum, link_snr (S, I) per-sample SNR of each link, noise (I, N) the trial's
-    unit noise spectrum (``_noisy``).
+    y0 (I, N) noise-free received spectrum, link_snr (S, I) per-sample SNR of each link, link_sinr (S, I) its SINR,
+    noise (I, N) the trial's unit noise spectrum (``_noisy``).  With ``prs_reuse``, also the other BSs of the
+    the resource of every link, res (I,), and their number n_res; with ``co_channel`` also the other BSs of the
+    deployment, nearest first (X of them): res_x (X,), prs_x (X, N), y_x (X, N), snr_x (S, X).  Their draws come
+    from fold_in(key, 2000), so the links' draws are those of the same experiment without reuse.
     """
     nlos, los_prof = _profiles(e)
     n_taps = max(nlos.n_taps, los_prof.n_taps)
     pad = lambda a, n=n_taps: np.pad(np.asarray(a), (0, n - len(a)))
     delays_c, delays_d = pad(nlos.delays_s), pad(los_prof.delays_s)
-    prs_all = jnp.asarray(nr.prs_matrix(range(dep.n_bs)))  # PRS ID = deployment index
+    if e.prs_reuse:  # TS 38.211's pattern; each BS on its resource (comb offset) with its PRS ID
+        res_np, ids_np = dep.prs_plan(e.prs_reuse)
+        pattern = nr.PrsPattern(e.prs_reuse)
+        prs_all = jnp.asarray(np.stack([nr.prs_per_subcarrier(int(i), pattern, int(r))
+                                        for i, r in zip(ids_np, res_np)]))
+        res_all = jnp.asarray(res_np)
+    else:
+        prs_all = jnp.asarray(nr.prs_matrix(range(dep.n_bs)))  # PRS ID = deployment index
     bs_all = jnp.asarray(dep.bs_xyz)
     pw_all = jnp.asarray(dep.power_dbm)
     x0, y0, x1, y1 = dep.region
     m_max = max(e.m_values)
-    snrs = jnp.asarray(e.snrs_db if e.snr_mode == "fixed" else (0.0,), dtype=jnp.float64)
+    n_x = dep.n_bs - m_max if e.prs_reuse else 0  # the other BSs, interferers
+    snrs = jnp.asarray(e.snrs_db if e.snr_mode != "link_budget" else (0.0,), dtype=jnp.float64)
+
+    def channels(los, k_c, k_d, n):
+        """(n, N) frequency responses and (n, L) gains of n links with LoS flags ``los``."""
+        g_c = jax.vmap(lambda kk: channel.draw_gains(nlos, kk))(jax.random.split(k_c, n))
+        g_d = jax.vmap(lambda kk: channel.draw_gains(los_prof, kk))(jax.random.split(k_d, n))
+        h = jnp.where(los[:, None], channel.frequency_response(g_d, los_prof.delays_s),
+                      channel.frequency_response(g_c, nlos.delays_s))  # (n, N), eq. (5)
+        gains = jnp.where(los[:, None], jnp.pad(g_d, ((0, 0), (0, n_taps - g_d.shape[1]))),
+                          jnp.pad(g_c, ((0, 0), (0, n_taps - g_c.shape[1]))))
+        return h, gains
+
+    def received_dbm(d2d, bs, los, k_sf, n, sel):
+        """Received power P_tx - PL - SF (dBm) of n links (deployment indices ``sel``), the in-band SNR's numerator."""
+        pl = scenario.path_loss_umi_db(d2d, bs[:, 2], dep.ue_height_m, e.link.fc_hz, los)
+        sf = jax.random.normal(k_sf, (n,)) * jnp.where(los, scenario.SIGMA_SF_LOS_DB, scenario.SIGMA_SF_NLOS_DB)
+        return pw_all[sel] - pl - sf
 
     def draw(key):
         k_ue, k_los, k_c, k_d, k_b, k_sf, k_n = jax.random.split(key, 7)
         xy = jax.random.uniform(k_ue, (2,), minval=jnp.array([x0, y0]), maxval=jnp.array([x1, y1]))
         ue = jnp.concatenate([xy, jnp.array([dep.ue_height_m])])
         d2d = jnp.linalg.norm(bs_all[:, :2] - xy, axis=-1)
-        idx = jnp.argsort(d2d)[:m_max]  # nearest first
+        order = jnp.argsort(d2d)
+        idx = order[:m_max]  # nearest first
         bs = bs_all[idx]
         if e.los_mode == "pr_los":
             los = jax.random.uniform(k_los, (m_max,)) < scenario.los_probability(d2d[idx])
@@ -336,29 +393,62 @@ def _draw_fn(e: Experiment, dep: deployment.Deployment):
             los = jnp.ones(m_max, dtype=bool)
         else:  # two of the four nearest LoS, which two at random
             los = jax.random.permutation(k_los, jnp.array([True, True, False, False]))
-        g_c = jax.vmap(lambda kk: channel.draw_gains(nlos, kk))(jax.random.split(k_c, m_max))
-        g_d = jax.vmap(lambda kk: channel.draw_gains(los_prof, kk))(jax.random.split(k_d, m_max))
-        h = jnp.where(los[:, None], channel.frequency_response(g_d, los_prof.delays_s),
-                      channel.frequency_response(g_c, nlos.delays_s))  # (I, N), eq. (5)
+        h, gains = channels(los, k_c, k_d, m_max)
         bias = scenario.clock_bias(k_b, e.clock_sigma_s, e.clock_bound_sigmas)
         prs = prs_all[idx]
         y_clean = signal.received_spectrum(prs, h, dpe.toa(ue, bs), bias)
+        out = {}
         if e.snr_mode == "fixed":
             link_snr = jnp.broadcast_to(snrs[:, None], (snrs.size, m_max))
         else:
-            pl = scenario.path_loss_umi_db(d2d[idx], bs[:, 2], dep.ue_height_m, e.link.fc_hz, los)
-            sf = jax.random.normal(k_sf, (m_max,)) * jnp.where(los, scenario.SIGMA_SF_LOS_DB,
-                                                               scenario.SIGMA_SF_NLOS_DB)
-            link_snr = e.link.model_snr_db(e.link.snr_db(pw_all[idx], pl, sf))[None, :]
-        link_snr = signal.per_sample_snr_db(link_snr, e.snr_convention)
-        gains = jnp.where(los[:, None], jnp.pad(g_d, ((0, 0), (0, n_taps - g_d.shape[1]))),
-                          jnp.pad(g_c, ((0, 0), (0, n_taps - g_c.shape[1]))))
+            rx = received_dbm(d2d[idx], bs, los, k_sf, m_max, idx)
+            link_snr = _link_snr_db(e, rx, rx[0], snrs)
+        if e.prs_reuse:
+            out = {"res": res_all[idx], "n_res": e.prs_reuse}
+        if e.prs_reuse and e.co_channel:  # every other BS transmits too: its draws, keyed apart from the links'
+            idx_x = order[m_max:]
+            out.update(res_x=res_all[idx_x], prs_x=prs_all[idx_x], y_x=jnp.zeros((0, prs.shape[1]), prs.dtype),
+                       snr_x=jnp.zeros((link_snr.shape[0], 0)))
+            if n_x:
+                k_xl, k_xc, k_xd, k_xs = jax.random.split(jax.random.fold_in(key, 2000), 4)
+                bs_x = bs_all[idx_x]
+                los_x = (jnp.ones(n_x, dtype=bool) if e.los_mode == "all_los"
+                         else jax.random.uniform(k_xl, (n_x,)) < scenario.los_probability(d2d[idx_x]))
+                h_x, _ = channels(los_x, k_xc, k_xd, n_x)
+                out["y_x"] = signal.received_spectrum(prs_all[idx_x], h_x, dpe.toa(ue, bs_x), bias)
+                out["snr_x"] = _link_snr_db(e, received_dbm(d2d[idx_x], bs_x, los_x, k_xs, n_x, idx_x), rx[0], snrs)
+        link_sinr = _sinr_db(e, link_snr, out)
         delays = jnp.where(los[:, None], delays_d, delays_c)
         noise = signal.awgn(k_n, y_clean.shape, 1.0)  # CN(0, 1) per bin, scaled per SNR by ``_noisy``
         return {"ue": ue, "bias": bias, "idx": idx, "bs": bs, "los": los, "prs": prs, "gains": gains,
-                "delays": delays, "y0": y_clean, "link_snr": link_snr, "noise": noise}
+                "delays": delays, "y0": y_clean, "link_snr": link_snr, "link_sinr": link_sinr, "noise": noise, **out}
 
     return draw
+
+
+def _link_snr_db(e: Experiment, rx_dbm, rx_nearest_dbm, snrs) -> jax.Array:
+    """Per-sample SNR (S, n) of links with received powers ``rx_dbm`` (n,) dBm: from the link budget (snr_mode
+    "link_budget", S = 1), or the nearest link's SNR ``snrs`` (S,) plus the power difference (snr_mode "nearest");
+    then read in the experiment's ``snr_convention``."""
+    if e.snr_mode == "link_budget":
+        snr = e.link.model_snr_db(rx_dbm - e.link.noise_dbm)[None, :]
+    else:
+        snr = snrs[:, None] + (rx_dbm - rx_nearest_dbm)[None, :]
+    return signal.per_sample_snr_db(snr, e.snr_convention)
+
+
+def _sinr_db(e: Experiment, link_snr, other: dict) -> jax.Array:
+    """SINR (S, I) of every link: its SNR over 1 + the SNRs (linear) of the BSs on its resource (the other links
+    and the other BSs of ``other``), all per sample, so the pilots' equal power cancels; the SNR itself without
+    co-channel interference."""
+    if "y_x" not in other:
+        return link_snr
+    p_link, p_x = 10.0 ** (link_snr / 10.0), 10.0 ** (other["snr_x"] / 10.0)
+    res = jnp.concatenate([other["res"], other["res_x"]])
+    per_res = jax.vmap(lambda p: jax.ops.segment_sum(p, res, num_segments=e.prs_reuse))(
+        jnp.concatenate([p_link, p_x], axis=1))  # (S, R) total received power per resource, in noise units
+    interference = per_res[:, other["res"]] - p_link
+    return 10.0 * jnp.log10(p_link / (1.0 + interference))
 
 
 def _noisy(d, s):
@@ -367,8 +457,24 @@ def _noisy(d, s):
     The noise is drawn in the frequency domain, CN(0, 1) per bin, once per trial (``_draw_fn``), and scaled to
     each SNR's variance (``signal.noise_variance``): the DFT is unitary, so this is exactly time-domain AWGN of
     that variance.  One draw serves every SNR (common random numbers): each SNR's noise has the right distribution,
-    and the SNRs of one trial differ only in the noise level, as its M values differ only in the links used."""
-    return d["y0"] + jnp.sqrt(signal.noise_variance(d["link_snr"][s], d["prs"]))[:, None] * d["noise"]
+    and the SNRs of one trial differ only in the noise level, as its M values differ only in the links used.
+
+    With PRS reuse (``res`` in the draws) the UE receives one signal per resource r: Y_r = Σ_{b on r} s_b/σ_b + η_r
+    in units of the noise (s_b the unit-power spectrum of BS b, σ_b its noise level at this SNR, η_r CN(0, 1)); link
+    i reads its resource scaled to its own signal, σ_i Y_r (a gain, which leaves its SINR alone).  Co-channel links
+    read the same REs and so the same noise: η_r is the unit noise of the nearest link on r.  Without
+    ``co_channel`` the other BSs' signals are left out."""
+    sigma = jnp.sqrt(signal.noise_variance(d["link_snr"][s], d["prs"]))
+    if "res" not in d:
+        return d["y0"] + sigma[:, None] * d["noise"]
+    res = d["res"]
+    eta = d["noise"][jnp.argmax(res[None, :] == res[:, None], axis=1)]  # the nearest co-channel link's noise
+    if "y_x" not in d:
+        return d["y0"] + sigma[:, None] * eta
+    sigma_x = jnp.sqrt(signal.noise_variance(d["snr_x"][s], d["prs_x"]))
+    rx = jax.ops.segment_sum(jnp.concatenate([d["y0"] / sigma[:, None], d["y_x"] / sigma_x[:, None]]),
+                             jnp.concatenate([res, d["res_x"]]), num_segments=d["n_res"])
+    return sigma[:, None] * (rx[res] + eta)
 
 
 def _prior_center(e: Experiment, ue, key) -> jax.Array:
@@ -477,7 +583,7 @@ def _trial_fn(e: Experiment, dep: deployment.Deployment):
         q = r["q"]
         err = jnp.linalg.norm(q[..., :2] - d["ue"][:2], axis=-1)
         return {"ue_xyz": d["ue"], "clock_bias_s": d["bias"], "bs_index": d["idx"], "los": d["los"],
-                "link_snr_db": d["link_snr"], "est_xyz": q[..., :3], "est_bias_s": q[..., 3] / C, "error_m": err,
+                "link_snr_db": d["link_snr"], "link_sinr_db": d["link_sinr"], "est_xyz": q[..., :3], "est_bias_s": q[..., 3] / C, "error_m": err,
                 "center_xyz": centers[..., :3], "edge": r["edge"], "gap": r["gap"], "certified": r["certified"]}
 
     return one
@@ -488,7 +594,8 @@ def example(e: Experiment, trial: int, snr_index: int = 0) -> dict:
 
     Returns ue (3,), bias, idx (I,), bs (I, 3), los (I,), prs (I, N), gains (I, L), delays (I, L) s, y (I, N)
     received samples (the inverse DFT of the engine's received spectrum), y0 (I, N) their noise-free part,
-    link_snr (I,).
+    link_snr (I,), link_sinr (I,); with ``prs_reuse`` also res, n_res and (with ``co_channel``) res_x, prs_x, y_x
+    (the other BSs' noise-free spectra) and snr_x (X,) (``_draw_fn``).
     """
     dep = e.load_deployment()
     _checks.integer("trial", trial, 0, e.n_trials - 1)
@@ -498,11 +605,14 @@ def example(e: Experiment, trial: int, snr_index: int = 0) -> dict:
     out["y"] = np.asarray(signal.ofdm_symbol(_noisy(d, snr_index)))
     out["y0"] = np.asarray(signal.ofdm_symbol(d["y0"]))
     out["link_snr"] = out["link_snr"][snr_index]
+    out["link_sinr"] = out["link_sinr"][snr_index]
+    if "snr_x" in out:
+        out["snr_x"] = out["snr_x"][snr_index]
     return out
 
 
 def draw_links(e: Experiment, n_trials: int) -> dict:
-    """Link draws only (no signals, no DPE) for trials 0 … n_trials-1: LoS flags (T, I), per-sample link SNR
+    """Link draws only (no DPE) for trials 0 … n_trials-1: LoS flags (T, I), per-sample link SNR and SINR
     (T, S, I), 2-D distances (T, I) in metres — the statistics Chapter 4 shows, from the same keys as the engine."""
     dep = e.load_deployment()
     draw = _draw_fn(e, dep)
@@ -510,10 +620,11 @@ def draw_links(e: Experiment, n_trials: int) -> dict:
     @jax.jit
     def one(key):
         d = draw(key)
-        return d["los"], d["link_snr"], jnp.linalg.norm(d["bs"][:, :2] - d["ue"][:2], axis=-1)
+        return d["los"], d["link_snr"], d["link_sinr"], jnp.linalg.norm(d["bs"][:, :2] - d["ue"][:2], axis=-1)
 
-    los, snr, dist = jax.lax.map(one, _trial_keys(e.seed, 0, n_trials), batch_size=64)
-    return {"los": np.asarray(los), "link_snr_db": np.asarray(snr), "d2d_m": np.asarray(dist)}
+    los, snr, sinr, dist = jax.lax.map(one, _trial_keys(e.seed, 0, n_trials), batch_size=64)
+    return {"los": np.asarray(los), "link_snr_db": np.asarray(snr), "link_sinr_db": np.asarray(sinr),
+            "d2d_m": np.asarray(dist)}
 
 
 @partial(jax.jit, static_argnames=("fn",))

@@ -212,3 +212,91 @@ def prs_symbols(
 def prs_matrix(prs_ids, num: Numerology = PAPER, **kwargs) -> np.ndarray:
     """Stack the PRS of several BSs: complex (M, N), row m from ``prs_symbols(prs_ids[m], num, **kwargs)``."""
     return np.stack([prs_symbols(int(i), num, **kwargs) for i in prs_ids])
+
+
+#: comb sizes K_comb of the DL PRS (TS 38.211 §7.4.1.7.3)
+PRS_COMB_SIZES = (2, 4, 6, 12)
+#: numbers of PRS symbols L_PRS in a slot (TS 38.211 §7.4.1.7.3, Rel-16); L_PRS ≥ K_comb and a multiple of it
+PRS_SYMBOL_COUNTS = (2, 4, 6, 12)
+#: the frequency offset k' of TS 38.211 Table 7.4.1.7.3-1 per comb size, for the PRS symbol l - l_start = 0 … 11
+PRS_K_PRIME = {2: (0, 1, 0, 1, 0, 1, 0, 1, 0, 1, 0, 1),
+               4: (0, 2, 1, 3, 0, 2, 1, 3, 0, 2, 1, 3),
+               6: (0, 3, 1, 4, 2, 5, 0, 3, 1, 4, 2, 5),
+               12: (0, 6, 3, 9, 1, 7, 4, 10, 2, 8, 5, 11)}
+
+
+@dataclass(frozen=True)
+class PrsPattern:
+    """The DL PRS resource pattern of TS 38.211 §7.4.1.7.3 in one slot: comb size K_comb, L_PRS symbols from
+    l_start, over the carrier's active subcarriers (3276 for 273 RB, the PRS bandwidth = the carrier).
+
+    comb_size : K_comb in ``PRS_COMB_SIZES``; n_symbols : L_PRS in ``PRS_SYMBOL_COUNTS``, a multiple of K_comb
+    (default K_comb: the "fully staggered" pattern, every active subcarrier carries exactly one PRS RE of the
+    resource); start_symbol : l_start, with l_start + L_PRS ≤ 14.
+
+    The comb offset k_offset (dl-PRS-ReOffset, 0 … K_comb − 1) is per resource, an argument of the methods: resources
+    with different offsets use disjoint REs in every symbol, because k' depends only on the symbol.
+    """
+
+    comb_size: int = 6
+    n_symbols: int | None = None
+    start_symbol: int = 0
+
+    def __post_init__(self):
+        _checks.one_of("comb_size", self.comb_size, PRS_COMB_SIZES)
+        if self.n_symbols is None:
+            object.__setattr__(self, "n_symbols", self.comb_size)
+        _checks.one_of("n_symbols", self.n_symbols, PRS_SYMBOL_COUNTS)
+        if self.n_symbols < self.comb_size or self.n_symbols % self.comb_size:
+            raise ValueError(f"n_symbols must be a multiple of comb_size={self.comb_size} (TS 38.211 §7.4.1.7.3), one "
+                             f"of {[n for n in PRS_SYMBOL_COUNTS if n % self.comb_size == 0]}; got {self.n_symbols}")
+        _checks.integer("start_symbol", self.start_symbol, 0, SYMBOLS_PER_SLOT - self.n_symbols)
+
+    def subcarriers(self, comb_offset: int, num: Numerology = PAPER) -> np.ndarray:
+        """Subcarriers k of the resource with comb offset ``comb_offset`` in each of its symbols, TS 38.211
+        §7.4.1.7.3: k = m K_comb + ((k_offset + k') mod K_comb), m = 0, 1, …, counted from the lowest active
+        subcarrier (the PRS occupies all n_rb resource blocks).  Returns int (L_PRS, n_active / K_comb)."""
+        k_comb = self.comb_size
+        comb_offset = _checks.integer("comb_offset", comb_offset, 0, k_comb - 1)
+        if num.n_active % k_comb:
+            raise ValueError(f"comb_size must divide the {num.n_active} active subcarriers, got {k_comb}")
+        m = np.arange(num.n_active // k_comb)
+        return np.stack([m * k_comb + (comb_offset + PRS_K_PRIME[k_comb][i]) % k_comb
+                         for i in range(self.n_symbols)])
+
+    def resource_elements(self, comb_offset: int, num: Numerology = PAPER) -> np.ndarray:
+        """The same REs as FFT bins (``active_bins``): int (L_PRS, n_active / K_comb)."""
+        return active_bins(num)[self.subcarriers(comb_offset, num)]
+
+
+def prs_grid(prs_id: int, pattern: PrsPattern, comb_offset: int, num: Numerology = PAPER, slot: int = 0) -> np.ndarray:
+    """The PRS of one resource over its L_PRS symbols: a_{k,l} = β r_l(m) on the REs of ``pattern`` (TS 38.211
+    §7.4.1.7.3), r_l the QPSK sequence of §7.4.1.7.2 initialised for symbol l = l_start + i, zero elsewhere.
+
+    β = √(N / n_RE), n_RE the resource's REs in the slot, so that every pattern carries the pilot energy of the
+    paper's full-band symbol, Σ_{k,l} |a_{k,l}|² = N: at equal power a link's energy does not depend on the comb
+    size, the number of symbols or the offset, and the SNR keeps the meaning of ``dpe5g.signal`` (pilot energy over
+    N σ²).  Returns complex (L_PRS, N), row i for symbol l_start + i, bins in FFT order.
+    """
+    bins = pattern.resource_elements(comb_offset, num)
+    beta = np.sqrt(num.n_fft / bins.size)
+    a = np.zeros((pattern.n_symbols, num.n_fft), dtype=np.complex128)
+    for i, row in enumerate(bins):
+        c = gold_sequence(prs_c_init(prs_id, slot, pattern.start_symbol + i), 2 * row.size)
+        a[i, row] = beta * qpsk_from_bits(c)
+    return a
+
+
+def prs_per_subcarrier(prs_id: int, pattern: PrsPattern, comb_offset: int, num: Numerology = PAPER,
+                       slot: int = 0) -> np.ndarray:
+    """The fully staggered PRS (L_PRS = K_comb) as one pilot per subcarrier: d_k = a_{k,l(k)}, the pilot of the one
+    symbol l(k) in which the resource has subcarrier k (zero on the inactive bins).
+
+    With a static channel the receiver combines the symbols coherently, Σ_l conj(a_{k,l}) Y_{k,l}, and each subcarrier
+    then holds one RE with its own noise: the L_PRS symbols act as one symbol with pilots d (energy N).  Resources
+    with the same offset share every RE, those with different offsets none.  Returns complex (N,).
+    """
+    if pattern.n_symbols != pattern.comb_size:
+        raise ValueError(f"n_symbols must equal comb_size={pattern.comb_size} for one pilot per subcarrier (each "
+                         f"subcarrier in exactly one symbol), got {pattern.n_symbols}")
+    return prs_grid(prs_id, pattern, comb_offset, num, slot).sum(axis=0)

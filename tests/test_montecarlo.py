@@ -109,6 +109,10 @@ def test_two_of_four_and_link_budget_modes(tmp_path):
     (dict(centring="oracle"), "centring must be one of"),
     (dict(centring="otdoa"), "set otdoa=True"),
     (dict(prior_scale_m=-1.0), "prior_scale_m"),
+    (dict(prs_reuse=3), "prs_reuse must be one of"),
+    (dict(prs_reuse=6), "snr_mode must be 'link_budget' or 'nearest'"),
+    (dict(snr_mode="nearest", snrs_db=()), "snrs_db must list"),
+    (dict(prs_reuse=6, snr_mode="nearest", co_channel=1), "co_channel"),
 ])
 def test_bad_experiments(kwargs, needle):
     with pytest.raises(ValueError, match=needle):
@@ -278,3 +282,56 @@ def test_grid_search_centred_on_each_m_otdoa_fix(tmp_path):
             r = dpe.fix(g[:m], jnp.asarray(ex["bs"][:m]), center, e.receiver_search())
             np.testing.assert_allclose(res.est_xyz[t, 0, j], np.asarray(r["q"])[:3], atol=1e-9)
     assert not np.allclose(res.center_xyz[:, 0, 0], res.center_xyz[:, 0, 1])
+
+
+REUSE = dict(name="r", n_trials=2, seed=4, snr_mode="nearest", snrs_db=(20.0,), m_values=(12,))
+
+
+def test_prs_reuse_receives_the_sum_of_the_co_channel_bss():
+    """With reuse, the UE receives on each resource the sum of its BSs' signals (links and the other BSs of the
+    deployment) at their relative powers plus one noise: co-channel links read the same received signal, scaled to
+    their own power; the links' draws are those of the experiment without reuse; SINR from the powers."""
+    e = montecarlo.Experiment(prs_reuse=6, **REUSE)
+    plain = montecarlo.example(montecarlo.Experiment(**REUSE), 0)
+    ex = montecarlo.example(e, 0)
+    for k in ("ue", "bias", "idx", "los", "gains", "link_snr"):
+        np.testing.assert_array_equal(ex[k], plain[k], err_msg=k)
+    res_all, _ = deployment.tst().prs_plan(6)
+    np.testing.assert_array_equal(ex["res"], res_all[ex["idx"]])
+    assert ex["y_x"].shape == (deployment.tst().n_bs - 12, 4096)
+    # every link's pilots: the 3276 active subcarriers, the energy of the paper's symbol
+    assert np.all(np.count_nonzero(ex["prs"], axis=1) == 3276)
+    np.testing.assert_allclose(np.sum(np.abs(ex["prs"]) ** 2, axis=1), 4096)
+    sigma = 10 ** (-ex["link_snr"] / 20)
+    sigma_x = 10 ** (-ex["snr_x"] / 20)
+    s = np.asarray(signal.demodulate(ex["y0"]))
+    rx = {r: (s[ex["res"] == r] / sigma[ex["res"] == r, None]).sum(0)
+          + (ex["y_x"][ex["res_x"] == r] / sigma_x[ex["res_x"] == r, None]).sum(0) for r in range(6)}
+    y = np.asarray(signal.demodulate(ex["y"])) / sigma[:, None]  # in units of the noise
+    noise = y - np.stack([rx[r] for r in ex["res"]])
+    assert abs(np.mean(np.abs(noise) ** 2) - 1) < 0.05
+    pairs = [(i, j) for i in range(12) for j in range(i) if ex["res"][i] == ex["res"][j]]
+    assert pairs
+    for i, j in pairs:
+        np.testing.assert_allclose(y[i], y[j], atol=1e-9 * np.abs(y[i]).max())
+    rho = 10 ** (ex["link_snr"] / 10)
+    rho_x = 10 ** (ex["snr_x"] / 10)
+    per_res = np.array([rho[ex["res"] == r].sum() + rho_x[ex["res_x"] == r].sum() for r in range(6)])
+    np.testing.assert_allclose(ex["link_sinr"], 10 * np.log10(rho / (1 + per_res[ex["res"]] - rho)), atol=1e-9)
+    assert np.all(ex["link_sinr"] < ex["link_snr"])
+    # without the co-channel signals: the links' own signals and the shared noise of their resource
+    alone = montecarlo.example(montecarlo.Experiment(prs_reuse=6, co_channel=False, **REUSE), 0)
+    np.testing.assert_array_equal(alone["link_sinr"], alone["link_snr"])
+    eta = (np.asarray(signal.demodulate(alone["y"] - alone["y0"]))) / sigma[:, None]
+    for i, j in pairs:
+        np.testing.assert_allclose(eta[i], eta[j], atol=1e-9)
+    assert abs(np.mean(np.abs(eta) ** 2) - 1) < 0.05
+
+
+def test_prs_reuse_runs_and_reports_sinr(tmp_path):
+    e = montecarlo.Experiment(prs_reuse=6, search=dpe.SearchConfig(half_width_m=3.0),
+                              **{**REUSE, "m_values": (4, 6), "snr_mode": "link_budget", "snrs_db": ()})
+    r = montecarlo.run(e, cache=tmp_path, progress=False)
+    assert r.link_sinr_db.shape == (2, 1, 6) and np.all(r.link_sinr_db <= r.link_snr_db)
+    row = r.table()[0]
+    assert len(row["link_sinr_db"].split(";")) == 4 and len(row["link_snr_db"].split(";")) == 4

@@ -73,3 +73,67 @@ def test_numerology_bad_input():
         nr.Numerology(scs_hz=25e3)
     with pytest.raises(ValueError, match="n_rb"):
         nr.Numerology(n_fft=64, n_rb=273)
+
+
+VALID_PATTERNS = [(k, n) for k in nr.PRS_COMB_SIZES for n in nr.PRS_SYMBOL_COUNTS if n >= k and n % k == 0]
+
+
+def test_valid_pattern_list_is_the_standards():
+    # TS 38.211 §7.4.1.7.3 (Rel-16): {L_PRS, K_comb} in {2,2} {4,2} {6,2} {12,2} {4,4} {12,4} {6,6} {12,6} {12,12}
+    assert sorted(VALID_PATTERNS) == sorted([(2, 2), (2, 4), (2, 6), (2, 12), (4, 4), (4, 12), (6, 6), (6, 12),
+                                             (12, 12)])
+
+
+@pytest.mark.parametrize("comb, n_symbols", VALID_PATTERNS)
+def test_prs_resource_elements_follow_the_standard(comb, n_symbols):
+    """RE positions against the formula of TS 38.211 §7.4.1.7.3 read as a membership test: subcarrier k of symbol
+    l carries the PRS iff k ≡ k_offset + k'(l - l_start) (mod K_comb), over the 3276 active subcarriers."""
+    table = {2: [0, 1] * 6, 4: [0, 2, 1, 3] * 3, 6: [0, 3, 1, 4, 2, 5] * 2, 12: [0, 6, 3, 9, 1, 7, 4, 10, 2, 8, 5, 11]}
+    p = nr.PrsPattern(comb, n_symbols)
+    for offset in range(comb):
+        sc = p.subcarriers(offset)
+        assert sc.shape == (n_symbols, 3276 // comb)
+        for i in range(n_symbols):
+            expected = [k for k in range(3276) if k % comb == (offset + table[comb][i]) % comb]
+            assert sc[i].tolist() == expected
+        np.testing.assert_array_equal(p.resource_elements(offset), nr.active_bins()[sc])
+        # energy of the paper's full-band symbol, whatever the pattern and offset
+        g = nr.prs_grid(5, p, offset)
+        assert g.shape == (n_symbols, 4096)
+        assert np.sum(np.abs(g) ** 2) == pytest.approx(4096)
+        assert np.count_nonzero(g) == n_symbols * 3276 // comb
+    # different offsets never share an RE
+    used = np.stack([np.abs(nr.prs_grid(5, p, o)) > 0 for o in range(comb)])
+    assert np.all(used.sum(axis=0) <= 1)
+
+
+def test_fully_staggered_pattern_covers_each_active_subcarrier_once():
+    p = nr.PrsPattern(6)
+    assert p.n_symbols == 6
+    d = nr.prs_per_subcarrier(17, p, 4)
+    assert sorted(np.flatnonzero(d).tolist()) == sorted(nr.active_bins().tolist())
+    assert np.sum(np.abs(d) ** 2) == pytest.approx(4096)
+    # each pilot is its symbol's sequence: r_l(m) of §7.4.1.7.2 at m = k // K_comb
+    g = nr.prs_grid(17, p, 4)
+    np.testing.assert_array_equal(d, g.sum(axis=0))
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(comb_size=3), "comb_size must be one of"),
+    (dict(comb_size=6, n_symbols=4), "n_symbols must be a multiple"),
+    (dict(comb_size=2, n_symbols=3), "n_symbols must be one of"),
+    (dict(comb_size=6, start_symbol=9), "start_symbol"),
+])
+def test_prs_pattern_bad_input(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        nr.PrsPattern(**kwargs)
+
+
+def test_prs_pattern_bad_offset_and_id():
+    p = nr.PrsPattern(4)
+    with pytest.raises(ValueError, match="comb_offset"):
+        p.subcarriers(4)
+    with pytest.raises(ValueError, match="prs_id"):
+        nr.prs_grid(4096, p, 0)
+    with pytest.raises(ValueError, match="n_symbols must equal comb_size"):
+        nr.prs_per_subcarrier(1, nr.PrsPattern(2, 4), 0)

@@ -113,3 +113,31 @@ def test_csv_deployment_loads(tmp_path):
     assert dep.bs_xyz[1].tolist() == [100.0, 0.0, 12.0] and dep.power_dbm[1] == 20.0
     assert dep.region == (-10.0, -10.0, 110.0, 110.0)
     assert list(dep.nearest([90.0, 5.0], 2)) == [1, 0]
+
+
+def test_prs_reuse_plan_on_our_layout():
+    dep = deployment.tst()
+    res, ids = dep.prs_plan(6)
+    assert sorted(set(res.tolist())) == list(range(6)) and len(set(res[:6].tolist())) == 6
+    d = np.linalg.norm(dep.bs_xyz[:, None, :2] - dep.bs_xyz[None, :, :2], axis=-1)
+    np.fill_diagonal(d, np.inf)
+    assert np.all(res[d.argmin(axis=1)] != res)  # nearest neighbours on different resources
+    for r in range(6):  # PRS IDs distinct within a resource: 0, 1, ...
+        assert sorted(ids[res == r].tolist()) == list(range(np.count_nonzero(res == r)))
+    np.testing.assert_array_equal(dep.prs_plan(6)[0], res)  # deterministic
+
+
+@given(st.integers(1, 12), st.sampled_from([2, 4, 6, 12]), st.integers(0, 1000))
+def test_prs_reuse_plan_first_bss_distinct(n_bs, reuse, seed):
+    xyz = np.random.default_rng(seed).uniform(0, 500, size=(n_bs, 3))
+    res, ids = deployment.prs_plan(xyz, reuse)
+    first = res[:reuse]
+    assert len(set(first.tolist())) == len(first)
+    assert np.all((res >= 0) & (res < reuse))
+
+
+def test_prs_reuse_plan_bad_input():
+    with pytest.raises(ValueError, match="reuse must be one of"):
+        deployment.prs_plan(np.zeros((3, 3)), 5)
+    with pytest.raises(ValueError, match="n_bs must be at most reuse × PRS IDs = 2 × 4096"):
+        deployment.prs_plan(np.zeros((2 * 4096 + 1, 3)), 2)
