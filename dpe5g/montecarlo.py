@@ -338,8 +338,9 @@ def _draw_fn(e: Experiment, dep: deployment.Deployment):
     is its inverse DFT, which a test checks against the engine).
 
     Returns a dict: ue (3,), bias (), idx (I,), bs (I, 3), los (I,), prs (I, N), gains (I, L), delays (I, L) s,
-    y0 (I, N) noise-free received spectrum, link_snr (S, I) per-sample SNR of each link, link_sinr (S, I) its SINR,
-    noise (I, N) the trial's unit noise spectrum (``_noisy``).  With ``prs_reuse``, also the other BSs of the
+    y0 (I, N) noise-free received spectrum (unit power), link_snr (S, I) per-sample SNR of each link, link_sinr
+    (S, I) its SINR, noise (I, N) the trial's unit noise spectrum, per_link_power (bool, static: whether ``_noisy``
+    gives each link its own received power, see there).  With ``prs_reuse``, also the other BSs of the
     the resource of every link, res (I,), and their number n_res; with ``co_channel`` also the other BSs of the
     deployment, nearest first (X of them): res_x (X,), prs_x (X, N), y_x (X, N), snr_x (S, X).  Their draws come
     from fold_in(key, 2000), so the links' draws are those of the same experiment without reuse.
@@ -421,7 +422,8 @@ def _draw_fn(e: Experiment, dep: deployment.Deployment):
         delays = jnp.where(los[:, None], delays_d, delays_c)
         noise = signal.awgn(k_n, y_clean.shape, 1.0)  # CN(0, 1) per bin, scaled per SNR by ``_noisy``
         return {"ue": ue, "bias": bias, "idx": idx, "bs": bs, "los": los, "prs": prs, "gains": gains,
-                "delays": delays, "y0": y_clean, "link_snr": link_snr, "link_sinr": link_sinr, "noise": noise, **out}
+                "delays": delays, "y0": y_clean, "link_snr": link_snr, "link_sinr": link_sinr, "noise": noise,
+                "per_link_power": e.snr_mode != "fixed", **out}
 
     return draw
 
@@ -459,22 +461,31 @@ def _noisy(d, s):
     that variance.  One draw serves every SNR (common random numbers): each SNR's noise has the right distribution,
     and the SNRs of one trial differ only in the noise level, as its M values differ only in the links used.
 
-    With PRS reuse (``res`` in the draws) the UE receives one signal per resource r: Y_r = Σ_{b on r} s_b/σ_b + η_r
-    in units of the noise (s_b the unit-power spectrum of BS b, σ_b its noise level at this SNR, η_r CN(0, 1)); link
-    i reads its resource scaled to its own signal, σ_i Y_r (a gain, which leaves its SINR alone).  Co-channel links
-    read the same REs and so the same noise: η_r is the unit noise of the nearest link on r.  Without
-    ``co_channel`` the other BSs' signals are left out."""
+    Scale.  With snr_mode "fixed" every link has unit signal power and noise σ_s² (one SNR for all links, so the
+    common scale does not matter to the receivers).  Where the links' powers differ (snr_mode "link_budget" and
+    "nearest") the spectra are what one receiver sees: one noise floor, CN(0, 1) per bin, and each BS's signal
+    s_b/σ_b at its own received power (s_b of unit power, σ_b its noise level).  A receiver that scaled each link to
+    unit signal power would need each link's true SNR, and the DPE cost of eq. (10), which sums the BSs' energies,
+    would then weigh a weak link's noise as much as a strong link's signal.
+
+    With PRS reuse (``res`` in the draws) the UE receives one signal per resource r, Y_r = Σ_{b on r} s_b/σ_b + η_r,
+    and each link reads the Y_r of its resource: co-channel links read the same REs, so the same signal and the same
+    noise (η_r is the unit noise of the nearest link on r).  Without ``co_channel`` the other BSs' signals are left
+    out."""
     sigma = jnp.sqrt(signal.noise_variance(d["link_snr"][s], d["prs"]))
-    if "res" not in d:
+    if not d["per_link_power"]:  # snr_mode "fixed": every link at the same SNR, unit signal power
         return d["y0"] + sigma[:, None] * d["noise"]
+    own = d["y0"] / sigma[:, None]  # in units of the noise: the link's own signal at its received power
+    if "res" not in d:
+        return own + d["noise"]
     res = d["res"]
     eta = d["noise"][jnp.argmax(res[None, :] == res[:, None], axis=1)]  # the nearest co-channel link's noise
     if "y_x" not in d:
-        return d["y0"] + sigma[:, None] * eta
+        return own + eta
     sigma_x = jnp.sqrt(signal.noise_variance(d["snr_x"][s], d["prs_x"]))
-    rx = jax.ops.segment_sum(jnp.concatenate([d["y0"] / sigma[:, None], d["y_x"] / sigma_x[:, None]]),
+    rx = jax.ops.segment_sum(jnp.concatenate([own, d["y_x"] / sigma_x[:, None]]),
                              jnp.concatenate([res, d["res_x"]]), num_segments=d["n_res"])
-    return sigma[:, None] * (rx[res] + eta)
+    return rx[res] + eta
 
 
 def _prior_center(e: Experiment, ue, key) -> jax.Array:
@@ -593,7 +604,8 @@ def example(e: Experiment, trial: int, snr_index: int = 0) -> dict:
     """The draws and received samples of one trial at one SNR index, exactly as the engine sees them (NumPy).
 
     Returns ue (3,), bias, idx (I,), bs (I, 3), los (I,), prs (I, N), gains (I, L), delays (I, L) s, y (I, N)
-    received samples (the inverse DFT of the engine's received spectrum), y0 (I, N) their noise-free part,
+    received samples (the inverse DFT of the engine's received spectrum; in units of the noise where the links'
+    powers differ, see ``_noisy``), y0 (I, N) the links' noise-free samples at unit power,
     link_snr (I,), link_sinr (I,); with ``prs_reuse`` also res, n_res and (with ``co_channel``) res_x, prs_x, y_x
     (the other BSs' noise-free spectra) and snr_x (X,) (``_draw_fn``).
     """

@@ -307,7 +307,7 @@ def test_prs_reuse_receives_the_sum_of_the_co_channel_bss():
     s = np.asarray(signal.demodulate(ex["y0"]))
     rx = {r: (s[ex["res"] == r] / sigma[ex["res"] == r, None]).sum(0)
           + (ex["y_x"][ex["res_x"] == r] / sigma_x[ex["res_x"] == r, None]).sum(0) for r in range(6)}
-    y = np.asarray(signal.demodulate(ex["y"])) / sigma[:, None]  # in units of the noise
+    y = np.asarray(signal.demodulate(ex["y"]))  # in units of the noise: one receiver, one noise floor
     noise = y - np.stack([rx[r] for r in ex["res"]])
     assert abs(np.mean(np.abs(noise) ** 2) - 1) < 0.05
     pairs = [(i, j) for i in range(12) for j in range(i) if ex["res"][i] == ex["res"][j]]
@@ -322,7 +322,7 @@ def test_prs_reuse_receives_the_sum_of_the_co_channel_bss():
     # without the co-channel signals: the links' own signals and the shared noise of their resource
     alone = montecarlo.example(montecarlo.Experiment(prs_reuse=6, co_channel=False, **REUSE), 0)
     np.testing.assert_array_equal(alone["link_sinr"], alone["link_snr"])
-    eta = (np.asarray(signal.demodulate(alone["y"] - alone["y0"]))) / sigma[:, None]
+    eta = np.asarray(signal.demodulate(alone["y"] - alone["y0"] / sigma[:, None]))
     for i, j in pairs:
         np.testing.assert_allclose(eta[i], eta[j], atol=1e-9)
     assert abs(np.mean(np.abs(eta) ** 2) - 1) < 0.05
@@ -335,3 +335,16 @@ def test_prs_reuse_runs_and_reports_sinr(tmp_path):
     assert r.link_sinr_db.shape == (2, 1, 6) and np.all(r.link_sinr_db <= r.link_snr_db)
     row = r.table()[0]
     assert len(row["link_sinr_db"].split(";")) == 4 and len(row["link_snr_db"].split(";")) == 4
+
+
+def test_links_keep_their_received_power_where_it_differs():
+    """snr_mode "link_budget": one receiver, one noise floor — each link's signal at its own received power over unit
+    noise, not rescaled to unit power with the truth's SNR."""
+    e = montecarlo.Experiment(name="p", n_trials=1, seed=2, snr_mode="link_budget", snrs_db=(), m_values=(6,))
+    ex = montecarlo.example(e, 0)
+    sigma = 10 ** (-ex["link_snr"] / 20)
+    y, y0 = np.asarray(signal.demodulate(ex["y"])), np.asarray(signal.demodulate(ex["y0"]))
+    np.testing.assert_allclose(np.mean(np.abs(y0 / sigma[:, None]) ** 2, axis=1) / np.mean(np.abs(y0) ** 2, axis=1),
+                               10 ** (ex["link_snr"] / 10), rtol=1e-9)
+    assert abs(np.mean(np.abs(y - y0 / sigma[:, None]) ** 2) - 1) < 0.05
+    assert np.ptp(ex["link_snr"]) > 3  # the links' powers differ
