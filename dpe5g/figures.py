@@ -494,7 +494,8 @@ CLAIM_SHORT = {"fig9_6m": "Fig. 9: ≤ 6 m\n10 dB, M = 6", "fig9_falls": "Fig. 9
                "fig10_dpe_p99": "Fig. 10: DPE\np99 ≤ 7 m", "fig10_otdoa_p90": "Fig. 10: OTDoA\np90 ≈ 42 m",
                "fig10_gain": "Fig. 10: gain\n≈ 95.24 %"}
 READING_SHORT = {"as_read": "as this book reads it", "peak_otdoa": "… peak-ToA OTDoA", "span": "… DS = span",
-                 "total_snr": "… total SNR", "span_total": "… span and total SNR", "honest": "honest receiver"}
+                 "total_snr": "… total SNR", "span_total": "… span and total SNR", "honest": "honest receiver",
+                 "reuse": "honest, PRS reuse 6"}
 
 
 def readings_payload(progress: bool = False, trials: int | None = None) -> dict:

@@ -232,7 +232,8 @@ class Results:
 
     ue_xyz (T, 3) m; clock_bias_s (T,); bs_index (T, I) deployment index of the i-th nearest BS; los (T, I) bool;
     link_snr_db (T, S, I) per-sample SNR of each link; link_sinr_db (T, S, I) its SINR (co-channel interference of
-    ``prs_reuse`` and thermal noise; equal to the SNR without interference); est_xyz (T, S, J, 3) m; est_bias_s (T, S, J);
+    ``prs_reuse`` and thermal noise; equal to the SNR without interference); est_xyz (T, S, J, 3) m;
+    est_bias_s (T, S, J);
     error_m (T, S, J) horizontal error; center_xyz (T, S, J, 3) the search window's centre; edge (T, S, J) the fix
     lies on the window's boundary (flagged); gap (T, S, J) the certified relative gap (NaN for the grid search);
     certified (T, S, J).  With ``otdoa``, per detector d of ``OTDOA_DETECTORS``: otdoa_toa_s (T, S, D, I) the
@@ -259,8 +260,8 @@ class Results:
     otdoa_error_m: np.ndarray | None = None
     otdoa_ok: np.ndarray | None = None
 
-    FIELDS = ("ue_xyz", "clock_bias_s", "bs_index", "los", "link_snr_db", "link_sinr_db", "est_xyz", "est_bias_s", "error_m",
-              "center_xyz", "edge", "gap", "certified")
+    FIELDS = ("ue_xyz", "clock_bias_s", "bs_index", "los", "link_snr_db", "link_sinr_db", "est_xyz", "est_bias_s",
+              "error_m", "center_xyz", "edge", "gap", "certified")
     OTDOA_FIELDS = ("otdoa_toa_s", "otdoa_xyz", "otdoa_error_m", "otdoa_ok")
 
     def rmse_m(self) -> np.ndarray:
@@ -340,8 +341,8 @@ def _draw_fn(e: Experiment, dep: deployment.Deployment):
     Returns a dict: ue (3,), bias (), idx (I,), bs (I, 3), los (I,), prs (I, N), gains (I, L), delays (I, L) s,
     y0 (I, N) noise-free received spectrum (unit power), link_snr (S, I) per-sample SNR of each link, link_sinr
     (S, I) its SINR, noise (I, N) the trial's unit noise spectrum, per_link_power (bool, static: whether ``_noisy``
-    gives each link its own received power, see there).  With ``prs_reuse``, also the other BSs of the
-    the resource of every link, res (I,), and their number n_res; with ``co_channel`` also the other BSs of the
+    gives each link its own received power, see there).  With ``prs_reuse``, also the resource of every link,
+    res (I,), and their number n_res; with ``co_channel`` also the other BSs of the
     deployment, nearest first (X of them): res_x (X,), prs_x (X, N), y_x (X, N), snr_x (S, X).  Their draws come
     from fold_in(key, 2000), so the links' draws are those of the same experiment without reuse.
     """
@@ -400,7 +401,7 @@ def _draw_fn(e: Experiment, dep: deployment.Deployment):
         y_clean = signal.received_spectrum(prs, h, dpe.toa(ue, bs), bias)
         out = {}
         if e.snr_mode == "fixed":
-            link_snr = jnp.broadcast_to(snrs[:, None], (snrs.size, m_max))
+            link_snr = signal.per_sample_snr_db(jnp.broadcast_to(snrs[:, None], (snrs.size, m_max)), e.snr_convention)
         else:
             rx = received_dbm(d2d[idx], bs, los, k_sf, m_max, idx)
             link_snr = _link_snr_db(e, rx, rx[0], snrs)

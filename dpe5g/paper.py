@@ -184,6 +184,16 @@ def first_path_comparison(fig9_trials: int = FIRST_PATH_FIG9_TRIALS,
 #: hurt"; 25 and 40 dB: saturation, sub-metre), and the trials per experiment the issue asks for (≥ 1000)
 READING_SNRS_DB = (10.0, 25.0, 40.0)
 READING_TRIALS = 1000
+#: Table I's PRS frequency reuse factor (Chapters 4–7): TS 38.211's comb 6 over 6 symbols, each BS on one of 6 comb
+#: offsets (``deployment.prs_plan``), every BS of the deployment transmitting and the co-channel ones interfering.
+#: Interference needs each BS's power: Fig. 9's variant puts the nearest link at each SNR of its axis and every other
+#: BS at its path-loss difference (snr_mode "nearest"); Fig. 10 already takes every link's power from the path loss
+REUSE = 6
+#: Fig. 9's variants run at the readings' SNRs (10 dB: "more BSs hurt"; 25 and 40 dB: saturation), READING_TRIALS
+#: trials with reuse (its reading in Chapter 7's table needs ≥ 1000 per cell); Chapter 5 compares the set-ups on
+#: the first REUSE_COMPARE_TRIALS of those trials (a paired comparison of the same signals: M = 24 against M = 6 at
+#: 10 dB differs by far more than its standard error there)
+REUSE_COMPARE_TRIALS = 400
 #: the readings, in the order of the table: name → (label, changes to the paper's set-up as we read it).  Set-up as
 #: we read it: window centred on the truth (the paper's centring), RMS delay spread, per-sample SNR, L = 12,
 #: first-path OTDoA, Fig. 10's stated case (two of the four nearest links LoS)
@@ -194,6 +204,8 @@ READINGS = {
     "total_snr": ("… with the SNR after correlation (total)", {"snr_convention": "total"}),
     "span_total": ("… with both", {"delay_spread_def": "span", "snr_convention": "total"}),
     "honest": ("the honest receiver (window on a prior / the OTDoA fix, certified search)", {"centring": "honest"}),
+    "reuse": ("the honest receiver with Table I's PRS reuse 6 and co-channel interference, every link's power from "
+              "the path loss", {"centring": "honest", "prs_reuse": REUSE}),
 }
 
 
@@ -218,7 +230,12 @@ def reading_experiments(name: str, n_trials: int | None = None) -> dict:
     kw = dict(READINGS[name][1])
     detector = kw.pop("otdoa_detector", "first_path")
     f10 = fig10() if n_trials is None else fig10(n_trials)
-    if kw.pop("centring", None) == "honest":
+    honest, reuse = kw.pop("centring", None) == "honest", kw.pop("prs_reuse", 0)
+    if honest and reuse:
+        e10 = fig10_reuse(reuse=reuse) if n_trials is None else fig10_reuse(n_trials, reuse)
+        return {"fig9": fig9_power(reuse=reuse) if n_trials is None else fig9_power(n_trials, reuse),
+                "fig10_dpe": e10["two_of_four"], "fig10_otdoa": e10["two_of_four"], "otdoa_detector": detector}
+    if honest:
         return {"fig9": fig9_honest_readings() if n_trials is None else fig9_honest_readings(n_trials),
                 "fig10_dpe": f10[("two_of_four", "otdoa")], "fig10_otdoa": f10[("two_of_four", "otdoa")],
                 "otdoa_detector": detector}
@@ -231,6 +248,24 @@ def reading_experiments(name: str, n_trials: int | None = None) -> dict:
     e10 = replace(f10[("two_of_four", "truth")], name=f"fig10-two-of-four-truth-{tag}", n_trials=n, otdoa=True, **kw)
     return {"fig9": replace(fig9_truth(n), name=f"fig09-{tag}", snrs_db=READING_SNRS_DB, **kw),
             "fig10_dpe": e10, "fig10_otdoa": e10, "otdoa_detector": detector}
+
+
+def fig9_power(n_trials: int = READING_TRIALS, reuse: int = 0, co_channel: bool = True) -> Experiment:
+    """Fig. 9's honest receiver (``fig9_honest``) at ``READING_SNRS_DB`` of the nearest link, every other link at its
+    received-power difference from the path loss and shadowing (snr_mode "nearest").  reuse 0: the paper's PRS, each
+    link received alone; ``REUSE``: Table I's reuse with (co_channel) or without the co-channel BSs' signals.  The
+    same seed for all: trial t is the same UE, links, channels and clock in each."""
+    tag = f"-reuse{reuse}{'' if co_channel else '-alone'}" if reuse else ""
+    return replace(fig9_honest(n_trials), name=f"fig09-power{tag}", snr_mode="nearest", snrs_db=READING_SNRS_DB,
+                   prs_reuse=reuse, co_channel=co_channel)
+
+
+def fig10_reuse(n_trials: int = FIG10_TRIALS, reuse: int = REUSE) -> dict:
+    """Fig. 10's OTDoA-centred DPE and its OTDoA fixes (``fig10``, both LoS cases, the same seed and trials) with
+    Table I's PRS reuse and co-channel interference: {case: Experiment}."""
+    f10 = fig10(n_trials)
+    return {case: replace(f10[(case, "otdoa")], name=f"fig10-{case.replace('_', '-')}-otdoa-reuse{reuse}",
+                          prs_reuse=reuse) for case in FIG10_CASES}
 
 
 #: the paper's quantitative claims about Figs. 9 and 10 (Section IV, abstract), tested per reading: id → (claim with

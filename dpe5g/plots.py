@@ -557,3 +557,72 @@ def plot_readings(payload: dict):
         ax.set_title("Which reading of the paper reproduces which claim (green: reproduced, red: differs)",
                      fontsize=10)
     return fig
+
+
+def plot_link_sinr(groups: dict):
+    """Chapter 4: CDF of the per-link SNR (dashed) and SINR with PRS reuse (solid), one colour per group of links.
+    groups : {label: {"snr_db": array, "sinr_db": array}} (per-sample dB, any shape, flattened)."""
+    with style():
+        fig = Figure(figsize=(7.4, 4.0), layout="constrained")
+        ax = fig.subplots()
+        lo, hi = np.inf, -np.inf
+        for (label, g), col in zip(groups.items(), COLORS):
+            for key, ls, what in (("snr_db", "--", "SNR"), ("sinr_db", "-", "SINR")):
+                v = np.sort(np.ravel(g[key]))
+                lo, hi = min(lo, np.quantile(v, 0.005)), max(hi, np.quantile(v, 0.995))
+                ax.step(v, np.arange(1, v.size + 1) / v.size, ls, where="post", color=col, label=f"{label}: {what}")
+        ax.axvline(0.0, color="k", lw=0.8, ls=":")
+        ax.set_xlim(lo - 2, hi + 2)
+        ax.set_ylim(0, 1)
+        ax.set_yticks(np.arange(0, 1.01, 0.1))
+        ax.set_xlabel("per-sample SNR / SINR of a link (dB)")
+        ax.set_ylabel("CDF over links")
+        ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+    return fig
+
+
+def plot_reuse_rmse(payload: dict):
+    """Chapter 5: RMSE against the nearest link's per-sample SNR for each M, one panel per set-up of the payload
+    {"snrs_db", "m_values", "setups": {label: (S, J) RMSE}} (the same trials in every panel), log axis."""
+    snr = np.asarray(payload["snrs_db"])
+    setups = payload["setups"]
+    vals = np.concatenate([np.ravel(v) for v in setups.values()])
+    with style():
+        fig = Figure(figsize=(3.3 * len(setups) + 0.6, 4.2), layout="constrained")
+        axes = np.atleast_1d(fig.subplots(1, len(setups), sharey=True))
+        for ax, (label, rmse) in zip(axes, setups.items()):
+            rmse = np.asarray(rmse)
+            for j, (m, marker, col) in enumerate(zip(payload["m_values"], "osd^v<>", COLORS)):
+                ax.plot(snr, rmse[:, j], "-", marker=marker, color=col, label=f"M = {m}")
+            ax.set_title(label, fontsize=9)
+            ax.set_xticks(snr)
+            ax.set_xlabel("SNR of the nearest link (dB)")
+            log_ticks(ax, vals.min() / 1.15, vals.max() * 1.15)
+        axes[0].set_ylabel("RMSE (m)")
+        axes[-1].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+    return fig
+
+
+def plot_reuse_cdf(payload: dict):
+    """Chapter 6: error CDFs of the OTDoA-centred DPE (solid) and first-path OTDoA (dashed) with and without PRS reuse,
+    one panel per LoS case.  payload {"cases": {case: {label: {"dpe": errors, "otdoa": errors}}}}."""
+    titles = {"two_of_four": "(a) 2 of 4 links LoS (paper's case)", "pr_los": "(b) LoS from eq. (11)"}
+    with style():
+        fig = Figure(figsize=(10.0, 4.8), layout="constrained")
+        axes = fig.subplots(1, 2, sharey=True)
+        for ax, (case, runs) in zip(axes, payload["cases"].items()):
+            for (label, errs), col in zip(runs.items(), COLORS):
+                for key, ls, what in (("dpe", "-", "DPE on OTDoA fix"), ("otdoa", "--", "OTDoA, first path")):
+                    v = np.sort(np.asarray(errs[key]))
+                    ax.step(v, np.arange(1, v.size + 1) / v.size, ls, where="post", color=col,
+                            label=f"{what}, {label}: 90 % {np.quantile(v, 0.9):.1f} m")
+            ax.axhline(0.9, color="0.5", lw=0.7, ls=":")
+            ax.set_xscale("log")
+            ax.set_xlim(0.03, 1000)
+            ax.set_ylim(0, 1)
+            ax.set_yticks(np.arange(0, 1.01, 0.1))
+            ax.set_xlabel("horizontal position error (m)")
+            ax.set_title(titles.get(case, case), fontsize=10)
+            ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(0.0, -0.14), frameon=False)
+        axes[0].set_ylabel("CDF")
+    return fig
