@@ -23,7 +23,7 @@ BASELINE_DIR = Path(__file__).resolve().parent.parent / "figures"
 #: library parameter → the ``dpe5g run`` option that sets it, so an error raised by the library names the option
 RUN_OPTIONS = {"n_trials": "--trials", "snr_db": "--snr", "snrs_db": "--snr", "m_values": "--m", "n_taps": "--taps",
                "delay_spread_s": "--delay-spread", "centring": "--centring", "prior_scale_m": "--prior-sigma",
-               "seed": "--seed", "deployment file": "--deployment"}
+               "seed": "--seed", "deployment file": "--deployment", "prs_reuse": "--reuse"}
 
 
 class UsageError(Exception):
@@ -125,11 +125,14 @@ def run_experiment(args):
                   delay_spread_s=args.delay_spread, centring=args.centring, search=search, deployment=dep)
         if args.centring != "truth":
             kw.update(prior_kind="gaussian", prior_scale_m=args.prior_sigma)
+        if args.reuse:  # interference needs each BS's power: --snr is then the nearest link's SNR
+            kw.update(prs_reuse=args.reuse, snr_mode="nearest")
         e = Experiment(name="run", otdoa=args.centring == "otdoa", **kw)
         e.load_deployment()  # the file, and M against its BS count
     except ValueError as err:
         raise _with_option(err, RUN_OPTIONS) from None
-    for known in (paper.fig9_honest(args.trials), paper.fig9_truth(args.trials)):
+    for known in (paper.fig9_honest(args.trials), paper.fig9_truth(args.trials),
+                  paper.fig9_power(args.trials, args.reuse)):
         if replace(e, name=known.name) == known:
             return known
     return e
@@ -306,6 +309,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"σ per axis of the prior's error in metres, centring 'prior' (default: "
                         f"{paper.PRIOR_SIGMA_M:g})")
     r.add_argument("--seed", type=int, default=paper.URBAN_SEED, help=f"seed (default: {paper.URBAN_SEED}, Fig. 9's)")
+    r.add_argument("--reuse", type=int, default=0, metavar="R",
+                   help="PRS frequency reuse factor: 0 (default) the paper's model, every BS's PRS on all bins and "
+                        "received alone; 2, 4, 6 or 12 (Table I: 6) the TS 38.211 comb R over R symbols with every BS "
+                        "of the deployment transmitting and co-channel interference; --snr is then the SNR of the "
+                        "nearest link, every other BS at its power from the path loss (Chapter 5)")
     r.set_defaults(func=_run)
 
     f = sub.add_parser("figures", help="regenerate figures: <out>/<id>.png and <out>/data/<id>.json",

@@ -25,7 +25,7 @@ FILES = {
     "afile": "not a folder\n",
 }
 TABLE_COLUMNS = ["trial", "snr_db", "m", "error_m", "est_x_m", "est_y_m", "true_x_m", "true_y_m", "n_los",
-                 "los_flags", "edge", "certified"]
+                 "los_flags", "link_snr_db", "link_sinr_db", "edge", "certified"]
 RUN = ("run", "--trials", "2", "--out", "r.csv")
 
 
@@ -105,6 +105,7 @@ BAD = [
     (RUN + ("--delay-spread", "-65e-9"), "--delay-spread: delay_spread_s=-6.5e-08 s is outside"),
     (RUN + ("--prior-sigma", "nan"), "--prior-sigma: prior_scale_m must be finite"),
     (RUN + ("--seed", "-1"), "--seed: seed must be an integer"),
+    (RUN + ("--reuse", "5"), "--reuse: prs_reuse must be one of 0, 2, 4, 6, 12"),
     (RUN + ("--deployment", "watts.csv"), "--deployment: deployment file"),
     (RUN + ("--deployment", "missing.csv"), "--deployment: deployment file"),
 ]
