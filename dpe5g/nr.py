@@ -174,6 +174,17 @@ def active_bins(num: Numerology = PAPER) -> np.ndarray:
     return (j - num.n_active // 2) % num.n_fft
 
 
+def band_bins(num: Numerology = PAPER) -> np.ndarray:
+    """The bins of the active subcarriers in the signal model's own convention, where bin k is the tone at k Δf of
+    eq. (3) for k = 0 … N-1 (``dpe5g.signal``: the channel response and the delay phasor e^{-j2πkΔfτ} use k Δf):
+    the contiguous block k = (N - n_active)/2 + j, j = 0 … n_active-1, centred in the sampled band with a guard band
+    of (N - n_active)/2 bins at each end.  ``active_bins`` is the same carrier in the two-sided FFT layout (negative
+    frequencies at the top), which only a model reading bins k ≥ N/2 as (k - N) Δf may use: under eq. (3)'s
+    convention it would split the band in two, 2458 … 4095 Δf and 0 … 1637 Δf, whose correlogram has sidelobes a
+    contiguous band does not.  Shape (n_active,), int, in subcarrier order."""
+    return (num.n_fft - num.n_active) // 2 + np.arange(num.n_active)
+
+
 def prs_symbols(
     prs_id: int,
     num: Numerology = PAPER,
@@ -265,8 +276,9 @@ class PrsPattern:
                          for i in range(self.n_symbols)])
 
     def resource_elements(self, comb_offset: int, num: Numerology = PAPER) -> np.ndarray:
-        """The same REs as FFT bins (``active_bins``): int (L_PRS, n_active / K_comb)."""
-        return active_bins(num)[self.subcarriers(comb_offset, num)]
+        """The same REs as bins of the signal model (``band_bins``: subcarrier j at bin (N - n_active)/2 + j, the tone
+        at that multiple of Δf in eq. (3)): int (L_PRS, n_active / K_comb)."""
+        return band_bins(num)[self.subcarriers(comb_offset, num)]
 
 
 def prs_grid(prs_id: int, pattern: PrsPattern, comb_offset: int, num: Numerology = PAPER, slot: int = 0) -> np.ndarray:
@@ -290,7 +302,7 @@ def prs_grid(prs_id: int, pattern: PrsPattern, comb_offset: int, num: Numerology
 def prs_per_subcarrier(prs_id: int, pattern: PrsPattern, comb_offset: int, num: Numerology = PAPER,
                        slot: int = 0) -> np.ndarray:
     """The fully staggered PRS (L_PRS = K_comb) as one pilot per subcarrier: d_k = a_{k,l(k)}, the pilot of the one
-    symbol l(k) in which the resource has subcarrier k (zero on the inactive bins).
+    symbol l(k) in which the resource has subcarrier k (zero on the guard bins, ``band_bins``).
 
     With a static channel the receiver combines the symbols coherently, Σ_l conj(a_{k,l}) Y_{k,l}, and each subcarrier
     then holds one RE with its own noise: the L_PRS symbols act as one symbol with pilots d (energy N).  Resources

@@ -96,7 +96,7 @@ def test_prs_resource_elements_follow_the_standard(comb, n_symbols):
         for i in range(n_symbols):
             expected = [k for k in range(3276) if k % comb == (offset + table[comb][i]) % comb]
             assert sc[i].tolist() == expected
-        np.testing.assert_array_equal(p.resource_elements(offset), nr.active_bins()[sc])
+        np.testing.assert_array_equal(p.resource_elements(offset), nr.band_bins()[sc])
         # energy of the paper's full-band symbol, whatever the pattern and offset
         g = nr.prs_grid(5, p, offset)
         assert g.shape == (n_symbols, 4096)
@@ -111,7 +111,10 @@ def test_fully_staggered_pattern_covers_each_active_subcarrier_once():
     p = nr.PrsPattern(6)
     assert p.n_symbols == 6
     d = nr.prs_per_subcarrier(17, p, 4)
-    assert sorted(np.flatnonzero(d).tolist()) == sorted(nr.active_bins().tolist())
+    assert np.flatnonzero(d).tolist() == nr.band_bins().tolist()
+    # one contiguous block of eq. (3)'s bins (bin k the tone at k Δf), centred: guard bands of equal width
+    b = nr.band_bins()
+    assert np.all(np.diff(b) == 1) and b[0] == 4096 - 1 - b[-1] == (4096 - 3276) // 2
     assert np.sum(np.abs(d) ** 2) == pytest.approx(4096)
     # each pilot is its symbol's sequence: r_l(m) of §7.4.1.7.2 at m = k // K_comb
     g = nr.prs_grid(17, p, 4)
@@ -137,3 +140,19 @@ def test_prs_pattern_bad_offset_and_id():
         nr.prs_grid(4096, p, 0)
     with pytest.raises(ValueError, match="n_symbols must equal comb_size"):
         nr.prs_per_subcarrier(1, nr.PrsPattern(2, 4), 0)
+
+
+def test_staggered_prs_has_the_delay_kernel_of_one_contiguous_band():
+    """Eq. (3)'s convention (bin k the tone at k Δf): the pilots of a resource must occupy one contiguous band, so
+    that the LS CIR estimate of a pure delay peaks there with sinc sidelobes (at most -13.26 dB), as the paper's
+    full band does; a band split in two would put sidelobes of the split's beat inside the main lobe's neighbours."""
+    num = nr.PAPER
+    d = nr.prs_per_subcarrier(2, nr.PrsPattern(6), 3)
+    k = np.arange(num.n_fft)
+    tau = 37.3 * num.sample_period_s
+    g = np.abs(d) ** 2 * np.exp(-2j * np.pi * k * num.scs_hz * tau)  # conj(d) · d e^{-j2πkΔfτ}
+    t = tau + np.arange(-20, 20, 1 / 64) * num.sample_period_s
+    e = np.abs(np.exp(2j * np.pi * num.scs_hz * np.outer(t, k)) @ g) ** 2
+    assert abs(t[np.argmax(e)] - tau) < num.sample_period_s / 64
+    main = np.abs(t - tau) < num.n_fft / num.n_active * num.sample_period_s  # the main lobe, ±N/n_active samples
+    assert 10 * np.log10(e[~main].max() / e.max()) < -13.0
