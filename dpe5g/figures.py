@@ -495,7 +495,7 @@ CLAIM_SHORT = {"fig9_6m": "Fig. 9: ≤ 6 m\n10 dB, M = 6", "fig9_falls": "Fig. 9
                "fig10_gain": "Fig. 10: gain\n≈ 95.24 %"}
 READING_SHORT = {"as_read": "as this book reads it", "peak_otdoa": "… peak-ToA OTDoA", "span": "… DS = span",
                  "total_snr": "… total SNR", "span_total": "… span and total SNR", "honest": "honest receiver",
-                 "reuse": "honest, PRS reuse 6"}
+                 "reuse": f"honest, PRS reuse {paper.REUSE}"}
 
 
 def readings_payload(progress: bool = False, trials: int | None = None) -> dict:

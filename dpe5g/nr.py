@@ -245,8 +245,8 @@ class PrsPattern:
     (default K_comb: the "fully staggered" pattern, every active subcarrier carries exactly one PRS RE of the
     resource); start_symbol : l_start, with l_start + L_PRS ≤ 14.
 
-    The comb offset k_offset (dl-PRS-ReOffset, 0 … K_comb − 1) is per resource, an argument of the methods: resources
-    with different offsets use disjoint REs in every symbol, because k' depends only on the symbol.
+    The comb offset k_offset (dl-PRS-ReOffset, 0 … K_comb − 1) is per resource, an argument of the methods:
+    resources with different offsets use disjoint REs in every symbol, because k' depends only on the symbol.
     """
 
     comb_size: int = 6

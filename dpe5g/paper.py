@@ -207,8 +207,8 @@ READINGS = {
     "total_snr": ("… with the SNR after correlation (total)", {"snr_convention": "total"}),
     "span_total": ("… with both", {"delay_spread_def": "span", "snr_convention": "total"}),
     "honest": ("the honest receiver (window on a prior / the OTDoA fix, certified search)", {"centring": "honest"}),
-    "reuse": ("the honest receiver with Table I's PRS reuse 6 and co-channel interference, every link's power from "
-              "the path loss", {"centring": "honest", "prs_reuse": REUSE}),
+    "reuse": (f"the honest receiver with Table I's PRS reuse {REUSE} and co-channel interference, every link's "
+              "power from the path loss", {"centring": "honest", "prs_reuse": REUSE}),
 }
 
 
