@@ -34,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _checks, signal
-from .nr import PAPER
+from .nr import PAPER, Numerology
 
 
 #: precision of the grid correlograms the receivers read (``dpe.receiver_correlogram`` for the grid search,
@@ -125,17 +125,32 @@ def check_weights(weights, n_taps: int) -> np.ndarray:
     return w
 
 
-def window_spectrum(n_taps: int, n_fft: int, weights=None) -> np.ndarray:
-    """The L-tap window sum w_0 e(τ) + w_1 e(τ + T_s) + … + w_{L−1} e(τ + (L−1)T_s) as a multiplier on the
-    harmonics q = 0 … N of Δf of the energy e(τ): Σ_{l<L} w_l e^{j2πql/N}, with the Nyquist harmonic q = N set to
-    0.  weights : w (L,) from ``tap_weights``; None: all 1 (eq. (8)'s window).  Returns complex (N + 1,).
-    ``spline_coefficients`` takes it as an input, so one compiled Monte Carlo serves every L and every weighting."""
+def window_spectrum(n_taps: int, n_fft: int, weights=None, tap_spacing: float = 1.0) -> np.ndarray:
+    """The L-tap window sum w_0 e(τ) + w_1 e(τ + s T_s) + … + w_{L−1} e(τ + (L−1) s T_s) as a multiplier on the
+    harmonics q = 0 … N of Δf of the energy e(τ): Σ_{l<L} w_l e^{j2πqls/N}, with the Nyquist harmonic q = N set to
+    0.  weights : w (L,) from ``tap_weights``; None: all 1 (eq. (8)'s window).  tap_spacing : s, the taps' spacing
+    in samples: 1 (eq. (8): the pilots fill all N bins, and taps T_s apart are orthogonal over them), or N / K for
+    pilots on one contiguous band of K bins (``nr.band_bins``), the spacing at which taps are orthogonal over that
+    band, so that the window's energy is again the ML cost of L free taps (``band_tap_spacing``).  Returns complex
+    (N + 1,).  ``spline_coefficients`` takes it as an input, so one compiled Monte Carlo serves every L, weighting
+    and spacing."""
     _checks.integer("n_taps", n_taps, 1, n_fft)
+    _checks.in_range("tap_spacing", tap_spacing, 1.0, float(n_fft), "samples")
     w = np.ones(n_taps) if weights is None else check_weights(weights, n_taps)
     q = np.arange(n_fft + 1)
-    window = (np.exp(2j * np.pi * np.outer(q, np.arange(n_taps)) / n_fft) * w).sum(axis=1)
+    taps = np.arange(n_taps) if tap_spacing == 1.0 else np.arange(n_taps) * float(tap_spacing)
+    window = (np.exp(2j * np.pi * np.outer(q, taps) / n_fft) * w).sum(axis=1)
     window[n_fft] = 0.0  # no harmonic N: the Nyquist bin of the 2N samples is zero
     return window
+
+
+def band_tap_spacing(num: Numerology = PAPER) -> float:
+    """N / K in samples: the spacing at which the receiver window's taps are orthogonal over pilots on one contiguous
+    band of the carrier's K = n_active subcarriers (``nr.band_bins``), Σ_{k in band} e^{j2πk(l − l')/K} = K δ_{ll'};
+    T_s itself is the spacing for pilots on all N bins (eq. (8)).  With K < N and taps T_s apart, the taps' pulses
+    overlap, eq. (10)'s window energy is no longer the ML cost of L free taps, and its maximum moves off the first
+    path toward the middle of the pulse's energy (Chapter 5 measures it)."""
+    return num.n_fft / num.n_active
 
 
 def spline_coefficients(g, window, upsample: int) -> jax.Array:

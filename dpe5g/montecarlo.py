@@ -144,6 +144,10 @@ class Experiment:
         _checks.one_of("prs_reuse", self.prs_reuse, PRS_REUSES)
         if not isinstance(self.co_channel, bool):
             raise ValueError(f"co_channel must be True or False, got {self.co_channel!r}")
+        if self.prs_reuse and self.search.method != "bnb":
+            raise ValueError("prs_reuse > 0 needs the certified search (search.method 'bnb'): its receiver window is "
+                             "spaced for the PRS band (correlogram.band_tap_spacing), which the grid search's "
+                             f"sample-shift window cannot be; got {self.search.method!r}")
         if self.prs_reuse and self.snr_mode == "fixed":
             raise ValueError("prs_reuse > 0 needs each BS's received power for its interference: snr_mode must be "
                              "'link_budget' or 'nearest', got 'fixed'")
@@ -527,6 +531,19 @@ def _toa_fn(e: Experiment, dep: deployment.Deployment):
     return one
 
 
+def _receiver_window(e: Experiment) -> np.ndarray:
+    """The certified search's window (``correlogram.window_spectrum``) of ``e``'s receiver: L taps T_s apart for the
+    paper's full-band pilots; with ``prs_reuse`` the pilots fill only the carrier's contiguous band of active
+    subcarriers, and the taps are spaced ``correlogram.band_tap_spacing`` samples apart (their tap weights too), so that
+    the window's energy stays the ML cost of L free taps (eq. (8) with the band's own orthogonal taps)."""
+    cfg = e.receiver_search()
+    if not e.prs_reuse:
+        return correlogram.window_spectrum(cfg.n_taps, PAPER.n_fft, cfg.tap_weights(PAPER))
+    s = correlogram.band_tap_spacing(PAPER)
+    weights = correlogram.tap_weights(cfg.n_taps, cfg.window_decay_s, PAPER.sample_period_s * s)
+    return correlogram.window_spectrum(cfg.n_taps, PAPER.n_fft, weights, tap_spacing=s)
+
+
 def _window_free(e: Experiment) -> Experiment:
     """``e`` without what the per-trial function does not read: the name, the seed (it enters through the trial
     keys), the trial and chunk counts, how a non-truth window centre is obtained (it enters as an input), and, for
@@ -726,9 +743,7 @@ class _ChunkRunner:
         self.toa_fn = _compiled_step_fn(_toa_fn, plain, _deployment_digest(e)) if e.otdoa else None
         self.prior_fn = _compiled_step_fn(_prior_fn, plain, _deployment_digest(e)) if e.centring == "prior" else None
         cfg = e.receiver_search()
-        self.window = jnp.asarray(correlogram.window_spectrum(cfg.n_taps, PAPER.n_fft, cfg.tap_weights(PAPER))
-                                  if cfg.method == "bnb"
-                                  else np.zeros(1, dtype=complex))
+        self.window = jnp.asarray(_receiver_window(e) if cfg.method == "bnb" else np.zeros(1, dtype=complex))
 
     def __call__(self, start: int, stop: int, batch_size: int) -> dict:
         e = self.e

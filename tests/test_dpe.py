@@ -160,3 +160,28 @@ def test_ls_estimate_recovers_the_channel():
     g = np.asarray(correlogram.ls_spectrum(signal.demodulate(y), prs))
     h_hat = np.fft.ifft(g, axis=-1)
     assert np.allclose(h_hat[0, :3], h[0], atol=1e-12) and np.max(np.abs(h_hat[0, 3:])) < 1e-12
+
+
+@pytest.mark.parametrize("spacing", ["T_s", "band"])
+def test_window_taps_on_the_band_spacing_keep_the_first_path(spacing):
+    """Pilots on the carrier's contiguous band of K < N bins (the standard's PRS): a single path's LS pulse is wider
+    than T_s, so eq. (10)'s window with taps T_s apart (not orthogonal over the band) is largest with the window
+    spread over the pulse, before the path; with taps ``band_tap_spacing`` apart (orthogonal over the band) the
+    window that starts at the path holds the maximum, as it does for the paper's full-band pilots."""
+    import jax.numpy as jnp
+
+    n, u, taps = PAPER.n_fft, 8, 12
+    d = nr.prs_per_subcarrier(2, nr.PrsPattern(6), 3)
+    tau0 = 100.3  # samples
+    g = np.abs(d) ** 2 * np.exp(-2j * np.pi * np.arange(n) * tau0 / n)
+    s = 1.0 if spacing == "T_s" else correlogram.band_tap_spacing(PAPER)
+    assert correlogram.band_tap_spacing(PAPER) == pytest.approx(4096 / 3276)
+    window = jnp.asarray(correlogram.window_spectrum(taps, n, None, s))
+    coef = correlogram.spline_coefficients(jnp.asarray(g)[None], window, u)
+    t = tau0 + np.arange(-20.0, 3.0, 1 / 64)
+    cost = np.asarray(dpe.spline_values(coef, jnp.asarray(t * u)[:, None]))
+    at_path = float(dpe.spline_values(coef, jnp.asarray([[tau0 * u]]))[0])
+    if spacing == "band":
+        assert at_path >= cost.max() * (1 - 5e-5)  # the spline's own error is ≤ 2e-5 of the peak (Chapter 3)
+    else:
+        assert at_path < 0.97 * cost.max() and t[np.argmax(cost)] < tau0 - 1

@@ -110,9 +110,10 @@ def test_two_of_four_and_link_budget_modes(tmp_path):
     (dict(centring="otdoa"), "set otdoa=True"),
     (dict(prior_scale_m=-1.0), "prior_scale_m"),
     (dict(prs_reuse=3), "prs_reuse must be one of"),
-    (dict(prs_reuse=6), "snr_mode must be 'link_budget' or 'nearest'"),
+    (dict(prs_reuse=6, search=dpe.SearchConfig(method="bnb")), "snr_mode must be 'link_budget' or 'nearest'"),
+    (dict(prs_reuse=6, snr_mode="nearest"), "needs the certified search"),
     (dict(snr_mode="nearest", snrs_db=()), "snrs_db must list"),
-    (dict(prs_reuse=6, snr_mode="nearest", co_channel=1), "co_channel"),
+    (dict(prs_reuse=6, snr_mode="nearest", co_channel=1, search=dpe.SearchConfig(method="bnb")), "co_channel"),
 ])
 def test_bad_experiments(kwargs, needle):
     with pytest.raises(ValueError, match=needle):
@@ -284,7 +285,8 @@ def test_grid_search_centred_on_each_m_otdoa_fix(tmp_path):
     assert not np.allclose(res.center_xyz[:, 0, 0], res.center_xyz[:, 0, 1])
 
 
-REUSE = dict(name="r", n_trials=2, seed=4, snr_mode="nearest", snrs_db=(20.0,), m_values=(12,))
+REUSE = dict(name="r", n_trials=2, seed=4, snr_mode="nearest", snrs_db=(20.0,), m_values=(12,),
+             search=dpe.SearchConfig(method="bnb", half_width_m=3.0, bias_half_width_m=3.0))
 
 
 def test_prs_reuse_receives_the_sum_of_the_co_channel_bss():
@@ -329,7 +331,7 @@ def test_prs_reuse_receives_the_sum_of_the_co_channel_bss():
 
 
 def test_prs_reuse_runs_and_reports_sinr(tmp_path):
-    e = montecarlo.Experiment(prs_reuse=6, search=dpe.SearchConfig(half_width_m=3.0),
+    e = montecarlo.Experiment(prs_reuse=6, centring="prior",
                               **{**REUSE, "m_values": (4, 6), "snr_mode": "link_budget", "snrs_db": ()})
     r = montecarlo.run(e, cache=tmp_path, progress=False)
     assert r.link_sinr_db.shape == (2, 1, 6) and np.all(r.link_sinr_db <= r.link_snr_db)

@@ -44,6 +44,15 @@ def test_readings_are_experiments_that_differ_in_their_reading_only():
     assert dataclasses.replace(honest, name="fig09-honest", snrs_db=paper.fig9_honest().snrs_db,
                                n_trials=paper.FIG9_HONEST_TRIALS) == paper.fig9_honest()
     assert paper.reading_experiments("span", n_trials=7)["fig10_dpe"].n_trials == 7
+    # the reuse reading: the honest receivers of Fig. 9 (per-link power) and Fig. 10 with Table I's reuse, on the
+    # figures' seeds, differing from their reuse-free experiments in the reuse only
+    reuse = paper.reading_experiments("reuse")
+    assert reuse["fig9"].prs_reuse == reuse["fig10_dpe"].prs_reuse == paper.REUSE and reuse["fig9"].co_channel
+    assert dataclasses.replace(reuse["fig9"], name="fig09-power", prs_reuse=0) == paper.fig9_power()
+    assert reuse["fig9"].snr_mode == "nearest" and reuse["fig9"].n_trials >= paper.READING_TRIALS
+    f10 = paper.fig10(reuse["fig10_dpe"].n_trials)[("two_of_four", "otdoa")]
+    assert dataclasses.replace(reuse["fig10_dpe"], name=f10.name, prs_reuse=0) == f10
+    assert reuse["fig10_dpe"] is reuse["fig10_otdoa"] and reuse["fig10_dpe"].n_trials >= paper.READING_TRIALS
     with pytest.raises(ValueError, match="reading must be one of"):
         paper.reading_experiments("literal")
     assert set(channel.DELAY_SPREAD_DEFS) == {"rms", "span"}
