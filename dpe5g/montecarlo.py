@@ -96,7 +96,8 @@ class Experiment:
         paper's symbol), each BS on the comb offset and with the PRS ID of ``deployment.prs_plan`` (R resources).
         Every BS of the deployment transmits; the UE receives on each resource the sum of its BSs' signals through
         their own channels, path loss and ToA, plus one noise (co-channel links share their REs and so their noise).
-        Needs per-BS power: snr_mode "link_budget" or "nearest".
+        Needs per-BS power: snr_mode "link_budget" or "nearest"; and the certified search, whose window taps are
+        then spaced for the pilots' band (``_receiver_window``).
     co_channel : with prs_reuse > 0, whether the co-channel BSs' signals are received (True, default) or left out
         (the pattern and the shared noise alone, for comparison).
     chunk_trials : trials per cache file (results do not depend on it; resuming needs the same value).
