@@ -141,8 +141,11 @@ def timing_text() -> str:
     return (f"Measured with `../shared/bin/fresh-check test` (a clean clone, no `.venv`, no cache) at {b['commit']} on "
             f"{b['machine']['cpus']} CPUs: `make test` {b['make_test_s']} s ({b['make_test_s'] // 60} min "
             f"{b['make_test_s'] % 60} s), {verdict}; {b['tests_passed']} tests passed"
-            + (f", {b['tests_skipped']} skipped" if b["tests_skipped"] else "") + f", the pytest suite {b['pytest_s']:.0f} s; "
-            "chapter execution: " + ", ".join(f"{k} {v:.0f} s" for k, v in ch) + ".  "
+            + (f", {b['tests_skipped']} skipped" if b["tests_skipped"] else "")
+            + (f", the pytest suite {b['pytest_s']:.0f} s; " if len(b.get("pytest_runs_s", [])) != 2 else
+               f"; pytest {b['pytest_runs_s'][0]:.0f} s alongside the book build (at low priority) and "
+               f"{b['pytest_runs_s'][1]:.0f} s after it (the tests marked `book`); ")
+            + "chapter execution: " + ", ".join(f"{k} {v:.0f} s" for k, v in ch) + ".  "
             "`scripts/fresh_check_times.py` records these from the fresh-check's log.")
 
 

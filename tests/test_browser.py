@@ -18,8 +18,9 @@ ROOT = Path(__file__).resolve().parents[1]
 HTML = ROOT / "book" / "_build" / "html"
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 
-pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="chromium not installed (apt-get install chromium); "
-                                "the browser test of the book is skipped")
+pytestmark = [pytest.mark.book,  # reads the built book
+              pytest.mark.skipif(CHROMIUM is None, reason="chromium not installed (apt-get install chromium); "
+                                 "the browser test of the book is skipped")]
 
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
          "--disable-background-networking", "--disable-component-update", "--disable-sync"]

@@ -24,6 +24,8 @@ from matplotlib.testing.compare import compare_images
 
 from dpe5g import figures
 
+pytestmark = pytest.mark.book  # reads the figures' Monte Carlo results, which the book's chapters compute
+
 ROOT = Path(__file__).resolve().parents[1]
 BASELINE = ROOT / "figures"
 DIFF_DIR = ROOT / "figure-diff"
