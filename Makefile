@@ -48,7 +48,7 @@ chapter: $(STAMP)
 UNIT_LOG := .cache/pytest-unit.log
 test: $(STAMP)
 	@mkdir -p .cache
-	nice -n 19 $(BIN)/python -m pytest -m "not book" > $(UNIT_LOG) 2>&1 & unit=$$!; \
+	nice -n 19 $(BIN)/python -m pytest -m "not book" -n 0 > $(UNIT_LOG) 2>&1 & unit=$$!; \
 	book=0; $(MAKE) --no-print-directory book || book=$$?; \
 	status=0; wait $$unit || status=$$?; \
 	cat $(UNIT_LOG); \

@@ -607,9 +607,12 @@ def plot_reuse_cdf(payload: dict):
     """Chapter 6: error CDFs of the OTDoA-centred DPE (solid) and first-path OTDoA (dashed) with and without PRS reuse,
     one panel per LoS case.  payload {"cases": {case: {label: {"dpe": errors, "otdoa": errors}}}}."""
     titles = {"two_of_four": "(a) 2 of 4 links LoS (paper's case)", "pr_los": "(b) LoS from eq. (11)"}
+    n_cases = len(payload["cases"])
+    if n_cases == 0:
+        raise ValueError("plot_reuse_cdf: payload['cases'] is empty, need at least one LoS case")
     with style():
-        fig = Figure(figsize=(10.0, 4.8), layout="constrained")
-        axes = fig.subplots(1, 2, sharey=True)
+        fig = Figure(figsize=(5.0 * n_cases + (1.5 if n_cases == 1 else 0.0), 4.8), layout="constrained")
+        axes = np.atleast_1d(fig.subplots(1, n_cases, sharey=True))
         for ax, (case, runs) in zip(axes, payload["cases"].items()):
             for (label, errs), col in zip(runs.items(), COLORS):
                 for key, ls, what in (("dpe", "-", "DPE on OTDoA fix"), ("otdoa", "--", "OTDoA, first path")):
