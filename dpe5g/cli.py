@@ -1,5 +1,5 @@
 """Command line: ``dpe5g run`` (a Monte Carlo DPE study on your deployment), ``dpe5g figures`` (the figure build
-script), ``dpe5g profile`` (print a scaled TDL table), ``dpe5g deployment`` (check and summarise a deployment file)
+script), ``dpe5g warm`` (fill the Monte Carlo cache beside a book build), ``dpe5g profile`` (print a scaled TDL table), ``dpe5g deployment`` (check and summarise a deployment file)
 and ``dpe5g scene`` (export the 3-D scene as HTML).
 
 Bad input, including a file that cannot be read or written, ends with one line on stderr that names the parameter
@@ -218,6 +218,22 @@ def _figures(args) -> int:
     return 0
 
 
+# ---- dpe5g warm -------------------------------------------------------------------------------------------------------
+
+def _warm(args) -> int:
+    from . import montecarlo, paper
+
+    exps = paper.book_experiments()
+    order = exps if args.forward else exps[::-1]
+    t0 = time.perf_counter()
+    for i, e in enumerate(order, 1):
+        t = time.perf_counter()
+        montecarlo.run(e, progress=args.progress, reverse=not args.forward)
+        print(f"[{i}/{len(order)}] {e.name}: {e.n_trials} trials ({time.perf_counter() - t:.1f} s)", flush=True)
+    print(f"warm: {len(order)} experiments in the cache ({time.perf_counter() - t0:.1f} s)", flush=True)
+    return 0
+
+
 # ---- dpe5g profile, deployment, scene -------------------------------------------------------------------------------
 
 def _profile(args) -> int:
@@ -328,6 +344,17 @@ def build_parser() -> argparse.ArgumentParser:
                    help="Monte Carlo trials per experiment of Figs. 9-10 (default: the committed figures' counts); "
                         "not with --update-baselines")
     f.set_defaults(func=_figures)
+
+    w = sub.add_parser("warm", help="fill the Monte Carlo cache with every experiment the book runs",
+                       description="Run (or load) every Monte Carlo experiment the book's chapters run "
+                                   "(dpe5g.paper.book_experiments), the last chapter's first and each experiment's "
+                                   "trials last first, so that beside a book build, which runs them forward, the two "
+                                   "processes meet in the middle and the book's Monte Carlo keeps two CPUs busy instead of one "
+                                   "(make book and make test start it).  Results are the same as the "
+                                   "book's own runs to the bit (trial t depends only on the seed and t).")
+    w.add_argument("--forward", action="store_true", help="run in the book's order instead (alone, no book beside)")
+    w.add_argument("--progress", action="store_true", help="a progress bar per experiment on stderr")
+    w.set_defaults(func=_warm)
 
     t = sub.add_parser("profile", help="print a TR 38.901 TDL profile scaled to a delay spread")
     t.add_argument("name", help="A, B, C, D or E")

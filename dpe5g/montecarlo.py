@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _checks, channel, correlogram, deployment, dpe, nr, otdoa, scenario, signal
-from ._io import atomic_write
+from ._io import atomic_write, remove_stale_temporaries
 from .nr import C, PAPER
 
 #: default cache directory: ``.cache/montecarlo`` next to the package (the repository root for an editable install);
@@ -694,7 +694,8 @@ class ChunkCache:
     """One experiment's results on disk: ``cache_dir(e, cache)`` holds ``experiment.json`` (the config without the
     trial counts, and the key) and one ``.npz`` per chunk of ``chunk_trials`` trials.  Every file is written
     atomically (temporary file + rename), so a killed run leaves whole chunks and at most a stale ``*.tmp``, which
-    ``open`` removes; ``missing`` lists the chunks still to compute (resume), ``load`` concatenates them all."""
+    ``open`` removes (not another live process's: two processes may fill one cache, ``warm``); ``missing`` lists the
+    chunks still to compute (resume), ``load`` concatenates them all."""
 
     def __init__(self, e: Experiment, cache: str | os.PathLike | None = None):
         self.experiment = e
@@ -708,8 +709,7 @@ class ChunkCache:
         """Create the directory and its metadata; remove temporary files a killed run left (their chunks are
         recomputed)."""
         self.dir.mkdir(parents=True, exist_ok=True)
-        for stale in self.dir.glob("*.tmp"):
-            stale.unlink()
+        remove_stale_temporaries(self.dir)
         meta = self.dir / "experiment.json"
         if not meta.exists():
             d = self.experiment.to_dict()
@@ -769,18 +769,23 @@ BATCH_SIZE = {"grid": 2, "bnb": 1}
 
 
 def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = True,
-        batch_size: int | None = None) -> Results:
+        batch_size: int | None = None, reverse: bool = False) -> Results:
     """Run (or resume, or load) an experiment; returns its ``Results``.
 
-    Chunks already in the cache (``ChunkCache``) are loaded, the others computed and written as they finish.
-    progress : a tqdm bar with ETA on stderr.  batch_size : trials vmapped together (memory/speed only; results do
-    not depend on it); None: ``BATCH_SIZE`` of the experiment's search method.
+    Chunks already in the cache (``ChunkCache``) are loaded, the others computed and written as they finish; a chunk
+    that another process wrote meanwhile is read, not computed again.  progress : a tqdm bar with ETA on stderr.
+    batch_size : trials vmapped together (memory/speed only; results do not depend on it); None: ``BATCH_SIZE`` of
+    the experiment's search method.  reverse : compute the missing chunks last first (``warm`` does, so that a
+    process filling the cache beside one that runs forward meets it in the middle instead of repeating its chunks).
     """
     _checks.require_x64()
     batch_size = BATCH_SIZE[e.search.method] if batch_size is None else batch_size
     _checks.integer("batch_size", batch_size, 1, 4096)
     e.load_deployment()  # validates m_values against the deployment before any work
     store = ChunkCache(e, cache).open()
+    if os.environ.get("DPE5G_RUN_LOG"):  # the book build records what its chapters run (tests/test_warm.py)
+        with open(os.environ["DPE5G_RUN_LOG"], "a") as f:
+            f.write(json.dumps({"run": store.dir.name, "n_trials": e.n_trials}) + "\n")
     todo = store.missing()
     bar = None
     if todo and progress:
@@ -790,9 +795,10 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
                    unit="trial", file=sys.stderr, dynamic_ncols=True)
     runner = None
     try:
-        for start, stop in todo:
-            runner = runner or _ChunkRunner(e)
-            store.save(start, stop, runner(start, stop, batch_size))
+        for start, stop in (todo[::-1] if reverse else todo):
+            if not store.path(start, stop).exists():  # (another process may have written it since `missing`)
+                runner = runner or _ChunkRunner(e)
+                store.save(start, stop, runner(start, stop, batch_size))
             if bar is not None:
                 bar.update(stop - start)
     finally:

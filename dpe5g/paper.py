@@ -306,3 +306,30 @@ def claim_values(rmse_m, snrs_db, m_values, dpe_err_m, otdoa_err_m) -> dict:
             "fig10_dpe_p90": (d90, d90 <= 2), "fig10_dpe_p99": (d99, d99 <= 7),
             "fig10_otdoa_p90": (o90, abs(o90 - 42) <= 0.2 * 42),
             "fig10_gain": (1 - d90 / o90, abs(1 - d90 / o90 - 0.9524) <= 0.02)}
+
+
+def book_experiments() -> list[Experiment]:
+    """Every Monte Carlo experiment the book's chapters run, at the trial counts they run, in the order they first
+    need them (Chapters 5–8; ``run`` reuses a longer run's first trials, so an experiment whose first trials a chapter
+    reads at a smaller count appears once, at its largest).  ``dpe5g warm`` fills the cache with them, last first,
+    beside the book build; a chapter computes whatever is missing itself, so this list only saves time.
+    ``tests/test_paper.py`` checks it against the experiments the chapters name."""
+    out = [fig9_honest(), fig9_truth(), *urban_window_experiments().values(), fig9_low_snr(), fig9_link_budget(),
+           fig9_power(REUSE_COMPARE_TRIALS), fig9_power(REUSE_COMPARE_TRIALS, REUSE, co_channel=False),
+           fig9_power(reuse=REUSE), *fig10().values(), fig10_reuse()["two_of_four"]]
+    for name in READINGS:
+        out += [v for k, v in reading_experiments(name).items() if k != "otdoa_detector"]
+    out += [fig9_all_los(*c) for c in ALL_LOS_CASES]
+    for flat, fpa in first_path_comparison().values():
+        out += [flat, fpa]
+    longest = {}
+    for e in out:  # one entry per cached run (the name and config without the trial count), at its largest count
+        k = (e.name, e.key())
+        longest[k] = e if k not in longest or e.n_trials > longest[k].n_trials else longest[k]
+    seen, order = set(), []
+    for e in out:
+        k = (e.name, e.key())
+        if k not in seen:
+            seen.add(k)
+            order.append(longest[k])
+    return order

@@ -30,6 +30,40 @@ def test_results_do_not_depend_on_chunking_or_batching(tmp_path):
     np.testing.assert_allclose(c.error_m[:6], b.error_m, atol=1e-9)
 
 
+def test_reverse_order_and_chunks_written_meanwhile(tmp_path, monkeypatch):
+    """``run(reverse=True)`` (``dpe5g warm``) gives the forward run's results to the bit; a chunk another process wrote
+    after ``missing`` listed it is read, not computed again."""
+    e = montecarlo.Experiment(chunk_trials=2, **SMALL)
+    fwd = montecarlo.run(e, cache=tmp_path / "f", progress=False)
+    rev = montecarlo.run(e, cache=tmp_path / "r", progress=False, reverse=True)
+    for f in montecarlo.Results.FIELDS:
+        np.testing.assert_array_equal(getattr(fwd, f), getattr(rev, f), err_msg=f)
+    calls = []
+    monkeypatch.setattr(montecarlo.ChunkCache, "missing", lambda self: list(self.chunks))  # "not there yet"
+    monkeypatch.setattr(montecarlo._ChunkRunner, "__call__", lambda self, *a: calls.append(a))
+    again = montecarlo.run(e, cache=tmp_path / "f", progress=False)
+    assert calls == []
+    np.testing.assert_array_equal(again.error_m, fwd.error_m)
+
+
+def test_stale_temporaries_only_of_dead_writers_are_removed(tmp_path):
+    from dpe5g import _io
+
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    mine = tmp_path / f".trials-0000000-0000002.npz.{os.getpid()}.abc123.tmp"
+    gone = tmp_path / f".trials-0000002-0000004.npz.{dead.pid}.xyz789.tmp"
+    old = tmp_path / ".trials-0000004-0000006.npz.k2j4h5.tmp"  # without a pid: an older writer's
+    for p in (mine, gone, old):
+        p.write_bytes(b"partial")
+    assert sorted(_io.remove_stale_temporaries(tmp_path)) == sorted([gone, old])
+    assert mine.exists() and not gone.exists() and not old.exists()
+    with _io.atomic_target(tmp_path / "x.npz") as tmp:
+        assert f".{os.getpid()}." in tmp.name and _io.remove_stale_temporaries(tmp_path) == []  # a live write stays
+        tmp.write_bytes(b"whole")
+    assert (tmp_path / "x.npz").read_bytes() == b"whole"
+
+
 def test_cache_is_keyed_by_config(tmp_path):
     e1 = montecarlo.Experiment(**SMALL)
     e2 = montecarlo.Experiment(**{**SMALL, "seed": 2})

@@ -59,3 +59,17 @@ def test_readings_are_experiments_that_differ_in_their_reading_only():
     assert signal.per_sample_snr_db(40.0, "total") == pytest.approx(40 - 10 * np.log10(4096))
     with pytest.raises(ValueError, match="convention"):
         signal.per_sample_snr_db(40.0, "after_correlation")
+
+
+def test_book_experiments_one_entry_per_run_at_its_largest_count():
+    from dpe5g import montecarlo
+
+    exps = paper.book_experiments()
+    dirs = [montecarlo.cache_dir(e).name for e in exps]
+    assert len(dirs) == len(set(dirs))
+    by_dir = dict(zip(dirs, exps))
+    # Chapter 5 reads the first REUSE_COMPARE_TRIALS of the reuse reading's run: listed once, at the reading's count
+    assert by_dir[montecarlo.cache_dir(paper.fig9_power(reuse=paper.REUSE)).name].n_trials == paper.READING_TRIALS
+    for e in (paper.fig9_honest(), paper.fig9_truth(), paper.fig10()[("pr_los", "truth")], paper.fig9_honest_readings(),
+              paper.fig9_all_los(*paper.ALL_LOS_CASES[-1])):
+        assert by_dir[montecarlo.cache_dir(e).name].n_trials >= e.n_trials
