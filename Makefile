@@ -39,7 +39,7 @@ $(HTML): $(STAMP) $(BOOK_SRC) $(SOURCES)
 	@mkdir -p .cache; rm -f $(RUN_LOG)
 	$(BIN)/python -m dpe5g warm > $(WARM_LOG) 2>&1 & warm=$$!; \
 	trap 'kill $$warm 2>/dev/null || true' EXIT; \
-	DPE5G_RUN_LOG=$(RUN_LOG) $(BIN)/jupyter-book build . --config book/_config.yml --toc book/_toc.yml \
+	DPE5G_RUN_LOG=$(CURDIR)/$(RUN_LOG) $(BIN)/jupyter-book build . --config book/_config.yml --toc book/_toc.yml \
 		--path-output book -W -n --keep-going; \
 	echo "warm (stopped with the book): $$(tail -n 1 $(WARM_LOG))"
 	test -f $@ && touch $@
