@@ -30,18 +30,13 @@ figures: $(STAMP)
 
 # Build the HTML book; a chapter is re-executed when it changed, every chapter when dpe5g/ or environment.txt changed
 # (book/_ext/dpe5g_book.py clears the execution cache then),
-# and warnings are errors.  Beside it `dpe5g warm` runs the book's Monte Carlo experiments from the last chapter's
-# backwards (the book runs them forwards, one CPU at a time), and is stopped when the book is done; the chapters
-# record the runs they ask for in RUN_LOG (tests/test_warm.py checks that `warm` knows them all).
+# and warnings are errors.  The chapters record the Monte Carlo runs they ask for in RUN_LOG (tests/test_warm.py
+# checks that `dpe5g warm`, which prefills the cache, knows them all).
 RUN_LOG := .cache/book-runs.jsonl
-WARM_LOG := .cache/warm.log
 $(HTML): $(STAMP) $(BOOK_SRC) $(SOURCES)
 	@mkdir -p .cache; rm -f $(RUN_LOG)
-	$(BIN)/python -m dpe5g warm > $(WARM_LOG) 2>&1 & warm=$$!; \
-	trap 'kill $$warm 2>/dev/null || true' EXIT; \
 	DPE5G_RUN_LOG=$(CURDIR)/$(RUN_LOG) $(BIN)/jupyter-book build . --config book/_config.yml --toc book/_toc.yml \
-		--path-output book -W -n --keep-going; \
-	echo "warm (stopped with the book): $$(tail -n 1 $(WARM_LOG))"
+		--path-output book -W -n --keep-going
 	test -f $@ && touch $@
 
 book: $(HTML)
@@ -52,11 +47,17 @@ chapter: $(STAMP)
 	$(BIN)/python scripts/run_chapter.py "$(CH)" $(if $(filter 1,$(SMOKE)),--smoke)
 
 # Every test: unit + property tests, bad input, figure-diff against the committed baselines, browser test of the book.
-# The book first (with `dpe5g warm` beside it, its Monte Carlo keeps both CPUs busy), then every test on 2 processes
-# (pyproject's addopts); the tests marked "book" read what the book computed.
+# The tests that need neither the book nor the figures' Monte Carlo results run at low priority while the book builds
+# (its Monte Carlo leaves part of the CPUs idle); those marked "book" (figure-diff, browser) run after it.
+UNIT_LOG := .cache/pytest-unit.log
 test: $(STAMP)
-	$(MAKE) --no-print-directory book
-	$(BIN)/python -m pytest
+	@mkdir -p .cache
+	nice -n 19 $(BIN)/python -m pytest -m "not book" > $(UNIT_LOG) 2>&1 & unit=$$!; \
+	book=0; $(MAKE) --no-print-directory book || book=$$?; \
+	status=0; wait $$unit || status=$$?; \
+	cat $(UNIT_LOG); \
+	test $$book -eq 0 -a $$status -eq 0
+	$(BIN)/python -m pytest -m book
 
 clean:
 	rm -rf book/_build figure-diff

@@ -347,12 +347,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     w = sub.add_parser("warm", help="fill the Monte Carlo cache with every experiment the book runs",
                        description="Run (or load) every Monte Carlo experiment the book's chapters run "
-                                   "(dpe5g.paper.book_experiments), the last chapter's first and each experiment's "
-                                   "trials last first, so that beside a book build, which runs them forward, the two "
-                                   "processes meet in the middle and the book's Monte Carlo keeps two CPUs busy instead of one "
-                                   "(make book and make test start it).  Results are the same as the "
-                                   "book's own runs to the bit (trial t depends only on the seed and t).")
-    w.add_argument("--forward", action="store_true", help="run in the book's order instead (alone, no book beside)")
+                                   "(dpe5g.paper.book_experiments) into the cache, the last chapter's first and each "
+                                   "experiment's trials last first, so that a book build running at the same time "
+                                   "meets it in the middle; the chapters then read the cache.  Results are the same "
+                                   "as the book's own runs to the bit (trial t depends only on the seed and t).  "
+                                   "make does not start it: on 2 CPUs it only contends with the book's own runs.")
+    w.add_argument("--forward", action="store_true", help="run in the book's order instead")
     w.add_argument("--progress", action="store_true", help="a progress bar per experiment on stderr")
     w.set_defaults(func=_warm)
 

@@ -311,9 +311,9 @@ def claim_values(rmse_m, snrs_db, m_values, dpe_err_m, otdoa_err_m) -> dict:
 def book_experiments() -> list[Experiment]:
     """Every Monte Carlo experiment the book's chapters run, at the trial counts they run, in the order they first
     need them (Chapters 5–8; ``run`` reuses a longer run's first trials, so an experiment whose first trials a chapter
-    reads at a smaller count appears once, at its largest).  ``dpe5g warm`` fills the cache with them, last first,
-    beside the book build; a chapter computes whatever is missing itself, so this list only saves time.
-    ``tests/test_paper.py`` checks it against the experiments the chapters name."""
+    reads at a smaller count appears once, at its largest).  ``dpe5g warm`` fills the cache with them (a chapter
+    computes whatever is missing itself, so this list only saves time); ``tests/test_warm.py`` checks it against the
+    runs a book build recorded."""
     out = [fig9_honest(), fig9_truth(), *urban_window_experiments().values(), fig9_low_snr(), fig9_link_budget(),
            fig9_power(REUSE_COMPARE_TRIALS), fig9_power(REUSE_COMPARE_TRIALS, REUSE, co_channel=False),
            fig9_power(reuse=REUSE), *fig10().values(), fig10_reuse()["two_of_four"]]

@@ -1,5 +1,5 @@
-"""``dpe5g warm`` fills the Monte Carlo cache beside the book build: every run a chapter asks for must be on its list
-(``paper.book_experiments``), or the book computes it alone on one CPU (slower, never wrong)."""
+"""``dpe5g warm`` fills the Monte Carlo cache with the book's runs: every run a chapter asks for must be on its list
+(``paper.book_experiments``), or warm leaves it to the book (slower, never wrong)."""
 
 import json
 from pathlib import Path
