@@ -24,6 +24,7 @@ import io
 import json
 import os
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import lru_cache, partial
 from pathlib import Path
@@ -665,18 +666,29 @@ def _run_batch(args, fn, shared=()):
     return jax.vmap(lambda *a: fn(*a, *shared))(*args)
 
 
-def _run_chunk(args, fn, batch_size: int, shared=()) -> dict | tuple:
+def _run_chunk(args, fn, batch_size: int, shared=(), workers: int = 1) -> dict | tuple:
     """fn(*a, *shared) for each a of ``args`` (NumPy arrays, trials on the leading axis), ``batch_size`` trials per
     call of one compiled batch function; the last batch is filled up by repeating its last trial, whose copies are
     dropped.  So the compiled program depends on the batch size, never on the chunk's length: a run of 3 trials
     reuses the executable of a run of 5000 (in this process, and through JAX's persistent cache in others).
+    workers : batches computed at once, each in its own thread (XLA runs a call of the certified search's loops on
+    one core, and releases the GIL while it runs); the first batch runs alone, so the program is traced and compiled
+    once.  A batch's result depends only on its trials, never on the thread or the order.
     Returns fn's outputs as NumPy arrays, trials on the leading axis."""
     n = args[0].shape[0]
-    parts = []
-    for a in range(0, n, batch_size):
+
+    def one(a):
         take = np.minimum(np.arange(a, a + batch_size), n - 1)
         out = _run_batch(tuple(x[take] for x in args), fn, shared)
-        parts.append(jax.tree.map(lambda o, k=min(batch_size, n - a): np.asarray(o)[:k], out))
+        return jax.tree.map(lambda o, k=min(batch_size, n - a): np.asarray(o)[:k], out)
+
+    starts = range(0, n, batch_size)
+    parts = [one(starts[0])]
+    if len(starts) > 1 and workers > 1:
+        with ThreadPoolExecutor(min(workers, len(starts) - 1)) as pool:
+            parts += list(pool.map(one, starts[1:]))
+    else:
+        parts += [one(a) for a in starts[1:]]
     return jax.tree.map(lambda *p: np.concatenate(p), *parts)
 
 
@@ -746,19 +758,19 @@ class _ChunkRunner:
         cfg = e.receiver_search()
         self.window = jnp.asarray(_receiver_window(e) if cfg.method == "bnb" else np.zeros(1, dtype=complex))
 
-    def __call__(self, start: int, stop: int, batch_size: int) -> dict:
+    def __call__(self, start: int, stop: int, batch_size: int, workers: int = 1) -> dict:
         e = self.e
         keys = np.asarray(_trial_keys(e.seed, start, stop))
         ext = np.zeros((stop - start, e.n_snr, len(e.m_values), 4))
         ot = {}
         if e.otdoa:  # step 1 on the same signals (regenerated from the same keys), then the convex fixes
-            toas, ue, idx = _run_chunk((keys,), self.toa_fn, batch_size)
+            toas, ue, idx = _run_chunk((keys,), self.toa_fn, batch_size, workers=workers)
             ot = _otdoa_fixes(e, self.dep, toas, ue, idx)
             if e.centring == "otdoa":
                 ext = _otdoa_centers(e, self.dep, ot, idx)
         if e.centring == "prior":
-            ext[:] = _run_chunk((keys,), self.prior_fn, batch_size)[:, None, None, :]
-        out = _run_chunk((keys, ext), self.fn, batch_size, (self.window,))
+            ext[:] = _run_chunk((keys,), self.prior_fn, batch_size, workers=workers)[:, None, None, :]
+        out = _run_chunk((keys, ext), self.fn, batch_size, (self.window,), workers)
         return {**out, **ot}
 
 
@@ -768,8 +780,19 @@ class _ChunkRunner:
 BATCH_SIZE = {"grid": 2, "bnb": 1}
 
 
+def default_workers() -> int:
+    """Batches ``run`` computes at once by default: DPE5G_WORKERS if set, else the CPUs this process may use."""
+    env = os.environ.get("DPE5G_WORKERS")
+    if env is not None:
+        try:
+            return _checks.integer("DPE5G_WORKERS", int(env), 1, 256)
+        except ValueError:
+            raise ValueError(f"DPE5G_WORKERS must be an integer in [1, 256], got {env!r}") from None
+    return max(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1), 1)
+
+
 def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = True,
-        batch_size: int | None = None, reverse: bool = False) -> Results:
+        batch_size: int | None = None, reverse: bool = False, workers: int | None = None) -> Results:
     """Run (or resume, or load) an experiment; returns its ``Results``.
 
     Chunks already in the cache (``ChunkCache``) are loaded, the others computed and written as they finish; a chunk
@@ -777,10 +800,13 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
     batch_size : trials vmapped together (memory/speed only; results do not depend on it); None: ``BATCH_SIZE`` of
     the experiment's search method.  reverse : compute the missing chunks last first (``warm`` does, so that a
     process filling the cache beside one that runs forward meets it in the middle instead of repeating its chunks).
+    workers : batches of a chunk computed at once, in threads (speed only; results do not depend on it); None:
+    ``default_workers()``.
     """
     _checks.require_x64()
     batch_size = BATCH_SIZE[e.search.method] if batch_size is None else batch_size
     _checks.integer("batch_size", batch_size, 1, 4096)
+    workers = default_workers() if workers is None else _checks.integer("workers", workers, 1, 256)
     e.load_deployment()  # validates m_values against the deployment before any work
     store = ChunkCache(e, cache).open()
     if os.environ.get("DPE5G_RUN_LOG"):  # the book build records what its chapters run (tests/test_warm.py)
@@ -798,7 +824,7 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
         for start, stop in (todo[::-1] if reverse else todo):
             if not store.path(start, stop).exists():  # (another process may have written it since `missing`)
                 runner = runner or _ChunkRunner(e)
-                store.save(start, stop, runner(start, stop, batch_size))
+                store.save(start, stop, runner(start, stop, batch_size, workers))
             if bar is not None:
                 bar.update(stop - start)
     finally:

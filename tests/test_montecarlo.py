@@ -30,6 +30,28 @@ def test_results_do_not_depend_on_chunking_or_batching(tmp_path):
     np.testing.assert_allclose(c.error_m[:6], b.error_m, atol=1e-9)
 
 
+def test_results_do_not_depend_on_threads(tmp_path):
+    # the certified search (one trial per batch) with several batches of a chunk computed at once, in threads
+    e = montecarlo.Experiment(**{**SMALL, "centring": "prior", "prior_kind": "gaussian", "prior_scale_m": 1.0,
+                                 "search": dpe.SearchConfig(method="bnb", half_width_m=3.0), "chunk_trials": 6})
+    one = montecarlo.run(e, cache=tmp_path / "one", progress=False, workers=1)
+    three = montecarlo.run(e, cache=tmp_path / "three", progress=False, workers=3)
+    for f in montecarlo.Results.FIELDS:
+        np.testing.assert_array_equal(getattr(one, f), getattr(three, f), err_msg=f)
+    with pytest.raises(ValueError, match="workers must be an integer in"):
+        montecarlo.run(e, cache=tmp_path / "one", progress=False, workers=0)
+
+
+def test_default_workers_reads_the_environment(monkeypatch):
+    monkeypatch.setenv("DPE5G_WORKERS", "3")
+    assert montecarlo.default_workers() == 3
+    monkeypatch.setenv("DPE5G_WORKERS", "two")
+    with pytest.raises(ValueError, match="DPE5G_WORKERS must be an integer in"):
+        montecarlo.default_workers()
+    monkeypatch.delenv("DPE5G_WORKERS")
+    assert montecarlo.default_workers() >= 1
+
+
 def test_reverse_order_and_chunks_written_meanwhile(tmp_path, monkeypatch):
     """``run(reverse=True)`` (``dpe5g warm``) gives the forward run's results to the bit; a chunk another process wrote
     after ``missing`` listed it is read, not computed again."""
