@@ -744,6 +744,45 @@ class ChunkCache:
         return {k: np.concatenate([p[k] for p in parts]) for k in names}
 
 
+#: chunk arrays without an SNR axis (every other array is (T, S, ...)); ``_snr_superset_runs`` slices the others
+PER_TRIAL_FIELDS = ("ue_xyz", "clock_bias_s", "bs_index", "los")
+
+
+def _snr_superset_runs(e: Experiment, cache: str | os.PathLike | None = None) -> list[tuple[ChunkCache, list[int]]]:
+    """Cached runs of ``e`` at more SNRs: experiments equal to ``e`` in every field but the name and ``snrs_db``,
+    whose SNRs include all of ``e``'s, with the same key (code, data and library versions).  Trial t's draws and its
+    noise (drawn once, scaled to each SNR) do not depend on the SNR list, so such a run's chunk, sliced to ``e``'s
+    SNRs, is ``e``'s chunk (``tests/test_montecarlo.py`` computes both).  Returns [(its cache, index of each of
+    ``e``'s SNRs in its list)]."""
+    if e.snr_mode == "link_budget":
+        return []
+    root = cache_root(cache)
+    mine = json.loads(json.dumps(e.to_dict(), default=str))
+    out = []
+    for meta in sorted(root.glob("*/experiment.json")) if root.is_dir() else []:
+        try:
+            d = json.loads(meta.read_text())["experiment"]
+        except (OSError, ValueError, KeyError):
+            continue  # a folder being written, or not ours: not a source
+        if not isinstance(d, dict) or set(d) != set(mine) - {"n_trials", "chunk_trials"}:
+            continue
+        if any(d[k] != mine[k] for k in d if k not in ("name", "snrs_db")):
+            continue
+        snrs = [float(v) for v in d["snrs_db"]]
+        if tuple(snrs) == tuple(e.snrs_db) or not set(e.snrs_db) <= set(snrs):
+            continue
+        other = dataclasses.replace(e, name=str(d["name"]), snrs_db=tuple(snrs))
+        if cache_dir(other, cache) == meta.parent:  # the same code, data and versions
+            out.append((ChunkCache(other, cache), [snrs.index(v) for v in e.snrs_db]))
+    return out
+
+
+def _sliced_chunk(path: Path, snr_index: list[int]) -> dict:
+    """A chunk of a run at more SNRs, its (T, S, ...) arrays restricted to the SNRs ``snr_index``."""
+    with np.load(path) as z:
+        return {k: z[k] if k in PER_TRIAL_FIELDS else np.take(z[k], snr_index, axis=1) for k in z.files}
+
+
 class _ChunkRunner:
     """The compiled computation of a chunk of trials: OTDoA step 1 and its convex fixes (when the experiment asks),
     then the DPE fixes; built on first use (compiling is the slow part) and shared by every chunk of a run."""
@@ -796,7 +835,8 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
     """Run (or resume, or load) an experiment; returns its ``Results``.
 
     Chunks already in the cache (``ChunkCache``) are loaded, the others computed and written as they finish; a chunk
-    that another process wrote meanwhile is read, not computed again.  progress : a tqdm bar with ETA on stderr.
+    that another process wrote meanwhile is read, not computed again, and a chunk that a cached run of the same
+    experiment at more SNRs holds is sliced from it (``_snr_superset_runs``).  progress : a tqdm bar with ETA on stderr.
     batch_size : trials vmapped together (memory/speed only; results do not depend on it); None: ``BATCH_SIZE`` of
     the experiment's search method.  reverse : compute the missing chunks last first (``warm`` does, so that a
     process filling the cache beside one that runs forward meets it in the middle instead of repeating its chunks).
@@ -820,11 +860,16 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
         bar = tqdm(total=e.n_trials, initial=e.n_trials - sum(b - a for a, b in todo), desc=f"{e.name} trials",
                    unit="trial", file=sys.stderr, dynamic_ncols=True)
     runner = None
+    supersets = _snr_superset_runs(e, cache) if todo else []
     try:
         for start, stop in (todo[::-1] if reverse else todo):
             if not store.path(start, stop).exists():  # (another process may have written it since `missing`)
-                runner = runner or _ChunkRunner(e)
-                store.save(start, stop, runner(start, stop, batch_size, workers))
+                src = next(((c, ix) for c, ix in supersets if c.path(start, stop).exists()), None)
+                if src is not None:  # a run at more SNRs holds these trials
+                    store.save(start, stop, _sliced_chunk(src[0].path(start, stop), src[1]))
+                else:
+                    runner = runner or _ChunkRunner(e)
+                    store.save(start, stop, runner(start, stop, batch_size, workers))
             if bar is not None:
                 bar.update(stop - start)
     finally:

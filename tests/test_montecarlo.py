@@ -42,6 +42,24 @@ def test_results_do_not_depend_on_threads(tmp_path):
         montecarlo.run(e, cache=tmp_path / "one", progress=False, workers=0)
 
 
+def test_run_at_fewer_snrs_reads_a_cached_run_at_more(tmp_path, monkeypatch):
+    sup = montecarlo.Experiment(**{**SMALL, "snrs_db": (15.0, 30.0, 45.0), "chunk_trials": 2})
+    sub = montecarlo.Experiment(**{**SMALL, "name": "sub", "snrs_db": (45.0, 15.0), "n_trials": 8, "chunk_trials": 2})
+    other_seed = montecarlo.Experiment(**{**SMALL, "name": "seed2", "seed": 2, "snrs_db": (15.0, 30.0, 45.0),
+                                          "n_trials": 8, "chunk_trials": 2})
+    alone = montecarlo.run(sub, cache=tmp_path / "alone", progress=False)
+    montecarlo.run(sup, cache=tmp_path / "shared", progress=False)
+    montecarlo.run(other_seed, cache=tmp_path / "shared", progress=False)  # its trials are not sub's
+    computed = []
+    call = montecarlo._ChunkRunner.__call__
+    monkeypatch.setattr(montecarlo._ChunkRunner, "__call__",
+                        lambda self, a, b, *k: computed.append((a, b)) or call(self, a, b, *k))
+    shared = montecarlo.run(sub, cache=tmp_path / "shared", progress=False)
+    assert computed == [(6, 8)]  # trials 0-5 sliced from sup's chunks, the rest computed
+    for f in montecarlo.Results.FIELDS:
+        np.testing.assert_array_equal(getattr(alone, f), getattr(shared, f), err_msg=f)
+
+
 def test_default_workers_reads_the_environment(monkeypatch):
     monkeypatch.setenv("DPE5G_WORKERS", "3")
     assert montecarlo.default_workers() == 3
