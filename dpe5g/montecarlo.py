@@ -800,17 +800,36 @@ class _ChunkRunner:
     def __call__(self, start: int, stop: int, batch_size: int, workers: int = 1) -> dict:
         e = self.e
         keys = np.asarray(_trial_keys(e.seed, start, stop))
-        ext = np.zeros((stop - start, e.n_snr, len(e.m_values), 4))
-        ot = {}
-        if e.otdoa:  # step 1 on the same signals (regenerated from the same keys), then the convex fixes
-            toas, ue, idx = _run_chunk((keys,), self.toa_fn, batch_size, workers=workers)
-            ot = _otdoa_fixes(e, self.dep, toas, ue, idx)
-            if e.centring == "otdoa":
-                ext = _otdoa_centers(e, self.dep, ot, idx)
+        if not e.otdoa:
+            return self._dpe(keys, None, batch_size, workers)
+        # step 1 on the same signals (regenerated from the same keys), then the convex fixes, in pieces: the fixes of
+        # piece k+1 (Python, one core) are solved while the DPE of piece k runs (XLA, the GIL released)
+        toas, ue, idx = _run_chunk((keys,), self.toa_fn, batch_size, workers=workers)
+        n = stop - start
+        step = max(-(-n // self.OTDOA_PIECES), 1)
+        ots, dpes = [], []
+        with ThreadPoolExecutor(1) as background:
+            for a in range(0, n, step):
+                sl = slice(a, min(a + step, n))
+                ot = _otdoa_fixes(e, self.dep, toas[sl], ue[sl], idx[sl])
+                ext = _otdoa_centers(e, self.dep, ot, idx[sl]) if e.centring == "otdoa" else None
+                ots.append(ot)
+                dpes.append(background.submit(self._dpe, keys[sl], ext, batch_size, workers))
+            dpes = [f.result() for f in dpes]
+        return {k: np.concatenate([p[k] for p in dpes]) for k in dpes[0]} | {
+            k: np.concatenate([p[k] for p in ots]) for k in ots[0]}
+
+    #: pieces of a chunk whose OTDoA fixes and DPE overlap (speed only: every trial is computed on its own)
+    OTDOA_PIECES = 4
+
+    def _dpe(self, keys, ext, batch_size: int, workers: int) -> dict:
+        """The DPE fixes of trials ``keys``; ext (T, S, J, 4) the window centres of centring "otdoa" (else None)."""
+        e = self.e
+        if ext is None:
+            ext = np.zeros((len(keys), e.n_snr, len(e.m_values), 4))
         if e.centring == "prior":
             ext[:] = _run_chunk((keys,), self.prior_fn, batch_size, workers=workers)[:, None, None, :]
-        out = _run_chunk((keys, ext), self.fn, batch_size, (self.window,), workers)
-        return {**out, **ot}
+        return _run_chunk((keys, ext), self.fn, batch_size, (self.window,), workers)
 
 
 #: trials vmapped together by ``run``, per search method (speed only; results do not depend on it): the grid search

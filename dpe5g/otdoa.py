@@ -166,7 +166,9 @@ class Solver:
         self.ref.value = b[0, :2] / 1000.0
         self.dz.value = (ue_z - b[0, 2]) / 1000.0
         try:
-            self.problem.solve(solver=self._cp.CLARABEL)
+            # no warm start (cvxpy's default): it made a fix depend, by up to a few µm, on the solves before it, so
+            # the Monte Carlo's OTDoA fixes depended on its chunking
+            self.problem.solve(solver=self._cp.CLARABEL, warm_start=False)
         except self._cp.error.SolverError as exc:
             return Fix(np.full(3, np.nan), False, f"solver error: {exc}", np.nan, np.nan)
         if self.problem.status not in ("optimal", "optimal_inaccurate") or self.theta.value is None:

@@ -40,6 +40,13 @@ def test_results_do_not_depend_on_threads(tmp_path):
         np.testing.assert_array_equal(getattr(one, f), getattr(three, f), err_msg=f)
     with pytest.raises(ValueError, match="workers must be an integer in"):
         montecarlo.run(e, cache=tmp_path / "one", progress=False, workers=0)
+    # centred on the OTDoA fixes, which are solved piece by piece beside the DPE of the piece before
+    o = montecarlo.Experiment(**{**SMALL, "centring": "otdoa", "otdoa": True, "chunk_trials": 6})
+    whole = montecarlo.run(o, cache=tmp_path / "o6", progress=False, workers=3, batch_size=1)
+    single = montecarlo.run(montecarlo.Experiment(**{**SMALL, "centring": "otdoa", "otdoa": True, "chunk_trials": 1}),
+                            cache=tmp_path / "o1", progress=False, workers=1, batch_size=1)
+    for f in montecarlo.Results.FIELDS + montecarlo.Results.OTDOA_FIELDS:
+        np.testing.assert_array_equal(getattr(whole, f), getattr(single, f), err_msg=f)
 
 
 def test_run_at_fewer_snrs_reads_a_cached_run_at_more(tmp_path, monkeypatch):

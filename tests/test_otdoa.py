@@ -88,3 +88,17 @@ def test_runaway_polish_is_flagged_not_silent():
     if not fix.ok:
         assert fix.reason
     assert fix.residual_m > 1.0
+
+
+def test_a_fix_does_not_depend_on_the_solves_before_it():
+    # a Solver is reused across trials: its fix of one problem must not carry state (a warm start) from the last
+    rng = np.random.default_rng(5)
+    bs = np.column_stack([rng.uniform(-300, 300, (5, 2)), np.full(5, 20.0)])
+    ue = np.array([12.0, -7.0, 1.5])
+    probs = [np.linalg.norm(bs - ue, axis=1) / C + rng.normal(0, 5e-9, 5) for _ in range(3)]
+    used = otdoa.Solver(5)
+    for t in probs[:2]:
+        used.solve(bs, t, 1.5, polish=False)
+    a = used.solve(bs, probs[2], 1.5, polish=False)
+    b = otdoa.Solver(5).solve(bs, probs[2], 1.5, polish=False)
+    np.testing.assert_array_equal(a.xyz, b.xyz)
