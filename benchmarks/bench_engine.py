@@ -13,6 +13,9 @@
 4. Fig. 9's truth-centred experiment from an empty cache, in a fresh process with an empty JAX compilation cache:
    the first chunk (compile + 100 trials) and ``--trials`` in all are timed; the 5000-trial time is extrapolated
    from them (or measured with ``--full``).  Target: ≤ 120 s.
+5. Fig. 9's honest receiver (the certified search, the book's costliest runs): time per trial (7 SNRs × 4 M)
+   after the compile, with the engine's batches on one thread and on ``montecarlo.default_workers()`` threads,
+   each in a fresh process with an empty result cache (``--honest-trials`` trials).
 """
 
 from __future__ import annotations
@@ -48,6 +51,25 @@ print(json.dumps({"first_chunk_s": t1 - t0, "total_s": time.perf_counter() - t0}
 """
 
 
+RUN_HONEST = """
+import json, sys, time
+from dpe5g import montecarlo, paper
+n, cache, workers = int(sys.argv[1]), sys.argv[2], int(sys.argv[3])
+montecarlo.run(paper.fig9_honest(1), cache=cache, progress=False, workers=workers)  # compile
+t0 = time.perf_counter()
+montecarlo.run(paper.fig9_honest(1 + n), cache=cache, progress=False, workers=workers)
+print(json.dumps({"per_trial_s": (time.perf_counter() - t0) / n}))
+"""
+
+
+def fig9_honest_per_trial(n_trials: int, workers: int) -> float:
+    with tempfile.TemporaryDirectory() as tmp:
+        env = {**os.environ, "DPE5G_CACHE": os.path.join(tmp, "mc")}
+        r = subprocess.run([sys.executable, "-c", RUN_HONEST, str(n_trials), os.path.join(tmp, "mc"), str(workers)],
+                           env=env, capture_output=True, text=True, check=True)
+    return json.loads(r.stdout.strip().splitlines()[-1])["per_trial_s"]
+
+
 def fig9_from_empty_cache(n_trials: int) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         env = {**os.environ, "DPE5G_JAX_CACHE": os.path.join(tmp, "jax"), "DPE5G_CACHE": os.path.join(tmp, "mc")}
@@ -66,6 +88,8 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=300, help="Fig. 9 trials to time (> 100; default 300)")
     ap.add_argument("--full", action="store_true", help="time all 5000 trials of Fig. 9 instead of extrapolating")
+    ap.add_argument("--honest-trials", type=int, default=40,
+                    help="Fig. 9 honest-receiver trials to time per thread count (default 40)")
     ap.add_argument("--out", default=os.path.join(HERE, "bench_engine.json"))
     args = ap.parse_args(argv)
     n_fig9 = paper.URBAN_TRIALS if args.full else args.trials
@@ -124,6 +148,11 @@ def main(argv=None):
     # 4. Fig. 9 from an empty cache
     f9 = fig9_from_empty_cache(n_fig9)
 
+    # 5. the honest receiver per trial, one thread against the default
+    n_workers = montecarlo.default_workers()
+    h1 = fig9_honest_per_trial(args.honest_trials, 1)
+    hw = fig9_honest_per_trial(args.honest_trials, n_workers)
+
     rows = [
         ("one 4096-point FFT, one call (with dispatch)", t_fft_call, "s"),
         ("one 4096-point FFT, per row of 24 in one call", t_fft_row, "s"),
@@ -142,6 +171,8 @@ def main(argv=None):
         (f"Fig. 9 truth: per trial (7 SNRs), from {n_fig9} trials", f9["per_trial_s"], "s"),
         ("Fig. 9 truth, 5000 trials " + ("(measured)" if f9["full_measured"] else "(extrapolated)")
          + " (target <= 120 s)", f9["full_5000_s"], "S"),
+        ("Fig. 9 honest: per trial (7 SNRs x 4 M), one thread", h1, "s"),
+        (f"Fig. 9 honest: per trial, {n_workers} threads", hw, "s"),
     ]
     print(f"{'quantity':<78} {'value':>12}")
     for name, v, unit in rows:
@@ -158,6 +189,8 @@ def main(argv=None):
                    "spline_correlogram_vs_fft_row": t_spline / t_fft_row},
         "c64_toa_error_mm": err_mm,
         "fig9_empty_cache": f9,
+        "fig9_honest": {"trials": args.honest_trials, "per_trial_s_one_thread": h1, "workers": n_workers,
+                        "per_trial_s_workers": hw},
     }
     write(args.out, result)
 

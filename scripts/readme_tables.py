@@ -125,6 +125,11 @@ def engine_table() -> str:
         (f"Fig. 9 truth-centred, all 5000 trials ({'measured' if f9['full_measured'] else 'extrapolated from ' + str(f9['trials'])})",
          f"{f9['full_5000_s']:.0f} s", "≤ 120 s"),
     ]
+    h = b.get("fig9_honest")
+    if h:
+        rows.append((f"Fig. 9 honest receiver (certified search), per trial of 7 SNRs × 4 M: one thread / "
+                     f"{h['workers']} threads (`DPE5G_WORKERS`; {h['trials']} trials each)",
+                     f"{ms(h['per_trial_s_one_thread'])} / {ms(h['per_trial_s_workers'])}", ""))
     m = b["machine"]
     lines = [f"`benchmarks/bench_engine.py` on {m['cpus']} CPUs ({m['platform']}, JAX {m['jax']}, float64):", "",
              "| quantity | measured | target |", "|---|---|---|"]
