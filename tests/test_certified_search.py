@@ -1,6 +1,7 @@
 """The certified search (``dpe.certified_search``) against an exhaustive evaluation of the same window."""
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -16,18 +17,28 @@ CFG = dpe.SearchConfig(method="bnb", half_width_m=8.0, bias_half_width_m=3 * 5e-
 
 def _exhaustive_max(coef, bs, center, cfg, step=0.1):
     """max of the spline cost over a 0.1 m grid of the whole window (x, y, c δt), by brute force."""
+    return float(_exhaustive_fn(cfg, step)(coef, bs, center))
+
+
+@functools.lru_cache(maxsize=4)
+def _exhaustive_fn(cfg, step):
+    """The brute-force maximum as one jitted function of (coef, bs, center): compiled once per window, not per trial
+    (closing over a trial's arrays would make them constants of a new program each time)."""
     cell_m = C * PAPER.sample_period_s / cfg.spline_upsample
     ax = np.arange(-cfg.half_width_m, cfg.half_width_m + 1e-9, step)
     ab = np.arange(-cfg.bias_half_width_m, cfg.bias_half_width_m + 1e-9, step)
 
     @jax.jit
-    def row(x):
-        xy = jnp.stack([jnp.full(ax.shape, center[0] + x), center[1] + ax], -1)  # one column of the grid
-        d = jnp.sqrt(jnp.sum((xy[:, None, :] - bs[None, :, :2]) ** 2, -1) + (center[2] - bs[None, :, 2]) ** 2)
-        pos = (d[:, None, :] + center[3] + ab[None, :, None]) / cell_m  # (XY, B, M)
-        return jnp.max(dpe.spline_values(coef, pos))
+    def best(coef, bs, center):
+        def row(x):  # one column of the grid: every y and c δt at this x
+            xy = jnp.stack([jnp.full(ax.shape, center[0] + x), center[1] + ax], -1)
+            d = jnp.sqrt(jnp.sum((xy[:, None, :] - bs[None, :, :2]) ** 2, -1) + (center[2] - bs[None, :, 2]) ** 2)
+            pos = (d[:, None, :] + center[3] + ab[None, :, None]) / cell_m  # (XY, B, M)
+            return jnp.max(dpe.spline_values(coef, pos))
 
-    return max(float(row(jnp.asarray(x))) for x in ax)
+        return jnp.max(jax.lax.map(row, jnp.asarray(ax)))
+
+    return best
 
 
 @pytest.fixture(scope="module")
