@@ -670,7 +670,11 @@ def draw_links(e: Experiment, n_trials: int) -> dict:
 @partial(jax.jit, static_argnames=("fn",))
 def _run_batch(args, fn, shared=()):
     """fn(*a, *shared) for each a of ``args``, vmapped over their leading axis (the batch); ``shared`` goes to every
-    call."""
+    call.  A batch of one trial (the certified search's) calls fn on it directly: vmap would turn the search's while
+    loops into batched ones that carry their state through a select at every step; the results are the same bits
+    (the honest receiver measured 180 -> 172 ms per trial, compile 17.4 -> 15.8 s, one run each)."""
+    if args[0].shape[0] == 1:
+        return jax.tree.map(lambda o: o[None], fn(*(a[0] for a in args), *shared))
     return jax.vmap(lambda *a: fn(*a, *shared))(*args)
 
 
