@@ -628,6 +628,55 @@ def _trial_fn(e: Experiment, dep: deployment.Deployment):
     return one
 
 
+def _bnb_prep_fn(e: Experiment, dep: deployment.Deployment):
+    """The certified search's trials in two parts: this traceable (trial key, window) → (the trial's per-trial
+    results, BS positions (I, 3) m, true centre (4,) m (read in centring "truth" only), the spline coefficients
+    (I, N·U) of each SNR), the draws and correlograms ``_trial_fn`` computes; then one ``_bnb_fix_fn`` call per
+    (SNR, M).  Split so that the search, the slow part to compile, is compiled once per search config and M for
+    every experiment (the draws, SNRs, LoS model, PRS reuse and receiver window enter through the coefficients)
+    instead of once per experiment and M."""
+    draw = _draw_fn(e, dep)
+    cfg = e.receiver_search()
+
+    def bnb_prep(key, window):
+        d = draw(key)
+
+        def per_snr(s):
+            return dpe.receiver_correlogram(correlogram.ls_spectrum(_noisy(d, s), d["prs"]), cfg, window)
+
+        coef = jax.lax.map(per_snr, jnp.arange(d["link_snr"].shape[0]))  # (S, I, N·U)
+        trial = {"ue_xyz": d["ue"], "clock_bias_s": d["bias"], "bs_index": d["idx"], "los": d["los"],
+                 "link_snr_db": d["link_snr"], "link_sinr_db": d["link_sinr"]}
+        return trial, d["bs"], jnp.concatenate([d["ue"], d["bias"][None] * C]), tuple(coef)
+
+    return jax.jit(bnb_prep)
+
+
+@lru_cache(maxsize=32)
+def _bnb_fix_fn(cfg: dpe.SearchConfig, m: int):
+    """The certified search's fix with the m nearest of a trial's BSs, jitted: (spline coefficients (I, N·U), BS
+    positions (I, 3) m, window centre (4,) m) → ``dpe.fix``'s dict.  cfg is the receiver's search without its window
+    (``_fix_config``), so one program serves every experiment with that search and M."""
+    def certified_fix(coef, bs, center):
+        return dpe.fix(None, bs[:m], center, cfg, PAPER, corr=coef[:m])
+
+    return jax.jit(certified_fix)
+
+
+@jax.jit
+def _score(q, ue):
+    """Fixes q (..., 4) (x, y, z, c δt in metres) → their clock bias (...) s and horizontal error (...) m against
+    the true UE position ue (3,): scored as ``_trial_fn`` scores its fixes, in XLA (NumPy rounds the same
+    expressions differently in the last bit)."""
+    return q[..., 3] / C, jnp.linalg.norm(q[..., :2] - ue[:2], axis=-1)
+
+
+def _fix_config(e: Experiment) -> dpe.SearchConfig:
+    """``e``'s receiver search as ``_bnb_fix_fn`` reads it: the window's L and weights enter through the
+    coefficients, so they are cleared."""
+    return dataclasses.replace(e.receiver_search(), n_taps=1, window_decay_s=0.0)
+
+
 def example(e: Experiment, trial: int, snr_index: int = 0) -> dict:
     """The draws and received samples of one trial at one SNR index, exactly as the engine sees them (NumPy).
 
@@ -670,9 +719,8 @@ def draw_links(e: Experiment, n_trials: int) -> dict:
 @partial(jax.jit, static_argnames=("fn",))
 def _run_batch(args, fn, shared=()):
     """fn(*a, *shared) for each a of ``args``, vmapped over their leading axis (the batch); ``shared`` goes to every
-    call.  A batch of one trial (the certified search's) calls fn on it directly: vmap would turn the search's while
-    loops into batched ones that carry their state through a select at every step; the results are the same bits
-    (the honest receiver measured 180 -> 172 ms per trial, compile 17.4 -> 15.8 s, one run each)."""
+    call.  A batch of one trial calls fn on it directly (vmap would turn any while loop into a batched one that
+    carries its state through a select at every step; the results are the same bits)."""
     if args[0].shape[0] == 1:
         return jax.tree.map(lambda o: o[None], fn(*(a[0] for a in args), *shared))
     return jax.vmap(lambda *a: fn(*a, *shared))(*args)
@@ -802,7 +850,12 @@ class _ChunkRunner:
     def __init__(self, e: Experiment):
         self.e = e
         self.dep = e.load_deployment()
-        self.fn = _compiled_trial_fn(_window_free(e), _deployment_digest(e))
+        self.bnb = e.search.method == "bnb"
+        if self.bnb:  # two parts (``_bnb_prep_fn``): the trial's draws and correlograms, then a fix per (SNR, M)
+            self.prep = _compiled_step_fn(_bnb_prep_fn, _window_free(e), _deployment_digest(e))
+            self.fixes = [_bnb_fix_fn(_fix_config(e), m) for m in e.m_values]
+        else:
+            self.fn = _compiled_trial_fn(_window_free(e), _deployment_digest(e))
         plain = dataclasses.replace(e, name="", seed=0, n_trials=1, chunk_trials=1)  # what the draws depend on
         self.toa_fn = _compiled_step_fn(_toa_fn, plain, _deployment_digest(e)) if e.otdoa else None
         self.prior_fn = _compiled_step_fn(_prior_fn, plain, _deployment_digest(e)) if e.centring == "prior" else None
@@ -841,12 +894,44 @@ class _ChunkRunner:
             ext = np.zeros((len(keys), e.n_snr, len(e.m_values), 4))
         if e.centring == "prior":
             ext[:] = _run_chunk((keys,), self.prior_fn, batch_size, workers=workers)[:, None, None, :]
+        if self.bnb:
+            return self._bnb(keys, ext, workers)
         return _run_chunk((keys, ext), self.fn, batch_size, (self.window,), workers)
+
+    def _bnb(self, keys, ext, workers: int) -> dict:
+        """The certified search's trials, one at a time (its loops run as long as the slowest trial of a batch needs,
+        so it is not batched; ``workers`` trials at once, in threads, the first alone so that each program is
+        compiled once): ``_bnb_prep_fn``, then one fix per (SNR, M).  Returns ``_trial_fn``'s dict."""
+        e = self.e
+        truth = e.centring == "truth"
+
+        def one(i):
+            trial, bs, c0, coefs = self.prep(keys[i], self.window)
+            fixes = [[fix(coef, bs, c0 if truth else ext[i, s, j]) for j, fix in enumerate(self.fixes)]
+                     for s, coef in enumerate(coefs)]
+            r = {k: np.stack([[np.asarray(f[k]) for f in row] for row in fixes])
+                 for k in ("q", "gap", "certified", "edge")}  # (S, J, ...)
+            trial = {k: np.asarray(v) for k, v in trial.items()}
+            q = r["q"]
+            centers = np.broadcast_to(np.asarray(c0), q.shape) if truth else ext[i]
+            bias, err = (np.asarray(a) for a in _score(q, trial["ue_xyz"]))
+            return trial | {"est_xyz": q[..., :3], "est_bias_s": bias, "error_m": err,
+                            "center_xyz": centers[..., :3], "edge": r["edge"], "gap": r["gap"],
+                            "certified": r["certified"]}
+
+        parts = [one(0)]
+        if len(keys) > 1 and workers > 1:
+            with ThreadPoolExecutor(min(workers, len(keys) - 1)) as pool:
+                parts += list(pool.map(one, range(1, len(keys))))
+        else:
+            parts += [one(i) for i in range(1, len(keys))]
+        return {k: np.stack([p[k] for p in parts]) for k in parts[0]}
 
 
 #: trials vmapped together by ``run``, per search method (speed only; results do not depend on it): the grid search
-#: runs the same steps for every trial and gains from batching, while the certified search's loops run as long as
-#: the slowest trial of a batch needs, so it runs one trial at a time (8 % faster than two on this CPU)
+#: runs the same steps for every trial and gains from batching; the certified search's loops run as long as the
+#: slowest trial of a batch needs, so its fixes run one trial at a time whatever the batch size
+#: (``_ChunkRunner._bnb``), and so do its experiments' OTDoA step 1 and prior centres
 BATCH_SIZE = {"grid": 2, "bnb": 1}
 
 
@@ -868,8 +953,8 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
     Chunks already in the cache (``ChunkCache``) are loaded, the others computed and written as they finish; a chunk
     that another process wrote meanwhile is read, not computed again, and a chunk that a cached run of the same
     experiment at more SNRs holds is sliced from it (``_snr_superset_runs``).  progress : a tqdm bar with ETA on stderr.
-    batch_size : trials vmapped together (memory/speed only; results do not depend on it); None: ``BATCH_SIZE`` of
-    the experiment's search method.  reverse : compute the missing chunks last first (``warm`` does, so that a
+    batch_size : trials vmapped together (memory/speed only; results do not depend on it; the certified search's
+    fixes run one trial at a time); None: ``BATCH_SIZE`` of the experiment's search method.  reverse : compute the missing chunks last first (``warm`` does, so that a
     process filling the cache beside one that runs forward meets it in the middle instead of repeating its chunks).
     workers : batches of a chunk computed at once, in threads (speed only; results do not depend on it); None:
     ``default_workers()``.

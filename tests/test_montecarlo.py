@@ -245,6 +245,28 @@ def test_window_as_input_matches_a_direct_fix_for_every_l(tmp_path):
     assert correlogram.window_spectrum(1, 8)[0] == 1 and correlogram.window_spectrum(3, 8)[0] == 3
 
 
+def test_certified_search_is_traced_once_for_experiments_with_its_search_and_m(tmp_path, caplog):
+    """The certified search (the slow program to compile) runs as a program of its own per search config and M: an
+    experiment that differs from an earlier one only in its draws (LoS model), SNRs or receiver window L must not
+    trace it again, while its own draws and correlograms are traced (the log's positive control)."""
+    import dataclasses
+    import logging
+
+    import jax
+
+    bnb = dpe.SearchConfig(method="bnb", half_width_m=2.0, box_m=1.0)
+    first = montecarlo.Experiment(name="a", n_trials=1, chunk_trials=1, seed=3, snrs_db=(20.0,), m_values=(4,),
+                                  centring="prior", search=bnb)
+    montecarlo.run(first, cache=tmp_path, progress=False)
+    other = dataclasses.replace(first, name="b", los_mode="all_los", snrs_db=(10.0, 30.0),
+                                search=dataclasses.replace(bnb, n_taps=4))
+    with jax.log_compiles(True), caplog.at_level(logging.WARNING, logger="jax"):
+        montecarlo.run(other, cache=tmp_path, progress=False)
+    traced = [r.getMessage() for r in caplog.records if "Finished tracing" in r.getMessage()]
+    assert any("bnb_prep" in m for m in traced), traced
+    assert not any("certified_fix" in m for m in traced), traced
+
+
 def test_engine_signal_is_the_public_signal_path():
     """The engine simulates in the frequency domain; its samples must be ``signal.received_noiseless`` of the
     trial's own channel (per-link profile, gains, delays, ToA, clock bias), and its noise AWGN of the SNR's
