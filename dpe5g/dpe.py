@@ -434,6 +434,31 @@ def _taylor_pays(hx: float, hb: float, cell_m: float) -> bool:
     return (2 * np.sqrt(2) * hx + 2 * hb) / cell_m < TAYLOR_MAX_CELLS
 
 
+def spline_window(coef, bs_xyz, center, cfg: SearchConfig, num: Numerology = PAPER):
+    """The part of each BS's spline (``correlogram.spline_coefficients``) that a ToA inside ``certified_search``'s
+    window can reach: ``slice_cells(cfg)`` cells from the nearest point of the window's x, y square and its lowest
+    c δt, with the knots either side that the cubic pieces read.
+
+    coef : (M, N·U); bs_xyz : (M, 3) m; center : (4,) = [x, y, z, c δt] m.  Returns (coefficients (M, cells + 3),
+    start (M,) the knot index of the first, modulo N·U); cell r of BS m spans knot units [start_m + 1 + r,
+    start_m + 2 + r).  Rows are per BS, so the first M' rows are the window of the M' nearest.  Traceable."""
+    n_knots = coef.shape[1]
+    cell_m = C * num.sample_period_s / cfg.spline_upsample
+    n_cells = slice_cells(cfg, num)
+    half, half_b = cfg.half_width_m, cfg.bias_half_width_m
+    bs = jnp.asarray(bs_xyz)
+    dz2 = ((center[2] - bs[:, 2]) ** 2)[:, None]
+    bx, by = bs[:, 0, None], bs[:, 1, None]
+    cx, cy = center[None, 0:1], center[None, 1:2]
+    xl, xh, yl, yh = cx - half, cx + half, cy - half, cy + half
+    dxn = jnp.maximum(jnp.maximum(xl - bx, bx - xh), 0.0)
+    dyn = jnp.maximum(jnp.maximum(yl - by, by - yh), 0.0)
+    dmin = jnp.sqrt(dxn**2 + dyn**2 + dz2)
+    start = jnp.floor((dmin[:, 0] + center[3] - half_b) / cell_m).astype(jnp.int64) - 2
+    idx = jnp.mod(start[:, None] + jnp.arange(n_cells + 3)[None], n_knots)
+    return jnp.take_along_axis(coef, idx, axis=1), start
+
+
 def certified_search(coef, bs_xyz, center, cfg: SearchConfig, num: Numerology = PAPER) -> dict:
     """Global maximum of eq. (10) (its spline form, ``correlogram.spline_coefficients``) over the window by branch and
     bound.
@@ -458,14 +483,16 @@ def certified_search(coef, bs_xyz, center, cfg: SearchConfig, num: Numerology = 
     found; ``gap`` = (largest upper bound left − cost) / cost bounds how far the true maximum of the spline cost in
     the window can lie above it.
 
-    coef : (M, N·U) from ``correlogram.spline_coefficients``; bs_xyz : (M, 3) m; center : (4,) = [x, y, z, c δt] in
-    METRES.
+    coef : (M, N·U) from ``correlogram.spline_coefficients``, or the pair ``spline_window`` returns for this window
+    (the Monte Carlo engine computes it beside the coefficients, so that its search reads only that part); bs_xyz :
+    (M, 3) m; center : (4,) = [x, y, z, c δt] in METRES.
     Returns a dict: q (4,) = (x, y, z, c δt) m, cost (spline), gap (relative), certified (gap ≤ gap_tol, no
     box dropped), edge (the fix lies within one final box of the window's boundary in x, y or c δt).
     Traceable (jit, vmap); shapes are static given ``cfg``.
     """
     _checks.require_x64()
-    m, n_knots = coef.shape
+    sl, start = coef if isinstance(coef, tuple) else spline_window(coef, bs_xyz, center, cfg, num)
+    m = sl.shape[0]
     u_scale = cfg.spline_upsample
     cell_m = C * num.sample_period_s / u_scale
     n_cells = slice_cells(cfg, num)
@@ -483,12 +510,7 @@ def certified_search(coef, bs_xyz, center, cfg: SearchConfig, num: Numerology = 
         dyx = jnp.maximum(jnp.abs(yl - by), jnp.abs(yh - by))
         return jnp.sqrt(dxn**2 + dyn**2 + dz2), jnp.sqrt(dxx**2 + dyx**2 + dz2)
 
-    # the part of each BS's spline the window can reach: cells 0 … n_cells-1 from `base` (knot units)
-    dmin_w, _ = dist_bounds(center[None, 0:1], center[None, 1:2], half)
-    start = jnp.floor((dmin_w[:, 0] + center[3] - half_b) / cell_m).astype(jnp.int64) - 2
-    idx = jnp.mod(start[:, None] + jnp.arange(n_cells + 3)[None], n_knots)
-    sl = jnp.take_along_axis(coef, idx, axis=1)  # cell r spans knot units [start+1+r, start+2+r)
-    base = (start + 1).astype(jnp.float64)[:, None]
+    base = (start + 1).astype(jnp.float64)[:, None]  # cell r of the window spans knot units [base + r, base + r + 1)
     cells = _cell_poly(sl[:, :-3], sl[:, 1:-2], sl[:, 2:-1], sl[:, 3:])
     poly = jnp.stack(cells, axis=-1)  # (M, n_cells, 4)
     # the longest range a box can query: the ToA interval of a level-0 box spans ≤ (2√2 hx + 2 hb) / cell cells

@@ -629,36 +629,51 @@ def _trial_fn(e: Experiment, dep: deployment.Deployment):
 
 
 def _bnb_prep_fn(e: Experiment, dep: deployment.Deployment):
-    """The certified search's trials in two parts: this traceable (trial key, window) → (the trial's per-trial
-    results, BS positions (I, 3) m, true centre (4,) m (read in centring "truth" only), the spline coefficients
-    (I, N·U) of each SNR), the draws and correlograms ``_trial_fn`` computes; then one ``_bnb_fix_fn`` call per
-    (SNR, M).  Split so that the search, the slow part to compile, is compiled once per search config and M for
-    every experiment (the draws, SNRs, LoS model, PRS reuse and receiver window enter through the coefficients)
-    instead of once per experiment and M."""
+    """The certified search's trials in two parts: this jitted (trial key, window, window centres ext (S, J, 4) m of
+    the non-truth centrings) → (the trial's per-trial results, BS positions (I, 3) m, the window centres (S, J, 4) m,
+    the part of each BS's spline correlogram each window reaches (``dpe.spline_window``: coefficients
+    (S, J, I, cells + 3) and their first knots (S, J, I))), the draws and correlograms ``_trial_fn`` computes; then
+    ``_bnb_fix_fn``.  Split so that the search, the slow part to compile, is compiled once per search config, M
+    values and number of SNRs, for every experiment (the draws, LoS model, PRS reuse and receiver window enter
+    through the coefficients) instead of once per experiment; the windows, not the whole correlograms, pass from one
+    program to the other."""
     draw = _draw_fn(e, dep)
     cfg = e.receiver_search()
+    n_m = len(e.m_values)
 
-    def bnb_prep(key, window):
+    def bnb_prep(key, window, ext):
         d = draw(key)
+        c0 = jnp.concatenate([d["ue"], d["bias"][None] * C])  # read in centring "truth" only
+        centers = jnp.broadcast_to(c0, ext.shape) if e.centring == "truth" else ext
 
-        def per_snr(s):
-            return dpe.receiver_correlogram(correlogram.ls_spectrum(_noisy(d, s), d["prs"]), cfg, window)
+        def per_snr(a):
+            s, cen = a
+            coef = dpe.receiver_correlogram(correlogram.ls_spectrum(_noisy(d, s), d["prs"]), cfg, window)
+            return jax.vmap(lambda c: dpe.spline_window(coef, d["bs"], c, cfg, PAPER))(cen)
 
-        coef = jax.lax.map(per_snr, jnp.arange(d["link_snr"].shape[0]))  # (S, I, N·U)
+        sls, starts = jax.lax.map(per_snr, (jnp.arange(d["link_snr"].shape[0]), centers))  # (S, J, I, ...)
         trial = {"ue_xyz": d["ue"], "clock_bias_s": d["bias"], "bs_index": d["idx"], "los": d["los"],
                  "link_snr_db": d["link_snr"], "link_sinr_db": d["link_sinr"]}
-        return trial, d["bs"], jnp.concatenate([d["ue"], d["bias"][None] * C]), tuple(coef)
+        return trial, d["bs"], centers, sls, starts
 
     return jax.jit(bnb_prep)
 
 
 @lru_cache(maxsize=32)
-def _bnb_fix_fn(cfg: dpe.SearchConfig, m: int):
-    """The certified search's fix with the m nearest of a trial's BSs, jitted: (spline coefficients (I, N·U), BS
-    positions (I, 3) m, window centre (4,) m) → ``dpe.fix``'s dict.  cfg is the receiver's search without its window
-    (``_fix_config``), so one program serves every experiment with that search and M."""
-    def certified_fix(coef, bs, center):
-        return dpe.fix(None, bs[:m], center, cfg, PAPER, corr=coef[:m])
+def _bnb_fix_fn(cfg: dpe.SearchConfig, m_values: tuple[int, ...]):
+    """The certified search's fixes of one trial, jitted: (BS positions (I, 3) m, window centres (S, J, 4) m, the
+    windows of the spline correlograms (``dpe.spline_window``: (S, J, I, cells + 3) and (S, J, I))) → ``dpe.fix``'s
+    dict, arrays (S, J, ...), with the M nearest BSs for each M of ``m_values``.  cfg is the receiver's search
+    without its window L (``_fix_config``), so one program serves every experiment with that search, those M and as
+    many SNRs."""
+    def certified_fix(bs, centers, sls, starts):
+        def per_snr(a):
+            cen, sl, st = a
+            fixes = [dpe.fix(None, bs[:m], cen[j], cfg, PAPER, corr=(sl[j, :m], st[j, :m]))
+                     for j, m in enumerate(m_values)]
+            return {k: jnp.stack([f[k] for f in fixes]) for k in ("q", "gap", "certified", "edge")}
+
+        return jax.lax.map(per_snr, (centers, sls, starts))
 
     return jax.jit(certified_fix)
 
@@ -853,7 +868,7 @@ class _ChunkRunner:
         self.bnb = e.search.method == "bnb"
         if self.bnb:  # two parts (``_bnb_prep_fn``): the trial's draws and correlograms, then a fix per (SNR, M)
             self.prep = _compiled_step_fn(_bnb_prep_fn, _window_free(e), _deployment_digest(e))
-            self.fixes = [_bnb_fix_fn(_fix_config(e), m) for m in e.m_values]
+            self.fix = _bnb_fix_fn(_fix_config(e), tuple(e.m_values))
         else:
             self.fn = _compiled_trial_fn(_window_free(e), _deployment_digest(e))
         plain = dataclasses.replace(e, name="", seed=0, n_trials=1, chunk_trials=1)  # what the draws depend on
@@ -901,22 +916,15 @@ class _ChunkRunner:
     def _bnb(self, keys, ext, workers: int) -> dict:
         """The certified search's trials, one at a time (its loops run as long as the slowest trial of a batch needs,
         so it is not batched; ``workers`` trials at once, in threads, the first alone so that each program is
-        compiled once): ``_bnb_prep_fn``, then one fix per (SNR, M).  Returns ``_trial_fn``'s dict."""
-        e = self.e
-        truth = e.centring == "truth"
+        compiled once): ``_bnb_prep_fn``, then ``_bnb_fix_fn``.  Returns ``_trial_fn``'s dict."""
 
         def one(i):
-            trial, bs, c0, coefs = self.prep(keys[i], self.window)
-            fixes = [[fix(coef, bs, c0 if truth else ext[i, s, j]) for j, fix in enumerate(self.fixes)]
-                     for s, coef in enumerate(coefs)]
-            r = {k: np.stack([[np.asarray(f[k]) for f in row] for row in fixes])
-                 for k in ("q", "gap", "certified", "edge")}  # (S, J, ...)
+            trial, bs, centers, sls, starts = self.prep(keys[i], self.window, ext[i])
+            r = {k: np.asarray(v) for k, v in self.fix(bs, centers, sls, starts).items()}  # (S, J, ...)
             trial = {k: np.asarray(v) for k, v in trial.items()}
-            q = r["q"]
-            centers = np.broadcast_to(np.asarray(c0), q.shape) if truth else ext[i]
-            bias, err = (np.asarray(a) for a in _score(q, trial["ue_xyz"]))
-            return trial | {"est_xyz": q[..., :3], "est_bias_s": bias, "error_m": err,
-                            "center_xyz": centers[..., :3], "edge": r["edge"], "gap": r["gap"],
+            bias, err = (np.asarray(a) for a in _score(r["q"], trial["ue_xyz"]))
+            return trial | {"est_xyz": r["q"][..., :3], "est_bias_s": bias, "error_m": err,
+                            "center_xyz": np.asarray(centers)[..., :3], "edge": r["edge"], "gap": r["gap"],
                             "certified": r["certified"]}
 
         parts = [one(0)]

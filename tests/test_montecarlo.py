@@ -246,9 +246,10 @@ def test_window_as_input_matches_a_direct_fix_for_every_l(tmp_path):
 
 
 def test_certified_search_is_traced_once_for_experiments_with_its_search_and_m(tmp_path, caplog):
-    """The certified search (the slow program to compile) runs as a program of its own per search config and M: an
-    experiment that differs from an earlier one only in its draws (LoS model), SNRs or receiver window L must not
-    trace it again, while its own draws and correlograms are traced (the log's positive control)."""
+    """The certified search (the slow program to compile) runs as a program of its own per search config, M values
+    and number of SNRs: an experiment that differs from an earlier one only in its draws (LoS model), SNR values or
+    receiver window L must not trace it again, while its own draws and correlograms are traced (the log's positive
+    control)."""
     import dataclasses
     import logging
 
@@ -258,7 +259,7 @@ def test_certified_search_is_traced_once_for_experiments_with_its_search_and_m(t
     first = montecarlo.Experiment(name="a", n_trials=1, chunk_trials=1, seed=3, snrs_db=(20.0,), m_values=(4,),
                                   centring="prior", search=bnb)
     montecarlo.run(first, cache=tmp_path, progress=False)
-    other = dataclasses.replace(first, name="b", los_mode="all_los", snrs_db=(10.0, 30.0),
+    other = dataclasses.replace(first, name="b", los_mode="all_los", snrs_db=(10.0,),
                                 search=dataclasses.replace(bnb, n_taps=4))
     with jax.log_compiles(True), caplog.at_level(logging.WARNING, logger="jax"):
         montecarlo.run(other, cache=tmp_path, progress=False)
