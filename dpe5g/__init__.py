@@ -26,6 +26,7 @@ anything leaves the level as it was.
 """
 
 import os
+import sys
 from pathlib import Path
 
 #: the XLA backend optimisation level importing dpe5g asks for (see the module docstring); DPE5G_XLA_OPT_LEVEL overrides
@@ -43,7 +44,21 @@ def _xla_flags(flags: str, level: str | None) -> str:
     return f"{flags} --xla_backend_optimization_level={level}".strip()
 
 
-os.environ["XLA_FLAGS"] = _xla_flags(os.environ.get("XLA_FLAGS", ""), os.environ.get("DPE5G_XLA_OPT_LEVEL"))
+def _cli_starting() -> bool:
+    """Whether this import starts the ``dpe5g`` command line: ``python -m dpe5g …`` (sys.argv[0] is "-m" while
+    Python locates the module) or the ``dpe5g`` script.  A bad setting read at import then ends as the CLI's own
+    errors do, in one line and exit code 2, since the CLI's handler does not exist yet."""
+    argv = getattr(sys, "argv", None) or [""]
+    return argv[0] == "-m" or Path(argv[0]).name == "dpe5g"
+
+
+try:
+    os.environ["XLA_FLAGS"] = _xla_flags(os.environ.get("XLA_FLAGS", ""), os.environ.get("DPE5G_XLA_OPT_LEVEL"))
+except ValueError as exc:
+    if not _cli_starting():
+        raise
+    print(f"dpe5g: error: {exc}", file=sys.stderr)
+    raise SystemExit(2) from None
 
 import jax  # noqa: E402  (after XLA_FLAGS)
 

@@ -146,6 +146,19 @@ def test_no_traceback_in_a_subprocess(args, workdir):
     assert len(r.stderr.strip().splitlines()) == 1, r.stderr
 
 
+def test_bad_xla_level_is_one_line_from_the_command_line(workdir):
+    """DPE5G_XLA_OPT_LEVEL is read when dpe5g is imported, before the CLI's handler exists: the command line must
+    still report it in one line with exit code 2, and importing the library must still raise."""
+    env = {**os.environ, "DPE5G_XLA_OPT_LEVEL": "7"}
+    msg = "DPE5G_XLA_OPT_LEVEL must be one of 0, 1, 2, 3 or xla, got '7'"
+    r = subprocess.run([sys.executable, "-m", "dpe5g", "profile", "C"], capture_output=True, text=True, timeout=300,
+                       cwd=workdir, env=env)
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [f"dpe5g: error: {msg}"], r.stderr
+    r = subprocess.run([sys.executable, "-c", "import dpe5g"], capture_output=True, text=True, timeout=300,
+                       cwd=workdir, env=env)
+    assert r.returncode == 1 and f"ValueError: {msg}" in r.stderr, r.stderr
+
+
 def test_deployment_summary():
     r = sub("deployment")
     assert r.returncode == 0 and "26 BSs" in r.stdout and "227,360 m2" in r.stdout
