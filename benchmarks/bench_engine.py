@@ -138,7 +138,7 @@ def main(argv=None):
     f_corr = jax.jit(lambda k: jax.lax.map(corr_all, k, batch_size=2))
     fn = montecarlo._trial_fn(e, dep)
     ext = jnp.zeros((20, e.n_snr, len(e.m_values), 4))
-    f_all = jax.jit(lambda k: jax.lax.map(lambda a: fn(*a, jnp.zeros(1, complex)), (k, ext), batch_size=2))
+    f_all = jax.jit(lambda k: jax.lax.map(lambda a: fn(*a), (k, ext), batch_size=2))
     n_ts = 20 * e.n_snr
     p_draw = median_time(lambda: f_draw(keys), 3) / n_ts
     p_corr = median_time(lambda: f_corr(keys), 3) / n_ts - p_draw

@@ -434,6 +434,17 @@ def _taylor_pays(hx: float, hb: float, cell_m: float) -> bool:
     return (2 * np.sqrt(2) * hx + 2 * hb) / cell_m < TAYLOR_MAX_CELLS
 
 
+def _box_distances(cx, cy, hx, bx, by, dz2):
+    """Nearest and farthest distance from each BS (bx, by (M, 1) m; dz2 (M, 1) its squared height difference) to
+    the squares centred on (cx, cy) (1, K) m with half side hx: (M, K) each."""
+    xl, xh, yl, yh = cx - hx, cx + hx, cy - hx, cy + hx
+    dxn = jnp.maximum(jnp.maximum(xl - bx, bx - xh), 0.0)
+    dyn = jnp.maximum(jnp.maximum(yl - by, by - yh), 0.0)
+    dxx = jnp.maximum(jnp.abs(xl - bx), jnp.abs(xh - bx))
+    dyx = jnp.maximum(jnp.abs(yl - by), jnp.abs(yh - by))
+    return jnp.sqrt(dxn**2 + dyn**2 + dz2), jnp.sqrt(dxx**2 + dyx**2 + dz2)
+
+
 def spline_window(coef, bs_xyz, center, cfg: SearchConfig, num: Numerology = PAPER):
     """The part of each BS's spline (``correlogram.spline_coefficients``) that a ToA inside ``certified_search``'s
     window can reach: ``slice_cells(cfg)`` cells from the nearest point of the window's x, y square and its lowest
@@ -448,12 +459,7 @@ def spline_window(coef, bs_xyz, center, cfg: SearchConfig, num: Numerology = PAP
     half, half_b = cfg.half_width_m, cfg.bias_half_width_m
     bs = jnp.asarray(bs_xyz)
     dz2 = ((center[2] - bs[:, 2]) ** 2)[:, None]
-    bx, by = bs[:, 0, None], bs[:, 1, None]
-    cx, cy = center[None, 0:1], center[None, 1:2]
-    xl, xh, yl, yh = cx - half, cx + half, cy - half, cy + half
-    dxn = jnp.maximum(jnp.maximum(xl - bx, bx - xh), 0.0)
-    dyn = jnp.maximum(jnp.maximum(yl - by, by - yh), 0.0)
-    dmin = jnp.sqrt(dxn**2 + dyn**2 + dz2)
+    dmin, _ = _box_distances(center[None, 0:1], center[None, 1:2], half, bs[:, 0, None], bs[:, 1, None], dz2)
     start = jnp.floor((dmin[:, 0] + center[3] - half_b) / cell_m).astype(jnp.int64) - 2
     idx = jnp.mod(start[:, None] + jnp.arange(n_cells + 3)[None], n_knots)
     return jnp.take_along_axis(coef, idx, axis=1), start
@@ -503,12 +509,7 @@ def certified_search(coef, bs_xyz, center, cfg: SearchConfig, num: Numerology = 
     rows = jnp.arange(m)[:, None]  # BSs on the first axis, boxes on the last (12 % faster than boxes first here)
 
     def dist_bounds(cx, cy, hx):
-        xl, xh, yl, yh = cx - hx, cx + hx, cy - hx, cy + hx
-        dxn = jnp.maximum(jnp.maximum(xl - bx, bx - xh), 0.0)
-        dyn = jnp.maximum(jnp.maximum(yl - by, by - yh), 0.0)
-        dxx = jnp.maximum(jnp.abs(xl - bx), jnp.abs(xh - bx))
-        dyx = jnp.maximum(jnp.abs(yl - by), jnp.abs(yh - by))
-        return jnp.sqrt(dxn**2 + dyn**2 + dz2), jnp.sqrt(dxx**2 + dyx**2 + dz2)
+        return _box_distances(cx, cy, hx, bx, by, dz2)
 
     base = (start + 1).astype(jnp.float64)[:, None]  # cell r of the window spans knot units [base + r, base + r + 1)
     cells = _cell_poly(sl[:, :-3], sl[:, 1:-2], sl[:, 2:-1], sl[:, 3:])

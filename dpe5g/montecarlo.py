@@ -555,11 +555,11 @@ def _receiver_window(e: Experiment) -> np.ndarray:
 
 
 def _window_free(e: Experiment) -> Experiment:
-    """``e`` without what the per-trial function does not read: the name, the seed (it enters through the trial
-    keys), the trial and chunk counts, how a non-truth window centre is obtained (it enters as an input), and, for
-    the "bnb" search, the receiver window L and its weights (they enter as ``correlogram.window_spectrum``, an input).  Experiments
-    that differ only in these share one compiled function (and, through JAX's persistent compilation cache, one
-    compiled executable across processes)."""
+    """``e`` without what its per-trial function (``_trial_fn``, ``_bnb_prep_fn``) does not read: the name, the seed
+    (it enters through the trial keys), the trial and chunk counts, how a non-truth window centre is obtained (it
+    enters as an input), and, for the "bnb" search, the receiver window L and its weights (they enter as
+    ``correlogram.window_spectrum``, an input).  Experiments that differ only in these share one compiled function
+    (and, through JAX's persistent compilation cache, one compiled executable across processes)."""
     search = (dataclasses.replace(e.search, n_taps=1, window_decay_s=0.0) if e.search.method == "bnb"
               else e.search)
     d = Experiment()
@@ -571,8 +571,8 @@ def _window_free(e: Experiment) -> Experiment:
 
 @lru_cache(maxsize=8)
 def _compiled_trial_fn(e: Experiment, deployment_digest: str):
-    """One per-trial function per window-free experiment (``_window_free``) and deployment file content: the same
-    object for every L, so the jitted chunk runner compiles it once per process."""
+    """One grid-search trial function per window-free experiment (``_window_free``) and deployment file content, so
+    the jitted chunk runner compiles it once per process."""
     return _trial_fn(e, e.load_deployment())
 
 
@@ -590,24 +590,24 @@ def _deployment_digest(e: Experiment) -> str:
 
 
 def _trial_fn(e: Experiment, dep: deployment.Deployment):
-    """Build the traceable per-trial function (trial key, ext_center (S, J, 4), window) → result dict.  ext_center
-    (metres) is the window centre of every (SNR, M) in the non-truth centrings: the trial's prior centre, or its
-    OTDoA fixes; window is ``correlogram.window_spectrum`` of the receiver's L for the "bnb" search."""
+    """Build the traceable per-trial function of the grid search (trial key, ext_center (S, J, 4)) → result dict.
+    ext_center (metres) is the window centre of every (SNR, M) in the non-truth centrings: the trial's prior centre,
+    or its OTDoA fixes.  (The certified search runs as two programs instead, ``_bnb_prep_fn``.)"""
     draw = _draw_fn(e, dep)
     cfg = e.receiver_search()
     # one window centre for every M only when it is the truth: the window-free experiment this function is built
     # from (``_window_free``) names both external centrings "prior", and the OTDoA fixes differ between the M values
     shared_centre = e.centring == "truth"
 
-    def one(key, ext_center, window):
+    def one(key, ext_center):
         d = draw(key)
         c0 = jnp.concatenate([d["ue"], d["bias"][None] * C])  # read in centring "truth" only
         bs = d["bs"]
 
         def per_snr(s):
             g = correlogram.ls_spectrum(_noisy(d, s), d["prs"])
-            corr = dpe.receiver_correlogram(g, cfg, window if cfg.method == "bnb" else None)  # once for all M
-            if shared_centre and cfg.method == "grid":  # one first level for every M
+            corr = dpe.receiver_correlogram(g, cfg)  # once for all M
+            if shared_centre:  # one first level for every M
                 r = dpe.nested_grid_fixes(corr, g, bs, c0, cfg, e.m_values, PAPER)
                 return r, jnp.broadcast_to(c0, (len(e.m_values), 4))
             fixes, centers = [], []
@@ -639,7 +639,6 @@ def _bnb_prep_fn(e: Experiment, dep: deployment.Deployment):
     program to the other."""
     draw = _draw_fn(e, dep)
     cfg = e.receiver_search()
-    n_m = len(e.m_values)
 
     def bnb_prep(key, window, ext):
         d = draw(key)
@@ -757,14 +756,19 @@ def _run_chunk(args, fn, batch_size: int, shared=(), workers: int = 1) -> dict |
         out = _run_batch(tuple(x[take] for x in args), fn, shared)
         return jax.tree.map(lambda o, k=min(batch_size, n - a): np.asarray(o)[:k], out)
 
-    starts = range(0, n, batch_size)
-    parts = [one(starts[0])]
-    if len(starts) > 1 and workers > 1:
-        with ThreadPoolExecutor(min(workers, len(starts) - 1)) as pool:
-            parts += list(pool.map(one, starts[1:]))
+    return jax.tree.map(lambda *p: np.concatenate(p), *_threaded(one, range(0, n, batch_size), workers))
+
+
+def _threaded(fn, items, workers: int) -> list:
+    """[fn(i) for i in items], ``workers`` at once in threads, the first alone (so that what it compiles is compiled
+    once, then shared by the threads)."""
+    parts = [fn(items[0])]
+    if len(items) > 1 and workers > 1:
+        with ThreadPoolExecutor(min(workers, len(items) - 1)) as pool:
+            parts += list(pool.map(fn, items[1:]))
     else:
-        parts += [one(a) for a in starts[1:]]
-    return jax.tree.map(lambda *p: np.concatenate(p), *parts)
+        parts += [fn(i) for i in items[1:]]
+    return parts
 
 
 def cache_root(cache: str | os.PathLike | None = None) -> Path:
@@ -874,8 +878,7 @@ class _ChunkRunner:
         plain = dataclasses.replace(e, name="", seed=0, n_trials=1, chunk_trials=1)  # what the draws depend on
         self.toa_fn = _compiled_step_fn(_toa_fn, plain, _deployment_digest(e)) if e.otdoa else None
         self.prior_fn = _compiled_step_fn(_prior_fn, plain, _deployment_digest(e)) if e.centring == "prior" else None
-        cfg = e.receiver_search()
-        self.window = jnp.asarray(_receiver_window(e) if cfg.method == "bnb" else np.zeros(1, dtype=complex))
+        self.window = jnp.asarray(_receiver_window(e)) if self.bnb else None
 
     def __call__(self, start: int, stop: int, batch_size: int, workers: int = 1) -> dict:
         e = self.e
@@ -911,7 +914,7 @@ class _ChunkRunner:
             ext[:] = _run_chunk((keys,), self.prior_fn, batch_size, workers=workers)[:, None, None, :]
         if self.bnb:
             return self._bnb(keys, ext, workers)
-        return _run_chunk((keys, ext), self.fn, batch_size, (self.window,), workers)
+        return _run_chunk((keys, ext), self.fn, batch_size, workers=workers)
 
     def _bnb(self, keys, ext, workers: int) -> dict:
         """The certified search's trials, one at a time (its loops run as long as the slowest trial of a batch needs,
@@ -927,12 +930,7 @@ class _ChunkRunner:
                             "center_xyz": np.asarray(centers)[..., :3], "edge": r["edge"], "gap": r["gap"],
                             "certified": r["certified"]}
 
-        parts = [one(0)]
-        if len(keys) > 1 and workers > 1:
-            with ThreadPoolExecutor(min(workers, len(keys) - 1)) as pool:
-                parts += list(pool.map(one, range(1, len(keys))))
-        else:
-            parts += [one(i) for i in range(1, len(keys))]
+        parts = _threaded(one, range(len(keys)), workers)
         return {k: np.stack([p[k] for p in parts]) for k in parts[0]}
 
 
@@ -962,8 +960,9 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
     that another process wrote meanwhile is read, not computed again, and a chunk that a cached run of the same
     experiment at more SNRs holds is sliced from it (``_snr_superset_runs``).  progress : a tqdm bar with ETA on stderr.
     batch_size : trials vmapped together (memory/speed only; results do not depend on it; the certified search's
-    fixes run one trial at a time); None: ``BATCH_SIZE`` of the experiment's search method.  reverse : compute the missing chunks last first (``warm`` does, so that a
-    process filling the cache beside one that runs forward meets it in the middle instead of repeating its chunks).
+    fixes run one trial at a time); None: ``BATCH_SIZE`` of the experiment's search method.  reverse : compute the
+    missing chunks last first (``warm`` does, so that a process filling the cache beside one that runs forward meets
+    it in the middle instead of repeating its chunks).
     workers : batches of a chunk computed at once, in threads (speed only; results do not depend on it); None:
     ``default_workers()``.
     """
