@@ -227,7 +227,8 @@ def frequency_response(gains, delays_s, num: Numerology = PAPER) -> jax.Array:
     Fractional delays are exact here: no rounding of τ_l to the sample grid.
     """
     k = jnp.arange(num.n_fft)
-    phase = jnp.exp(-2j * jnp.pi * num.scs_hz * jnp.asarray(delays_s)[..., :, None] * k)
+    phase = jax.lax.complex(*(f(-2 * jnp.pi * num.scs_hz * jnp.asarray(delays_s)[..., :, None] * k)
+                              for f in (jnp.cos, jnp.sin)))  # e^{-j2πkΔfτ_l}, as ``signal.unit_phasor``
     return jnp.einsum("...l,...lk->...k", jnp.asarray(gains), phase)
 
 

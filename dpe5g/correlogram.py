@@ -86,15 +86,31 @@ def energy_grid(g, n_taps: int, upsample: int) -> jax.Array:
     """Per-BS correlograms from the LS spectrum g (..., M, N): entry j of row m is c_m(j T_s / U), the BS-m term of
     eq. (10) with an L-tap window, exactly.  Returns real (..., M, N·U).  Traceable.
 
-    One inverse FFT of length N per fractional offset u/U (the phase ramp e^{j2πku/(UN)} delays by u T_s/U), the
-    energy, then the L-tap window sum by ``window_sum`` (no FFT).  The cost is periodic in τ with period N T_s = 1/Δf."""
+    The CIR estimate on T_s/U by one zero-padded inverse FFT of length U·N (``cir_grid``), the energy, then the
+    L-tap window sum by ``window_sum`` (no FFT; ``energy_from_cir``).  The cost is periodic in τ with period N T_s = 1/Δf."""
+    return energy_from_cir(cir_grid(g, upsample), n_taps, upsample)
+
+
+def cir_grid(g, upsample: int) -> jax.Array:
+    """The CIR estimate on a grid of T_s/U from the LS spectrum g (..., M, N): entry j of row m is
+    ĥ_m(j T_s / U) / √N = (1/N) Σ_k g_k e^{j2πkj/(UN)}, one inverse FFT of length U·N of g zero-padded (the bins
+    k < N carry the spectrum, the rest are empty: the transform interpolates ĥ exactly between samples).  Returns
+    complex (..., M, N·U), g's dtype; traceable.  Linear in g: the engine forms the CIR of every SNR of a trial from
+    those of its noise-free spectrum and its unit noise (``montecarlo``).  (U phase-ramped transforms of length N
+    give the same numbers, but XLA fuses g's producers, such as the noise draw, into each of the U products and
+    repeats them U times.)"""
     _checks.require_x64()
     n = g.shape[-1]
-    k = np.arange(n)
-    shifts = np.exp(2j * np.pi * np.outer(np.arange(upsample) / upsample, k) / n)  # (U, N), a compile-time constant
-    h = jnp.fft.ifft(g[..., None, :] * jnp.asarray(shifts, g.dtype), axis=-1)  # (..., M, U, N): ĥ(n + u/U) / √N
-    w = window_sum((h.real**2 + h.imag**2) * n, n_taps)
-    w = jnp.swapaxes(w, -1, -2)  # (..., M, N, U)
+    return jnp.fft.ifft(g, n=n * upsample, axis=-1) * upsample
+
+
+def energy_from_cir(h, n_taps: int, upsample: int) -> jax.Array:
+    """``energy_grid`` from ``cir_grid``'s output h (..., M, N·U): the energy N |ĥ/√N|² and its L-tap window sum
+    (``window_sum``) over taps T_s = U grid points apart.  Returns real (..., M, N·U)."""
+    n = h.shape[-1] // upsample
+    e = (h.real**2 + h.imag**2) * n
+    e = jnp.swapaxes(e.reshape(e.shape[:-1] + (n, upsample)), -1, -2)  # (..., M, U, N): offsets, samples
+    w = jnp.swapaxes(window_sum(e, n_taps), -1, -2)  # (..., M, N, U)
     return w.reshape(w.shape[:-2] + (n * upsample,))
 
 
@@ -158,25 +174,96 @@ def spline_coefficients(g, window, upsample: int) -> jax.Array:
     (..., M, N) and ``window_spectrum(L, N)``.  Returns real (..., M, N·U); traceable (U static, even).
 
     c_m(τ) is a real trigonometric polynomial with harmonics of Δf up to N − 1 (|Σ_k g_k e^{j2πkΔfτ}|² summed over
-    L shifts), so its 2N samples at T_s/2 determine it: the energies at n T_s and (n + ½) T_s (two inverse FFTs),
+    L shifts), so its 2N samples at T_s/2 determine it: the energies at n T_s and (n + ½) T_s (``half_sample_cir``),
     their real FFT, times the window and the inverse of the cubic B-spline's sampled kernel (1/6, 4/6, 1/6) at the
     knot spacing (the interpolation prefilter), then one zero-padded real inverse FFT of length N·U gives
     coefficients c_j such that Σ_j c_j β³(τ/(T_s/U) − j) equals c_m(τ) at every knot exactly (to round-off).
     Between knots the spline differs from eq. (10) by ≤ 2e-5 of the peak at U = 8 (Chapter 3 measures it).
     (Computing the U knot phases as U/2 complex length-N transforms instead of the long one was measured slower on
     this CPU, 0.39 against 0.30 ms per BS, and dropped.)"""
-    _checks.require_x64()
-    n = g.shape[-1]
-    k = np.arange(n)
-    h0 = jnp.fft.ifft(g, axis=-1)
-    h1 = jnp.fft.ifft(g * np.exp(1j * np.pi * k / n), axis=-1)  # ĥ half a sample later
-    e2 = jnp.stack([h0.real**2 + h0.imag**2, h1.real**2 + h1.imag**2], axis=-1)
-    e2 = e2.reshape(e2.shape[:-2] + (2 * n,)) * n
+    h = half_sample_cir(g)
+    return spline_from_energy((h.real**2 + h.imag**2) * g.shape[-1], window, upsample)
+
+
+def half_sample_cir(g) -> jax.Array:
+    """The CIR estimate at T_s/2 from the LS spectrum g (..., M, N): entry j of row m is ĥ_m(j T_s / 2) / √N
+    (``cir_grid`` with U = 2: one zero-padded inverse FFT of length 2N).  Returns complex (..., M, 2N); traceable
+    and linear in g."""
+    return cir_grid(g, 2)
+
+
+def spline_from_energy(e2, window, upsample: int) -> jax.Array:
+    """``spline_coefficients`` from the energies e2 (..., M, 2N) at T_s/2 (N |``half_sample_cir``|²), or from any
+    real function sampled there (the map is linear: the engine maps the three parts of the energy of a·G + b·G_n
+    once per trial, ``spline_noise_basis``).  Returns real (..., M, N·U)."""
+    n = e2.shape[-1] // 2
     q = np.arange(n + 1)
     prefilter = 6.0 / (4.0 + 2.0 * np.cos(2 * np.pi * q / (n * upsample)))  # 1 / DFT of (1/6, 4/6, 1/6)
     spec = jnp.fft.rfft(e2, axis=-1) * (window * prefilter)
     pad = jnp.zeros(spec.shape[:-1] + (n * upsample // 2 + 1,), dtype=spec.dtype).at[..., : n + 1].set(spec)
     return jnp.fft.irfft(pad, n=n * upsample, axis=-1) * (upsample / 2)
+
+
+def spline_noise_basis(g0, gn, window, upsample: int) -> jax.Array:
+    """The spline coefficients of the three parts of the energy (``energy_parts``) of the LS spectrum a·g0 + b·gn,
+    for any real scales a, b per BS: ``spline_from_energy`` is linear, so the coefficients of a·g0 + b·gn are
+    ``mix_parts`` of these.  The engine's received spectrum at SNR s is a_s y0 + b_s η (the noise-free spectrum and
+    the trial's unit noise, ``montecarlo._noise_form``): one basis per trial serves all its SNRs, 2 inverse FFTs and
+    3 spline maps per BS instead of 1 and 1 per SNR.
+
+    g0, gn : complex (..., M, N); window : ``window_spectrum``.  Returns real (3, ..., M, N·U), float64 as
+    ``spline_coefficients`` (round-off of the mixture, relative to the largest part, ~1e-16)."""
+    # the two transforms in a loop, so that its input is computed once (XLA on the CPU would otherwise fuse the
+    # producers of g0 and gn, such as the noise draw, into the transform's zero padding)
+    h0, hn = jax.lax.map(half_sample_cir, jnp.stack([g0, gn]))
+    return spline_from_energy(energy_parts(h0, hn) * g0.shape[-1], window, upsample)
+
+
+def cir_window(h, start, width: int, n_taps: int, upsample: int) -> jax.Array:
+    """The samples of ``cir_grid``'s h (..., M, N·U) that the windowed energies of grid points start … start +
+    width − 1 read: W/U + L − 1 whole samples from start on, every offset u.  start : int (..., M), a multiple of U
+    (``dpe.grid_window``), not reduced modulo N·U; width : W, a multiple of U.  Returns complex (..., M, U,
+    W/U + L − 1): offsets, samples."""
+    n_rows = width // upsample + n_taps - 1
+    idx = jnp.mod(start[..., None] + jnp.arange(n_rows * upsample), h.shape[-1])
+    hw = jnp.take_along_axis(h, idx, axis=-1)
+    return jnp.swapaxes(hw.reshape(hw.shape[:-1] + (n_rows, upsample)), -1, -2)
+
+
+def energy_window(hw, n_taps: int, n_fft: int) -> jax.Array:
+    """``energy_from_cir`` on the samples of a window (``cir_window``): the correlogram at its W grid points, the
+    same numbers as ``energy_grid`` there, bit for bit (the same sums, in the same order).  hw : complex (..., M, U,
+    W/U + L − 1); n_fft : N.  Returns real (..., M, W)."""
+    return _window_sums((hw.real**2 + hw.imag**2) * n_fft, n_taps)
+
+
+def _window_sums(e, n_taps: int) -> jax.Array:
+    """The L-tap window sums of energies e (..., M, U, W/U + L − 1) of a window: (..., M, W), offsets interleaved."""
+    n_rows = e.shape[-1] - n_taps + 1
+    w = window_sum(e, n_taps)[..., :n_rows]  # the first W/U sums do not wrap
+    return jnp.swapaxes(w, -1, -2).reshape(w.shape[:-2] + (n_rows * w.shape[-2],))
+
+
+def energy_parts(h0, hn) -> jax.Array:
+    """The three parts of the energy of a·ĥ0 + b·ĥn for real a, b: |a ĥ0 + b ĥn|² = a² |ĥ0|² + 2ab Re(ĥ0* ĥn) +
+    b² |ĥn|² (``mix_parts``).  h0, hn : complex (...), the CIR estimates of two spectra (the engine's noise-free
+    spectrum and unit noise, ``montecarlo._noise_form``).  Returns real (3, ...)."""
+    return jnp.stack([h0.real**2 + h0.imag**2, h0.real * hn.real + h0.imag * hn.imag, hn.real**2 + hn.imag**2])
+
+
+def mix_parts(parts, a, b) -> jax.Array:
+    """a² P_0 + 2ab P_1 + b² P_2 from the three parts (3, ..., M, J) of a correlogram (``energy_parts`` after any
+    linear map: the L-tap window sum, the spline's transform), a, b real (..., M): the correlogram of the spectrum
+    a·g0 + b·gn.  Returns real (..., M, J)."""
+    a, b = jnp.asarray(a)[..., None], jnp.asarray(b)[..., None]
+    return (a * a) * parts[0] + (2.0 * a * b) * parts[1] + (b * b) * parts[2]
+
+
+def energy_window_parts(h0w, hnw, n_taps: int, n_fft: int) -> jax.Array:
+    """``energy_window``'s three parts (``energy_parts``) for the windows h0w, hnw (``cir_window``) of two
+    spectra g0, gn: ``mix_parts`` of the result is the window of the correlogram of a·g0 + b·gn, for every a, b.
+    Returns real (3, ..., M, W)."""
+    return _window_sums(energy_parts(h0w, hnw) * n_fft, n_taps)
 
 
 def correlogram(y, prs, n_taps: int, upsample: int) -> jax.Array:

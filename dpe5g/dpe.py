@@ -120,13 +120,25 @@ def _lookup(corr, pos):
 
 
 def _lookup_terms(corr, pos):
-    """The per-BS terms of ``_lookup``: pos (..., M) → (..., M)."""
-    m, j = corr.shape
+    """The per-BS terms of ``_lookup``: pos (..., M) → (..., M).  corr : the whole correlograms (M, N·U), read
+    periodically, or a window of them, the pair (values (M, W), start (M,)) of ``grid_window`` with
+    ``correlogram.energy_window``, whose column i is grid point start + i (the search stays inside it)."""
     f = jnp.floor(pos)
     t = pos - f
-    i0 = jnp.mod(f.astype(jnp.int64), j)
-    rows = jnp.arange(m)
-    vm, v0, v1, v2 = (corr[rows, jnp.mod(i0 + d, j)] for d in (-1, 0, 1, 2))
+    if isinstance(corr, tuple):  # the four values as one slice per lookup (a quarter of the gathers)
+        corr, start = corr
+        first = f.astype(jnp.int64) - start - 1
+        rows = jnp.broadcast_to(jnp.arange(corr.shape[0]), first.shape)
+        dims = jax.lax.GatherDimensionNumbers(offset_dims=(first.ndim,), collapsed_slice_dims=(0,),
+                                              start_index_map=(0, 1))
+        v = jax.lax.gather(corr, jnp.stack([rows, first], axis=-1), dims, slice_sizes=(1, 4),
+                           mode=jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS)
+        vm, v0, v1, v2 = (v[..., d] for d in range(4))
+    else:
+        m, j = corr.shape
+        i0 = jnp.mod(f.astype(jnp.int64), j)
+        rows = jnp.arange(m)
+        vm, v0, v1, v2 = (corr[rows, jnp.mod(i0 + d, j)] for d in (-1, 0, 1, 2))
     return v0 + t * (0.5 * (v1 - vm) + t * ((vm - 2.5 * v0 + 2.0 * v1 - 0.5 * v2) + t * (1.5 * (v0 - v1) + 0.5 * (v2 - vm))))
 
 
@@ -278,6 +290,48 @@ def _newton_step(g, bs_xyz, q, mask, n_taps, scs_hz, max_step_m):
     return jnp.where(better, step, 0.0)
 
 
+def _grid_reach(cfg: SearchConfig) -> tuple[float, float, float]:
+    """How far the grid search's candidates can lie from its centre in x and y, in z and in c δt (metres): the first
+    level's half widths, plus 2 steps per further level (each is ±2 steps around the best point)."""
+    extra = 2 * sum(cfg.steps()[1:])
+    return (cfg.half_width_m + extra, cfg.z_half_width_m + extra * (cfg.z_half_width_m > 0),
+            cfg.bias_half_width_m + extra * (cfg.bias_half_width_m > 0))
+
+
+def grid_window_cells(cfg: SearchConfig, num: Numerology = PAPER) -> int:
+    """Static width W (grid points of T_s/U, a multiple of U) of ``grid_window``: the ToA span of the search's
+    reach (``_grid_reach``: its x, y, z box's diameter plus twice the c δt reach), the 2 + 1 grid points either side
+    that the cubic reads, the alignment of the start to a multiple of U, and a margin."""
+    r_xy, r_z, r_b = _grid_reach(cfg)
+    cell_m = C * num.sample_period_s / cfg.upsample
+    span = 2 * np.sqrt(2 * r_xy**2 + r_z**2) + 2 * r_b
+    u = cfg.upsample
+    return int(u * np.ceil((np.ceil(span / cell_m) + u + 6) / u))
+
+
+def grid_window(bs_xyz, center_m, cfg: SearchConfig, num: Numerology = PAPER) -> jax.Array:
+    """The first grid point (M,) of the part of each BS's correlogram that the grid search (``search``) around
+    center_m can read: ``grid_window_cells(cfg)`` points from there hold every ToA of its candidates and the
+    cubic's neighbours.  The start is the nearest distance from the BS to the search's reach box plus its lowest
+    c δt, less 2 points, rounded down to a multiple of U (``correlogram.energy_window`` computes whole samples).
+
+    bs_xyz : (M, 3) m; center_m : (4,) = [x, y, z, c δt] m.  Returns int (M,), in grid points of T_s/U, not reduced
+    modulo N·U.  Traceable."""
+    r_xy, r_z, r_b = _grid_reach(cfg)
+    cell_m = C * num.sample_period_s / cfg.upsample
+    bs = jnp.asarray(bs_xyz)
+    dz2 = (jnp.maximum(jnp.abs(center_m[2] - bs[:, 2]) - r_z, 0.0) ** 2)[:, None]
+    dmin, _ = _box_distances(center_m[None, 0:1], center_m[None, 1:2], r_xy, bs[:, 0, None], bs[:, 1, None], dz2)
+    first = jnp.floor((dmin[:, 0] + center_m[3] - r_b) / cell_m).astype(jnp.int64) - 2
+    return (first // cfg.upsample) * cfg.upsample
+
+
+def first_rows(corr, m: int):
+    """The correlograms of the m nearest BSs: the first m rows of the whole correlograms or of both parts of a
+    window pair (``_lookup_terms``)."""
+    return (corr[0][:m], corr[1][:m]) if isinstance(corr, tuple) else corr[:m]
+
+
 def _level_candidates(q, cfg: SearchConfig, level: int):
     """The candidates (K, 4) of ``search``'s level ``level`` around q (4,) and the number of c δt offsets per
     (x, y, z) point (they vary fastest)."""
@@ -305,7 +359,8 @@ def search(corr, g, bs_xyz, center, cfg: SearchConfig, n_fft: int, scs_hz: float
     """The divide-and-conquer search on precomputed correlograms (traceable; used inside jit by ``estimate`` and
     by ``dpe5g.montecarlo``, which reuses one set of correlograms for several M).
 
-    corr : (M, N·U) from ``correlogram.energy_grid``; g : (M, N) the LS spectrum (``correlogram.ls_spectrum``,
+    corr : (M, N·U) from ``correlogram.energy_grid``, or the window of it around ``center`` (``grid_window``,
+    ``correlogram.energy_window``: a pair (values (M, W), start (M,))); g : (M, N) the LS spectrum (``correlogram.ls_spectrum``,
     read only by the polish and for the cost); bs_xyz : (M, 3) m;
     center : (4,) = [x, y, z, δt].  first_level : the best candidate (4,) of the first level in metres, when the
     caller has found it (``nested_grid_fixes``); None searches it.  Returns q (4,) = (x, y, z, c δt) in metres and
@@ -338,7 +393,8 @@ def nested_grid_fixes(corr, g, bs_xyz, center_m, cfg: SearchConfig, m_values, nu
     Equal to ``fix`` per M up to the order of the sum (a tie of two candidates within round-off could differ; a
     test checks the fixes agree).
 
-    corr : (I, N·U) ``receiver_correlogram`` of the I ≥ max(m_values) nearest BSs; g : (I, N); bs_xyz : (I, 3) m;
+    corr : (I, N·U) ``receiver_correlogram`` of the I ≥ max(m_values) nearest BSs (or its window around center_m,
+    as ``search`` reads it); g : (I, N); bs_xyz : (I, 3) m;
     center_m : (4,) = [x, y, z, c δt] m.  Returns ``fix``'s dict with a leading axis over m_values."""
     _checks.require_x64()
     if cfg.method != "grid":
@@ -346,15 +402,88 @@ def nested_grid_fixes(corr, g, bs_xyz, center_m, cfg: SearchConfig, m_values, nu
     ts = num.sample_period_s
     cand, n_b = _level_candidates(center_m, cfg, 0)
     m_max = max(m_values)
-    running = jnp.cumsum(_candidate_terms(corr[:m_max], bs_xyz[:m_max], cand, n_b, cfg, ts), axis=-1)
+    running = jnp.cumsum(_candidate_terms(first_rows(corr, m_max), bs_xyz[:m_max], cand, n_b, cfg, ts), axis=-1)
     center = center_m.at[3].divide(C)
     fixes = []
     for m in m_values:
-        q = search(corr[:m], g[:m], bs_xyz[:m], center, cfg, num.n_fft, num.scs_hz, with_cost=False,
+        q = search(first_rows(corr, m), g[:m], bs_xyz[:m], center, cfg, num.n_fft, num.scs_hz, with_cost=False,
                    first_level=cand[jnp.argmax(running[:, m - 1])])
         fixes.append({"q": q, "gap": jnp.asarray(jnp.nan), "certified": jnp.asarray(False),
                       "edge": grid_edge(q, center_m, cfg)})
     return {k: jnp.stack([f[k] for f in fixes]) for k in fixes[0]}
+
+
+def _catmull_rom_weights(t):
+    """The weights (..., 4) of the four grid values around a position with fractional part t (...) in
+    ``_lookup``'s cubic, written as weights: the same polynomial as its nested form."""
+    return jnp.stack([t * (-0.5 + t * (1.0 - 0.5 * t)), 1.0 + t * t * (-2.5 + 1.5 * t),
+                      t * (0.5 + t * (2.0 - 1.5 * t)), t * t * (-0.5 + 0.5 * t)], axis=-1)
+
+
+def _parts_terms(parts, start, pos):
+    """The per-BS terms of ``_lookup`` for the three parts (3, M, W) of a correlogram window starting at grid
+    points start (M,) (``correlogram.energy_window_parts``), at positions pos (..., M) in grid units: one gather of
+    the 3 × 4 values and one set of cubic weights per lookup, for all parts.  Returns (3, ..., M)."""
+    f = jnp.floor(pos)
+    first = f.astype(jnp.int64) - start - 1
+    rows = jnp.broadcast_to(jnp.arange(parts.shape[1]), first.shape)
+    dims = jax.lax.GatherDimensionNumbers(offset_dims=(first.ndim, first.ndim + 1), collapsed_slice_dims=(1,),
+                                          start_index_map=(1, 2))
+    v = jax.lax.gather(parts, jnp.stack([rows, first], axis=-1), dims, slice_sizes=(3, 1, 4),
+                       mode=jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS)  # (..., M, 3, 4)
+    terms = jnp.einsum("...q,...pq->...p", _catmull_rom_weights(pos - f), v)  # (..., M, 3)
+    return jnp.moveaxis(terms, -1, 0)
+
+
+def mixed_grid_fixes(parts, start, a, b, bs_xyz, center_m, cfg: SearchConfig, m_values,
+                     num: Numerology = PAPER) -> dict:
+    """``nested_grid_fixes`` for S received spectra a_s·g0 + b_s·gn at once (the engine's SNRs of one trial, its
+    noise-free spectrum g0 and unit noise gn), from the three parts of their correlograms' windows around one
+    centre: the correlogram of spectrum s is ``correlogram.mix_parts(parts, a_s, b_s)``, and so is its cubic
+    lookup, which is linear in the grid values.  The first level — 94 % of Fig. 9's candidates — is looked up once
+    for the three parts instead of once per spectrum, and the cost of every (s, M) is one matrix product over the
+    BSs; the finer levels run per (s, M) on the mixed window, as ``nested_grid_fixes``.  Equal to it up to
+    round-off (the weights form of the cubic and the order of the sums; a test checks the fixes agree).
+
+    parts : (3, I, W) ``correlogram.energy_window_parts`` of the I ≥ max(m_values) nearest BSs, starting at grid
+    points start (I,) (``grid_window`` of center_m); a, b : (S, I); bs_xyz : (I, 3) m; center_m : (4,) =
+    [x, y, z, c δt] m.  Needs cfg.polish False (the polish reads each spectrum).  Returns ``fix``'s dict with
+    leading axes (S, len(m_values))."""
+    _checks.require_x64()
+    if cfg.method != "grid" or cfg.polish:
+        raise ValueError(f"mixed_grid_fixes runs the grid search without polish; got method {cfg.method!r}, "
+                         f"polish {cfg.polish!r}")
+    ts = num.sample_period_s
+    cand, n_b = _level_candidates(center_m, cfg, 0)
+    m_max = max(m_values)
+    grid = cand.reshape(-1, n_b, 4)
+    dist = jnp.linalg.norm(grid[:, 0, None, :3] - bs_xyz[:m_max], axis=-1) / C  # as ``_candidate_terms``
+    # cost of (s, M) at each candidate: Σ_{m < M} (a² T_0 + 2ab T_1 + b² T_2), one product over (part, BS)
+    mix = jnp.stack([a * a, 2.0 * a * b, b * b], axis=1)[..., :m_max]  # (S, 3, m_max)
+    upto = (np.arange(m_max)[:, None] < np.asarray(m_values)[None, :]).astype(float)  # (m_max, J)
+    weights = jnp.einsum("spm,mj->pmsj", mix, upto).reshape(3 * m_max, -1)  # (3 m_max, S J)
+
+    def per_bias(bias_s):  # one c δt offset: the ToAs of every (x, y) point shift by it
+        terms = _parts_terms(parts[:, :m_max], start[:m_max], (dist + bias_s) / ts * cfg.upsample)  # (3, XY, M)
+        return jnp.moveaxis(terms, 0, 1).reshape(dist.shape[0], -1) @ weights  # (XY, S J)
+
+    # a loop over the offsets, so that the distances (and the window's start) are computed once, not again inside
+    # each lookup (XLA on the CPU fuses such small producers into the large loops that read them)
+    costs = jax.lax.map(per_bias, grid[0, :, 3] / C)  # (n_b, XY, S J)
+    costs = jnp.swapaxes(costs, 0, 1).reshape(cand.shape[0], -1)  # (K, S J), candidates in ``cand``'s order
+    first = cand[jnp.argmax(costs, axis=0)].reshape(a.shape[0], len(m_values), 4)  # (S, J, 4)
+    center = center_m.at[3].divide(C)
+
+    def per_spectrum(x):
+        a_s, b_s, first_s = x
+        corr = (correlogram.mix_parts(parts, a_s, b_s), start)
+        qs = [search(first_rows(corr, m), None, bs_xyz[:m], center, cfg, num.n_fft, num.scs_hz, with_cost=False,
+                     first_level=first_s[j]) for j, m in enumerate(m_values)]
+        return jnp.stack(qs)
+
+    q = jax.lax.map(per_spectrum, (a, b, first))  # (S, J, 4)
+    nan = jnp.full(q.shape[:2], jnp.nan)
+    return {"q": q, "gap": nan, "certified": jnp.zeros(q.shape[:2], bool), "edge": grid_edge(q, center_m, cfg)}
 
 
 # ---- the certified search ------------------------------------------------------------------------------------------
@@ -632,12 +761,12 @@ def certified_search(coef, bs_xyz, center, cfg: SearchConfig, num: Numerology = 
 
 
 def grid_edge(q, center_m, cfg: SearchConfig):
-    """Whether a ``search`` fix q (4,) lies on the boundary of its grid window (centre (4,) in metres)."""
+    """Whether a ``search`` fix q (..., 4) lies on the boundary of its grid window (centre (4,) in metres)."""
     tol = 1.5 * cfg.final_step_m
     off = jnp.abs(q - center_m)
-    edge = (off[0] >= cfg.half_width_m - tol) | (off[1] >= cfg.half_width_m - tol)
+    edge = (off[..., 0] >= cfg.half_width_m - tol) | (off[..., 1] >= cfg.half_width_m - tol)
     if cfg.bias_half_width_m > 0:
-        edge = edge | (off[3] >= cfg.bias_half_width_m - tol)
+        edge = edge | (off[..., 3] >= cfg.bias_half_width_m - tol)
     return edge
 
 

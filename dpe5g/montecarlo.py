@@ -409,8 +409,8 @@ def _draw_fn(e: Experiment, dep: deployment.Deployment):
             los = jnp.ones(m_max, dtype=bool)
         else:  # two of the four nearest LoS, which two at random
             los = jax.random.permutation(k_los, jnp.array([True, True, False, False]))
-        h, gains = channels(los, k_c, k_d, m_max)
         bias = scenario.clock_bias(k_b, e.clock_sigma_s, e.clock_bound_sigmas)
+        h, gains = channels(los, k_c, k_d, m_max)
         prs = prs_all[idx]
         y_clean = signal.received_spectrum(prs, h, dpe.toa(ue, bs), bias)
         out = {}
@@ -501,6 +501,72 @@ def _noisy(d, s):
     rx = jax.ops.segment_sum(jnp.concatenate([own, d["y_x"] / sigma_x[:, None]]),
                              jnp.concatenate([res, d["res_x"]]), num_segments=d["n_res"])
     return rx[res] + eta
+
+
+def _noise_form(d):
+    """The scales (a, b), each (S, I), with ``_noisy(d, s)`` = a[s, :, None] · y0 + b[s, :, None] · noise: every
+    link reads its own noise-free spectrum and the trial's unit noise (no PRS reuse).  None with PRS reuse, where a
+    link reads a sum over the BSs of its resource.  The receivers' correlograms are linear in the CIR estimate (grid)
+    or in its energy's three parts (spline), so with this form they are computed from a basis per trial
+    (``correlogram.grid_mixture``, ``correlogram.spline_mixture``) instead of once per SNR."""
+    if "res" in d:
+        return None
+    sigma = jnp.sqrt(signal.noise_variance(d["link_snr"], d["prs"]))  # (S, I), as ``_noisy``'s
+    if not d["per_link_power"]:
+        return jnp.ones_like(sigma), sigma
+    return 1.0 / sigma, jnp.ones_like(sigma)
+
+
+def _spline_correlograms(d, cfg: dpe.SearchConfig, window):
+    """s → the certified search's spline coefficients (I, N·U) at SNR index s (``dpe.receiver_correlogram`` of
+    ``_noisy(d, s)``'s LS spectrum with ``window``), traceable.  Without PRS reuse they are mixed from a basis of the
+    trial computed once (``_noise_form``, ``correlogram.spline_noise_basis``: 4 inverse FFTs and 3 spline maps per BS
+    per trial instead of 2 and 1 per SNR), equal to the per-SNR path up to round-off (~1e-16 relative; a test checks
+    it)."""
+    form = _noise_form(d)
+    if form is None:
+        return lambda s: dpe.receiver_correlogram(correlogram.ls_spectrum(_noisy(d, s), d["prs"]), cfg, window)
+    a, b = form
+    basis = correlogram.spline_noise_basis(correlogram.ls_spectrum(d["y0"], d["prs"]),
+                                           correlogram.ls_spectrum(d["noise"], d["prs"]), window, cfg.spline_upsample)
+    return lambda s: correlogram.mix_parts(basis, a[s], b[s])
+
+
+def _grid_windows(d, cfg: dpe.SearchConfig):
+    """The grid search's correlograms of the trial d, read only in windows (``dpe.grid_window``; W of N·U points):
+    returns (parts, windows).  windows(s, start) → the pair (values (I, W), start) that ``dpe.search`` reads at SNR
+    index s for windows starting at grid points start (I,), traceable.  The CIR estimates on T_s/U
+    (``correlogram.cir_grid``, in ``correlogram.GRID_DTYPE``) are computed whole, the energies only in the window.
+
+    Without PRS reuse (``_noise_form``) the received spectrum of SNR s is a_s y0 + b_s η, and the CIR estimates of
+    y0 and η are computed once per trial (2 inverse FFTs of length U·N per BS instead of one per SNR); parts(start)
+    → the three parts (3, I, W) of the windows (``correlogram.energy_window_parts``), which ``dpe.mixed_grid_fixes``
+    reads for all SNRs at once, and windows mixes them (``correlogram.mix_parts``): equal to the per-SNR path up to
+    complex64 round-off (~2e-7 relative; a test checks it).  With PRS reuse parts is None."""
+    dt, u, taps, n = correlogram.GRID_DTYPE, cfg.upsample, cfg.n_taps, d["prs"].shape[-1]
+    width = dpe.grid_window_cells(cfg, PAPER)
+    form = _noise_form(d)
+
+    def cir(y):
+        return correlogram.cir_grid(correlogram.ls_spectrum(y, d["prs"]).astype(dt), u)
+
+    if form is None:
+        def windows(s, start):
+            return correlogram.energy_window(correlogram.cir_window(cir(_noisy(d, s)), start, width, taps, u),
+                                             taps, n), start
+        return None, windows
+    a, b = form
+    # the two transforms in a loop: its input, the two spectra, is then computed once (XLA on the CPU would
+    # otherwise fuse the noise draw and the signal's phasors into the zero padding of the transform, measured 2×)
+    h0, hn = jax.lax.map(cir, jnp.stack([d["y0"], d["noise"]]))
+
+    def parts(start):
+        return correlogram.energy_window_parts(correlogram.cir_window(h0, start, width, taps, u),
+                                               correlogram.cir_window(hn, start, width, taps, u), taps, n)
+
+    def windows(s, start):
+        return correlogram.mix_parts(parts(start), a[s], b[s]), start
+    return parts, windows
 
 
 def _prior_center(e: Experiment, ue, key) -> jax.Array:
@@ -603,29 +669,43 @@ def _trial_fn(e: Experiment, dep: deployment.Deployment):
         d = draw(key)
         c0 = jnp.concatenate([d["ue"], d["bias"][None] * C])  # read in centring "truth" only
         bs = d["bs"]
+        parts, windows = _grid_windows(d, cfg)
+        if shared_centre and parts is not None and not cfg.polish:  # every SNR's first level in one lookup
+            start = dpe.grid_window(bs, c0, cfg, PAPER)
+            a, b = _noise_form(d)
+            r = dpe.mixed_grid_fixes(parts(start), start, a, b, bs, c0, cfg, e.m_values, PAPER)
+            return _grid_result(d, r, jnp.broadcast_to(c0, r["q"].shape))
 
         def per_snr(s):
-            g = correlogram.ls_spectrum(_noisy(d, s), d["prs"])
-            corr = dpe.receiver_correlogram(g, cfg)  # once for all M
-            if shared_centre:  # one first level for every M
+            g = correlogram.ls_spectrum(_noisy(d, s), d["prs"])  # read by the polish only
+            if shared_centre:  # one window and one first level for every M
+                corr = windows(s, dpe.grid_window(bs, c0, cfg, PAPER))
                 r = dpe.nested_grid_fixes(corr, g, bs, c0, cfg, e.m_values, PAPER)
                 return r, jnp.broadcast_to(c0, (len(e.m_values), 4))
             fixes, centers = [], []
             for j, m in enumerate(e.m_values):
-                c = c0 if e.centring == "truth" else ext_center[s, j]
-                fixes.append(dpe.fix(g[:m], bs[:m], c, cfg, PAPER, corr=corr[:m]))
+                c = ext_center[s, j]
+                corr = dpe.first_rows(windows(s, dpe.grid_window(bs, c, cfg, PAPER)), m)
+                fixes.append(dpe.fix(g[:m], bs[:m], c, cfg, PAPER, corr=corr))
                 centers.append(c)
             return ({k: jnp.stack([f[k] for f in fixes]) for k in ("q", "gap", "certified", "edge")},
                     jnp.stack(centers))
 
         r, centers = jax.lax.map(per_snr, jnp.arange(d["link_snr"].shape[0]))  # (S, J, ...)
-        q = r["q"]
-        err = jnp.linalg.norm(q[..., :2] - d["ue"][:2], axis=-1)
-        return {"ue_xyz": d["ue"], "clock_bias_s": d["bias"], "bs_index": d["idx"], "los": d["los"],
-                "link_snr_db": d["link_snr"], "link_sinr_db": d["link_sinr"], "est_xyz": q[..., :3], "est_bias_s": q[..., 3] / C, "error_m": err,
-                "center_xyz": centers[..., :3], "edge": r["edge"], "gap": r["gap"], "certified": r["certified"]}
+        return _grid_result(d, r, centers)
 
     return one
+
+
+def _grid_result(d, r, centers):
+    """The grid trial's result dict from its draws d, its fixes r (``dpe.fix``'s dict, arrays (S, J, ...)) and
+    window centres (S, J, 4) m."""
+    q = r["q"]
+    err = jnp.linalg.norm(q[..., :2] - d["ue"][:2], axis=-1)
+    return {"ue_xyz": d["ue"], "clock_bias_s": d["bias"], "bs_index": d["idx"], "los": d["los"],
+            "link_snr_db": d["link_snr"], "link_sinr_db": d["link_sinr"], "est_xyz": q[..., :3],
+            "est_bias_s": q[..., 3] / C, "error_m": err, "center_xyz": centers[..., :3], "edge": r["edge"],
+            "gap": r["gap"], "certified": r["certified"]}
 
 
 def _bnb_prep_fn(e: Experiment, dep: deployment.Deployment):
@@ -644,10 +724,11 @@ def _bnb_prep_fn(e: Experiment, dep: deployment.Deployment):
         d = draw(key)
         c0 = jnp.concatenate([d["ue"], d["bias"][None] * C])  # read in centring "truth" only
         centers = jnp.broadcast_to(c0, ext.shape) if e.centring == "truth" else ext
+        correlograms = _spline_correlograms(d, cfg, window)
 
         def per_snr(a):
             s, cen = a
-            coef = dpe.receiver_correlogram(correlogram.ls_spectrum(_noisy(d, s), d["prs"]), cfg, window)
+            coef = correlograms(s)
             return jax.vmap(lambda c: dpe.spline_window(coef, d["bs"], c, cfg, PAPER))(cen)
 
         sls, starts = jax.lax.map(per_snr, (jnp.arange(d["link_snr"].shape[0]), centers))  # (S, J, I, ...)

@@ -185,3 +185,38 @@ def test_window_taps_on_the_band_spacing_keep_the_first_path(spacing):
         assert at_path >= cost.max() * (1 - 5e-5)  # the spline's own error is ≤ 2e-5 of the peak (Chapter 3)
     else:
         assert at_path < 0.97 * cost.max() and t[np.argmax(cost)] < tau0 - 1
+
+
+def test_cir_grid_is_the_phase_ramped_transforms():
+    """``correlogram.cir_grid`` (one zero-padded transform of length U·N) equals U inverse FFTs of length N of the
+    spectrum delayed by u T_s/U, entry n·U + u = ĥ((n + u/U) T_s)/√N; ``half_sample_cir`` is its U = 2."""
+    g = np.random.default_rng(0).normal(size=(3, 64)) + 1j * np.random.default_rng(1).normal(size=(3, 64))
+    k = np.arange(64)
+    for u in (1, 2, 4, 8):
+        ramped = np.stack([np.fft.ifft(g * np.exp(2j * np.pi * k * v / (u * 64)), axis=-1) for v in range(u)], -1)
+        np.testing.assert_allclose(np.asarray(correlogram.cir_grid(jax.numpy.asarray(g), u)),
+                                   ramped.reshape(3, 64 * u), rtol=0, atol=1e-13)
+    np.testing.assert_array_equal(np.asarray(correlogram.half_sample_cir(jax.numpy.asarray(g))),
+                                  np.asarray(correlogram.cir_grid(jax.numpy.asarray(g), 2)))
+
+
+@given(st.floats(-25.0, 25.0), st.floats(-25.0, 25.0), st.floats(-12.0, 12.0), st.integers(0, 3))
+def test_grid_window_holds_every_lookup_of_the_search(dx, dy, db, which):
+    """Every grid point the search's cubic reads, at any level (first level around the centre, finer levels around any
+    point the previous level can pick), lies inside ``grid_window``'s W points; so the windowed search is the whole
+    correlogram's (Chapter 3 checks one fix; this checks the bound, for several search configs)."""
+    cfg = [dpe.SearchConfig(), dpe.SearchConfig(half_width_m=3.0, bias_half_width_m=0.0),
+           dpe.SearchConfig(z_half_width_m=5.0, upsample=8), dpe.SearchConfig(coarse_step_m=2.0, final_step_m=0.05)][which]
+    rng = np.random.default_rng(int(abs(dx * 1e3)) % 1000)
+    bs = np.column_stack([rng.uniform(-300, 300, (12, 2)), rng.uniform(5, 40, 12)])
+    center = np.array([dx, dy, 2.0, db])
+    start = np.asarray(dpe.grid_window(jax.numpy.asarray(bs), jax.numpy.asarray(center), cfg))
+    width = dpe.grid_window_cells(cfg)
+    reach_xy, reach_z, reach_b = dpe._grid_reach(cfg)
+    # the candidates' extreme points: the corners and faces of the reach box, and a dense sample inside it
+    ax = np.linspace(-1, 1, 9)
+    off = np.stack(np.meshgrid(ax * reach_xy, ax * reach_xy, ax * reach_z, ax * reach_b, indexing="ij"), -1).reshape(-1, 4)
+    q = center + off
+    tau = np.linalg.norm(q[:, None, :3] - bs, axis=-1) / C + q[:, 3:4] / C
+    pos = np.floor(tau / PAPER.sample_period_s * cfg.upsample)
+    assert np.all(pos - 1 >= start) and np.all(pos + 2 <= start + width - 1), (pos.min(0) - start, pos.max(0) - start)

@@ -454,3 +454,54 @@ def test_links_keep_their_received_power_where_it_differs():
                                10 ** (ex["link_snr"] / 10), rtol=1e-9)
     assert abs(np.mean(np.abs(y - y0 / sigma[:, None]) ** 2) - 1) < 0.05
     assert np.ptp(ex["link_snr"]) > 3  # the links' powers differ
+
+
+def test_engine_grid_fixes_equal_the_search_on_each_snrs_whole_correlogram(tmp_path):
+    """The engine mixes each SNR's correlogram from parts computed once per trial, reads it only in the search's
+    window, and looks the first level up once for all SNRs (``dpe.mixed_grid_fixes``); its fixes must equal the grid
+    search on each SNR's whole correlogram, computed from that SNR's received samples (``example``)."""
+    import jax
+    import jax.numpy as jnp
+
+    e = montecarlo.Experiment(name="mix", n_trials=3, seed=5, snrs_db=(0.0, 15.0, 40.0), m_values=(3, 6, 12))
+    cfg = e.receiver_search()
+    r = montecarlo.run(e, cache=tmp_path, progress=False)
+    whole = jax.jit(lambda g, bs, c: dpe.nested_grid_fixes(dpe.receiver_correlogram(g, cfg), g, bs, c, cfg,
+                                                           e.m_values)["q"])
+    for t in range(e.n_trials):
+        for s in range(e.n_snr):
+            ex = montecarlo.example(e, t, snr_index=s)
+            g = correlogram.ls_spectrum(signal.demodulate(ex["y"]), jnp.asarray(ex["prs"]))
+            q = whole(g, jnp.asarray(ex["bs"]), jnp.asarray(np.append(ex["ue"], 299_792_458.0 * ex["bias"])))
+            np.testing.assert_allclose(r.est_xyz[t, s], np.asarray(q)[:, :3], rtol=0, atol=1e-9, err_msg=f"{t} {s}")
+
+
+def test_noise_parts_mix_to_each_snrs_correlograms():
+    """Both receivers' correlograms at every SNR, mixed from the trial's parts (``_spline_correlograms``,
+    ``_grid_windows``), equal those computed from that SNR's received spectrum: to float64 round-off for the
+    certified search's spline, to complex64 round-off for the grid's windows; with the links at their own received
+    powers too (snr_mode "nearest")."""
+    import jax.numpy as jnp
+
+    for mode in ("fixed", "nearest"):
+        e = montecarlo.Experiment(name="parts", seed=3, snrs_db=(5.0, 30.0), m_values=(4, 8), snr_mode=mode)
+        d = montecarlo._draw_fn(e, e.load_deployment())(montecarlo.trial_key(e.seed, 0))
+        for cfg in (e.receiver_search(), dpe.SearchConfig(method="bnb")):
+            window = jnp.asarray(correlogram.window_spectrum(cfg.n_taps, d["prs"].shape[1])) if cfg.method == "bnb" \
+                else None
+            spline = montecarlo._spline_correlograms(d, cfg, window) if cfg.method == "bnb" else None
+            parts, windows = montecarlo._grid_windows(d, cfg)
+            assert parts is not None
+            start = dpe.grid_window(d["bs"], jnp.concatenate([d["ue"], d["bias"][None] * 299_792_458.0]), cfg)
+            for s in range(e.n_snr):
+                g = correlogram.ls_spectrum(montecarlo._noisy(d, s), d["prs"])
+                if cfg.method == "bnb":
+                    ref = np.asarray(dpe.receiver_correlogram(g, cfg, window))
+                    np.testing.assert_allclose(np.asarray(spline(s)), ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+                    continue
+                full = np.asarray(dpe.receiver_correlogram(g, cfg))
+                cols = np.mod(np.asarray(start)[:, None] + np.arange(dpe.grid_window_cells(cfg)), full.shape[1])
+                ref = np.take_along_axis(full, cols, axis=1)
+                vals, st = windows(s, start)
+                assert np.array_equal(np.asarray(st), np.asarray(start))
+                np.testing.assert_allclose(np.asarray(vals), ref, rtol=0, atol=1e-6 * np.abs(ref).max())
