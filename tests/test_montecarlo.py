@@ -298,19 +298,22 @@ def test_cache_key_follows_code_not_prose(tmp_path):
 def test_nested_grid_fixes_equal_one_fix_per_m():
     """The engine's grid search shares its first level between the M values (``dpe.nested_grid_fixes``); each M's
     fix must equal ``dpe.fix`` run on that M's BSs alone, on urban trials at several SNRs and on a shifted centre."""
+    import jax
     import jax.numpy as jnp
 
     e = montecarlo.Experiment(name="n", n_trials=4, seed=12, snrs_db=(10.0, 40.0), m_values=(3, 6, 12))
     cfg = e.receiver_search()
+    nested_fn = jax.jit(lambda corr, g, bs, c: dpe.nested_grid_fixes(corr, g, bs, c, cfg, e.m_values))
+    fix_fn = jax.jit(lambda g, bs, c, corr: dpe.fix(g, bs, c, cfg, corr=corr))  # traced once per M (its shapes)
     for t in range(e.n_trials):
         for s in range(2):
             ex = montecarlo.example(e, t, snr_index=s)
             g = correlogram.ls_spectrum(signal.demodulate(ex["y"]), jnp.asarray(ex["prs"]))
             corr = dpe.receiver_correlogram(g, cfg)
             center = jnp.asarray(np.concatenate([ex["ue"] + [1.3 * t, -0.7 * s, 0.0], [299_792_458.0 * ex["bias"]]]))
-            nested = dpe.nested_grid_fixes(corr, g, jnp.asarray(ex["bs"]), center, cfg, e.m_values)
+            nested = nested_fn(corr, g, jnp.asarray(ex["bs"]), center)
             for j, m in enumerate(e.m_values):
-                one = dpe.fix(g[:m], jnp.asarray(ex["bs"][:m]), center, cfg, corr=corr[:m])
+                one = fix_fn(g[:m], jnp.asarray(ex["bs"][:m]), center, corr[:m])
                 np.testing.assert_array_equal(np.asarray(nested["q"][j]), np.asarray(one["q"]), err_msg=f"{t} {s} {m}")
                 assert bool(nested["edge"][j]) == bool(one["edge"])
     with pytest.raises(ValueError, match="cfg.method must be 'grid'"):
