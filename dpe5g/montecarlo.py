@@ -508,7 +508,8 @@ def _noise_form(d):
     link reads its own noise-free spectrum and the trial's unit noise (no PRS reuse).  None with PRS reuse, where a
     link reads a sum over the BSs of its resource.  The receivers' correlograms are linear in the CIR estimate (grid)
     or in its energy's three parts (spline), so with this form they are computed from a basis per trial
-    (``correlogram.grid_mixture``, ``correlogram.spline_mixture``) instead of once per SNR."""
+    (``correlogram.energy_window_parts``, ``correlogram.spline_noise_basis``, mixed by ``correlogram.mix_parts``)
+    instead of once per SNR."""
     if "res" in d:
         return None
     sigma = jnp.sqrt(signal.noise_variance(d["link_snr"], d["prs"]))  # (S, I), as ``_noisy``'s
