@@ -37,7 +37,7 @@ import numpy as np
 from benchutil import median_time, write
 
 from dpe5g import correlogram, dpe, montecarlo, otdoa, paper
-from dpe5g.nr import PAPER
+from dpe5g.nr import C, PAPER
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
@@ -123,9 +123,10 @@ def main(argv=None):
     @jax.jit
     def grid_engine(arrays):
         d = arrays | {"per_link_power": False}  # Fig. 9: every link at the SNR (a static flag of the draws)
-        parts, windows = montecarlo._grid_windows(d, cfg)
-        start = dpe.grid_window(d["bs"], jnp.concatenate([d["ue"], d["bias"][None] * 299_792_458.0]), cfg)
-        return jnp.stack([windows(s, start)[0] for s in range(n_snr)])
+        parts, _ = montecarlo._grid_windows(d, cfg)
+        p = parts(dpe.grid_window(d["bs"], jnp.concatenate([d["ue"], d["bias"][None] * C]), cfg))  # once a trial
+        a, b = montecarlo._noise_form(d)
+        return jnp.stack([correlogram.mix_parts(p, a[s], b[s]) for s in range(n_snr)])  # as ``windows`` mixes
 
     @jax.jit
     def spline_engine(arrays):
@@ -156,7 +157,7 @@ def main(argv=None):
     def corr_all(kk):  # the correlogram parts in the search's window, once per trial (``montecarlo._grid_windows``)
         d = draw(kk)
         parts, _ = montecarlo._grid_windows(d, cfg)
-        return parts(dpe.grid_window(d["bs"], jnp.concatenate([d["ue"], d["bias"][None] * 299_792_458.0]), cfg)).sum()
+        return parts(dpe.grid_window(d["bs"], jnp.concatenate([d["ue"], d["bias"][None] * C]), cfg)).sum()
 
     f_corr = jax.jit(lambda k: jax.lax.map(corr_all, k, batch_size=2))
     fn = montecarlo._trial_fn(e, dep)
