@@ -19,6 +19,9 @@
 5. Fig. 9's honest receiver (the certified search, the book's costliest runs): time per trial (7 SNRs × 4 M)
    after the compile, with the engine's batches on one thread and on ``montecarlo.default_workers()`` threads,
    each in a fresh process with an empty result cache (``--honest-trials`` trials).
+6. The OTDoA fix (Fig. 10: the 4 nearest BSs of a random UE, noisy ToAs, no polish): per fix with cvxpy's own
+   ``Problem.solve`` (Parameters set, the reduction chain applies them) and with ``otdoa.Solver.solve`` (the data
+   map read from cvxpy once, then Clarabel through cvxpy's solving chain), on the same problems.
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ import numpy as np
 
 from benchutil import median_time, write
 
-from dpe5g import correlogram, dpe, montecarlo, otdoa, paper
+from dpe5g import correlogram, deployment, dpe, montecarlo, otdoa, paper
 from dpe5g.nr import C, PAPER
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -85,6 +88,31 @@ def fig9_from_empty_cache(n_trials: int) -> dict:
     out["full_5000_s"] = out["first_chunk_s"] + per_trial * (paper.URBAN_TRIALS - 100)
     out["full_measured"] = n_trials == paper.URBAN_TRIALS
     return out
+
+
+def otdoa_per_fix(n: int = 200) -> tuple[float, float]:
+    """Seconds per OTDoA fix (M = 4, no polish) on n problems: (cvxpy's ``Problem.solve``, ``Solver.solve``)."""
+    import cvxpy as cp
+
+    dep = deployment.tst()
+    rng = np.random.default_rng(0)
+    cases = []
+    for _ in range(n):
+        ue = np.array([*rng.uniform(0, dep.region[2], 2), dep.ue_height_m])
+        bs = dep.bs_xyz[dep.nearest(ue[:2], 4)]
+        cases.append((bs, np.linalg.norm(ue - bs, axis=1) / C + rng.normal(0, 3e-9, 4), float(ue[2])))
+    solver = otdoa.Solver(4)
+
+    def via_problem_solve():
+        for bs, t, z in cases:
+            solver.set_parameters(bs, t, z)
+            solver.problem.solve(solver=cp.CLARABEL, warm_start=False)
+
+    def via_solver():
+        for bs, t, z in cases:
+            solver.solve(bs, t, z, polish=False)
+
+    return median_time(via_problem_solve, 3) / n, median_time(via_solver, 3) / n
 
 
 def main(argv=None):
@@ -177,6 +205,9 @@ def main(argv=None):
     h1 = fig9_honest_per_trial(args.honest_trials, 1)
     hw = fig9_honest_per_trial(args.honest_trials, n_workers)
 
+    # 6. the OTDoA fix
+    t_ot_cvxpy, t_ot_solver = otdoa_per_fix()
+
     rows = [
         ("one 4096-point FFT, one call (with dispatch)", t_fft_call, "s"),
         ("grid correlogram per BS and SNR, engine (parts per trial, 7 SNRs, window)", t_grid_engine, "s"),
@@ -201,6 +232,8 @@ def main(argv=None):
          + " (target <= 120 s)", f9["full_5000_s"], "S"),
         ("Fig. 9 honest: per trial (7 SNRs x 4 M), one thread", h1, "s"),
         (f"Fig. 9 honest: per trial, {n_workers} threads", hw, "s"),
+        ("OTDoA fix (M = 4): cvxpy's Problem.solve", t_ot_cvxpy, "s"),
+        ("OTDoA fix (M = 4): otdoa.Solver.solve (data map + Clarabel)", t_ot_solver, "s"),
     ]
     print(f"{'quantity':<78} {'value':>12}")
     for name, v, unit in rows:
@@ -222,6 +255,7 @@ def main(argv=None):
         "fig9_empty_cache": f9,
         "fig9_honest": {"trials": args.honest_trials, "per_trial_s_one_thread": h1, "workers": n_workers,
                         "per_trial_s_workers": hw},
+        "otdoa_fix_s": {"problem_solve": t_ot_cvxpy, "solver": t_ot_solver},
     }
     write(args.out, result)
 

@@ -961,6 +961,8 @@ class _ChunkRunner:
         self.toa_fn = _compiled_step_fn(_toa_fn, plain, _deployment_digest(e)) if e.otdoa else None
         self.prior_fn = _compiled_step_fn(_prior_fn, plain, _deployment_digest(e)) if e.centring == "prior" else None
         self.window = jnp.asarray(_receiver_window(e)) if self.bnb else None
+        # one compiled OTDoA problem per M, built once per run (``otdoa.Solver`` reads cvxpy's data map when built)
+        self.solvers = {m: otdoa.Solver(m) for m in e.m_values} if e.otdoa else None
 
     def __call__(self, start: int, stop: int, batch_size: int, workers: int = 1) -> dict:
         e = self.e
@@ -976,7 +978,7 @@ class _ChunkRunner:
         with ThreadPoolExecutor(1) as background:
             for a in range(0, n, step):
                 sl = slice(a, min(a + step, n))
-                ot = _otdoa_fixes(e, self.dep, toas[sl], ue[sl], idx[sl])
+                ot = _otdoa_fixes(e, self.dep, toas[sl], ue[sl], idx[sl], self.solvers)
                 ext = _otdoa_centers(e, self.dep, ot, idx[sl]) if e.centring == "otdoa" else None
                 ots.append(ot)
                 dpes.append(background.submit(self._dpe, keys[sl], ext, batch_size, workers))
@@ -1083,13 +1085,14 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
     return Results(e, **store.load(Results.FIELDS + (Results.OTDOA_FIELDS if e.otdoa else ())))
 
 
-def _otdoa_fixes(e: Experiment, dep: deployment.Deployment, toas: np.ndarray, ue: np.ndarray, idx: np.ndarray) -> dict:
-    """OTDoA fixes (cvxpy, one compiled problem per M) from the chunk's ToAs (T, S, D, I) of every detector, the
-    true UE positions (T, 3) (for the error only) and the nearest BSs' indices (T, I); flagged, never dropped."""
+def _otdoa_fixes(e: Experiment, dep: deployment.Deployment, toas: np.ndarray, ue: np.ndarray, idx: np.ndarray,
+                 solvers: dict) -> dict:
+    """OTDoA fixes (cvxpy, one compiled problem per M: ``solvers`` {M: ``otdoa.Solver``}) from the chunk's ToAs
+    (T, S, D, I) of every detector, the true UE positions (T, 3) (for the error only) and the nearest BSs' indices
+    (T, I); flagged, never dropped."""
     n_t, n_s, n_d = toas.shape[:3]
     xyz = np.full((n_t, n_s, n_d, len(e.m_values), 3), np.nan)
     ok = np.zeros((n_t, n_s, n_d, len(e.m_values)), dtype=bool)
-    solvers = {m: otdoa.Solver(m) for m in e.m_values}
     for t in range(n_t):
         for j, m in enumerate(e.m_values):
             bs = dep.bs_xyz[idx[t, :m]]

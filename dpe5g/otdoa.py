@@ -126,6 +126,17 @@ class Solver:
     """The SOCP of the module docstring for M BSs, compiled once (DPP) and re-solved with new data.
 
     ``Solver(m).solve(bs_xyz, toa_s, ue_z)`` → ``Fix``.  Clarabel is the solver.
+
+    cvxpy compiles the problem once; each solve then needs Clarabel's data (c, A, b) at the new parameter values.
+    ``Problem.solve`` recomputes them through cvxpy's reduction chain, which for a program this small costs more than
+    Clarabel's own solve (``benchmarks/bench_engine.py`` times both).  DPP makes the map from the parameters to the
+    data affine, so the constructor reads it from cvxpy once — ``Problem.get_problem_data`` at the zero parameter
+    and at each unit parameter gives the constant and one column per scalar parameter — and ``solve`` applies it and
+    hands the data to cvxpy's solving chain (``SolvingChain.solve_via_data``, then ``Problem.unpack_results``: the
+    route ``get_problem_data``'s documentation gives), which reads the solution back into ``theta``.  Each entry of
+    this program's data is a constant or one parameter times ±1, so the map gives cvxpy's data to the bit and the
+    same fixes (``tests/test_otdoa.py`` compares both with cvxpy's own path).  ``solve`` leaves the Parameters
+    alone; ``set_parameters`` writes them, for a variant of the problem built on them.
     """
 
     def __init__(self, n_bs: int):
@@ -142,6 +153,51 @@ class Solver:
         if not self.problem.is_dpp():
             raise RuntimeError("the OTDoA problem is not DPP")
         self._cp = cp
+        self._params = (self.A, self.beta, self.ref, self.dz)
+        n = sum(int(np.prod(q.shape)) for q in self._params)
+        probes = [self._cvxpy_data(np.eye(n)[k]) for k in range(n)]
+        self._template, self._chain, self._inverse = self._cvxpy_data(np.zeros(n), full=True)
+        base = self._template
+        self._structure = (base["A"].indices.copy(), base["A"].indptr.copy(), base["A"].shape)
+        if not all(np.array_equal(pr["A"].indices, self._structure[0])
+                   and np.array_equal(pr["A"].indptr, self._structure[1]) for pr in probes):
+            raise RuntimeError("cvxpy's data for the OTDoA problem changed its sparsity with the parameters")
+        value = lambda d, key: d[key].data if key == "A" else d[key]
+        cols = {key: (value(base, key).copy(), np.stack([value(pr, key) - value(base, key) for pr in probes], 1))
+                for key in ("c", "b", "A")}
+        self._map = cols
+
+    def _set(self, v):
+        """Write the flat parameter vector v (A row-major, β, b_1 xy, z − z_1) into the cvxpy Parameters."""
+        k = 0
+        for q in self._params:
+            size = int(np.prod(q.shape))
+            q.value = v[k:k + size].reshape(q.shape) if q.shape else float(v[k])
+            k += size
+
+    def _cvxpy_data(self, v, full: bool = False):
+        """cvxpy's Clarabel data at parameters v (and its solving chain and inverse data if ``full``)."""
+        self._set(v)
+        data, chain, inverse = self.problem.get_problem_data(self._cp.CLARABEL, solver_opts={})
+        return (data, chain, inverse) if full else data
+
+    def data(self, A, beta, ref, dz) -> dict:
+        """Clarabel's data for parameters (A (M−1, 3), β (M−1,), b_1 (2,), z − z_1), in the scaled units of
+        ``system``: cvxpy's dict with c, A (CSC) and b from the affine map read at construction."""
+        v = np.concatenate([np.ravel(A), np.ravel(beta), np.ravel(ref), [float(dz)]])
+        out = dict(self._template)
+        for key, (b0, cols) in self._map.items():
+            val = b0 + cols @ v
+            out[key] = val if key != "A" else type(self._template["A"])((val, *self._structure[:2]),
+                                                                          shape=self._structure[2])
+        return out
+
+    def set_parameters(self, bs_xyz, toa_s, ue_z) -> None:
+        """Write the cvxpy Parameters (A, β, b_1, z − z_1) of this fix's system (``system``), for a variant of the
+        problem built on them (Chapter 6 solves the squared residual); ``solve`` does not need them set."""
+        b = np.asarray(bs_xyz, dtype=np.float64)
+        A, beta = self.system(b, np.asarray(toa_s, dtype=np.float64), ue_z)
+        self._set(np.concatenate([A.ravel(), beta, b[0, :2] / 1000.0, [(ue_z - b[0, 2]) / 1000.0]]))
 
     def system(self, bs_xyz, toa_s, ue_z):
         """(A, β) of the linear equations, scaled by 1/1000 m (keeps the solver well conditioned)."""
@@ -162,13 +218,12 @@ class Solver:
             raise ValueError("toa_s must be finite (a NaN ToA cannot enter a TDoA)")
         _checks.finite("ue_z", ue_z)
         A, beta = self.system(b, t, ue_z)
-        self.A.value, self.beta.value = A, beta
-        self.ref.value = b[0, :2] / 1000.0
-        self.dz.value = (ue_z - b[0, 2]) / 1000.0
+        data = self.data(A, beta, b[0, :2] / 1000.0, (ue_z - b[0, 2]) / 1000.0)
         try:
             # no warm start (cvxpy's default): it made a fix depend, by up to a few µm, on the solves before it, so
             # the Monte Carlo's OTDoA fixes depended on its chunking
-            self.problem.solve(solver=self._cp.CLARABEL, warm_start=False)
+            sol = self._chain.solve_via_data(self.problem, data, warm_start=False, verbose=False, solver_opts={})
+            self.problem.unpack_results(sol, self._chain, self._inverse)
         except self._cp.error.SolverError as exc:
             return Fix(np.full(3, np.nan), False, f"solver error: {exc}", np.nan, np.nan)
         if self.problem.status not in ("optimal", "optimal_inaccurate") or self.theta.value is None:

@@ -102,3 +102,31 @@ def test_a_fix_does_not_depend_on_the_solves_before_it():
     a = used.solve(bs, probs[2], 1.5, polish=False)
     b = otdoa.Solver(5).solve(bs, probs[2], 1.5, polish=False)
     np.testing.assert_array_equal(a.xyz, b.xyz)
+
+
+@given(st.integers(0, 2**32 - 1), st.integers(3, 12), st.booleans())
+def test_solver_data_and_fix_equal_cvxpys_own_solve(seed, m, zeros):
+    """``Solver`` applies the affine parameter → data map it read from cvxpy; the data must be cvxpy's to the bit
+    (values and CSC structure, with parameters that are exactly zero too), and the solution the one
+    ``Problem.solve`` finds."""
+    import cvxpy as cp
+
+    rng = np.random.default_rng(seed)
+    solver = otdoa.Solver(m)
+    A, beta, ref, dz = rng.normal(size=(m - 1, 3)), rng.normal(size=m - 1), rng.normal(size=2), float(rng.normal())
+    if zeros:
+        A[rng.integers(m - 1), rng.integers(3)], beta[0], dz = 0.0, 0.0, 0.0
+    mine = solver.data(A, beta, ref, dz)
+    solver.A.value, solver.beta.value, solver.ref.value, solver.dz.value = A, beta, ref, dz
+    theirs = solver.problem.get_problem_data(cp.CLARABEL)[0]
+    for key in ("c", "b"):
+        np.testing.assert_array_equal(mine[key], theirs[key])
+    for attr in ("data", "indices", "indptr", "shape"):
+        np.testing.assert_array_equal(getattr(mine["A"], attr), getattr(theirs["A"], attr))
+    # the fix: ``solve`` (without polish) against cvxpy's own ``Problem.solve`` on the same system
+    bs = np.column_stack([rng.uniform(-300, 300, (m, 2)), rng.uniform(5, 40, m)])
+    t = np.linalg.norm(bs - np.array([10.0, -20.0, 1.5]), axis=1) / C + rng.normal(0, 5e-9, m)
+    fix = solver.solve(bs, t, 1.5, polish=False)
+    solver.set_parameters(bs, t, 1.5)
+    solver.problem.solve(solver=cp.CLARABEL, warm_start=False)
+    np.testing.assert_array_equal(fix.xyz[:2], solver.theta.value[:2] * 1000.0)
