@@ -15,13 +15,11 @@ all: book
 
 setup: $(STAMP)
 
-# The virtual environment: exact pins from environment.txt, the package installed editable.  --no-compile: pip does
-# not byte-compile every installed module up front (measured on the 2-core CI machine: the install in 38 s instead of
-# 63 s); Python compiles, and caches, only the modules a process imports, the first time it imports them.
+# The virtual environment: exact pins from environment.txt, the package installed editable.
 $(STAMP): environment.txt pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip==26.3
-	$(BIN)/python -m pip install --quiet --no-compile -r environment.txt
+	$(BIN)/python -m pip install --quiet -r environment.txt
 	touch $@
 
 # Regenerate the committed figure baselines (PNG + data JSON) of every registered figure, then README's tables.  Deliberately not a
