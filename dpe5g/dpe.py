@@ -177,8 +177,9 @@ class SearchConfig:
         ``chunk_boxes`` at a time, in order of bound, while any is left.
     chunk_boxes : boxes refined together (a divisor of ``capacity``).  A level's loop evaluates all 8 × chunk_boxes
         children of a chunk, live or not, and the levels of Fig. 9's fixes keep a few tens of boxes alive, so small
-        chunks waste less: measured on the 2-core CI machine (Fig. 9's honest receiver, interleaved runs), 16 took
-        0.85 of the time of 64, and 8 no less than 16.  Where no box is dropped the fix does not depend on it: every
+        chunks waste less: measured on the 2-core CI machine (interleaved runs), 16 took 0.85 of the time of 64 on
+        Fig. 9's honest receiver and 0.82 on Fig. 10's; 8 was within 5 % of 16, and keeps more loop steps where
+        many boxes stay alive (wide windows, low SNR).  Where no box is dropped the fix does not depend on it: every
         box holding a point better than the best cost found is refined, whatever the order (ties aside); its gap,
         the bound left over the final boxes, does.
     gap_tol : a fix is certified when its upper bound exceeds its cost by at most gap_tol × cost.
