@@ -182,9 +182,9 @@ class Solver:
         return (data, chain, inverse) if full else data
 
     def data(self, A, beta, ref, dz) -> dict:
-        """Clarabel's data for parameters (A (M−1, 3), β (M−1,), b_1 (2,), z − z_1), in the scaled units of
-        ``system``: cvxpy's dict with c, A (CSC) and b from the affine map read at construction."""
-        v = np.concatenate([np.ravel(A), np.ravel(beta), np.ravel(ref), [float(dz)]])
+        """Clarabel's data for parameters (A (M−1, 3), β (M−1,), b_1 (2,), z − z_1) (``parameters``), in the scaled
+        units of ``system``: cvxpy's dict with c, A (CSC) and b from the affine map read at construction."""
+        v = self._flat(A, beta, ref, dz)
         out = dict(self._template)
         for key, (b0, cols) in self._map.items():
             val = b0 + cols @ v
@@ -192,12 +192,22 @@ class Solver:
                                                                           shape=self._structure[2])
         return out
 
-    def set_parameters(self, bs_xyz, toa_s, ue_z) -> None:
-        """Write the cvxpy Parameters (A, β, b_1, z − z_1) of this fix's system (``system``), for a variant of the
-        problem built on them (Chapter 6 solves the squared residual); ``solve`` does not need them set."""
+    @staticmethod
+    def _flat(A, beta, ref, dz) -> np.ndarray:
+        """The parameters as one vector, in ``_set``'s order."""
+        return np.concatenate([np.ravel(A), np.ravel(beta), np.ravel(ref), [float(dz)]])
+
+    def parameters(self, bs_xyz, toa_s, ue_z) -> tuple:
+        """The values (A, β, b_1, z − z_1) of the problem's Parameters for this fix: ``system`` and the reference
+        BS's position, in its scaled units (1/1000 m)."""
         b = np.asarray(bs_xyz, dtype=np.float64)
         A, beta = self.system(b, np.asarray(toa_s, dtype=np.float64), ue_z)
-        self._set(np.concatenate([A.ravel(), beta, b[0, :2] / 1000.0, [(ue_z - b[0, 2]) / 1000.0]]))
+        return A, beta, b[0, :2] / 1000.0, (ue_z - b[0, 2]) / 1000.0
+
+    def set_parameters(self, bs_xyz, toa_s, ue_z) -> None:
+        """Write ``parameters`` into the cvxpy Parameters, for a variant of the problem built on them (Chapter 6
+        solves the squared residual); ``solve`` does not need them set."""
+        self._set(self._flat(*self.parameters(bs_xyz, toa_s, ue_z)))
 
     def system(self, bs_xyz, toa_s, ue_z):
         """(A, β) of the linear equations, scaled by 1/1000 m (keeps the solver well conditioned)."""
@@ -217,8 +227,7 @@ class Solver:
         if not np.all(np.isfinite(t)):
             raise ValueError("toa_s must be finite (a NaN ToA cannot enter a TDoA)")
         _checks.finite("ue_z", ue_z)
-        A, beta = self.system(b, t, ue_z)
-        data = self.data(A, beta, b[0, :2] / 1000.0, (ue_z - b[0, 2]) / 1000.0)
+        data = self.data(*self.parameters(b, t, ue_z))
         try:
             # no warm start (cvxpy's default): it made a fix depend, by up to a few µm, on the solves before it, so
             # the Monte Carlo's OTDoA fixes depended on its chunking
