@@ -21,7 +21,7 @@ import numpy as np
 
 from benchutil import median_time, write
 
-from dpe5g import correlogram, dpe, nr, signal
+from dpe5g import certified_search, correlogram, cost, dpe, nr, search_config, signal
 from dpe5g.nr import PAPER
 
 #: rounds of the honest-fix timing (median of 20 runs each)
@@ -33,7 +33,7 @@ def main(argv=None):
     ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "bench_dpe.json"))
     args = ap.parse_args(argv)
     rng = np.random.default_rng(0)
-    n, n_taps = PAPER.n_fft, dpe.DEFAULT_TAPS
+    n, n_taps = PAPER.n_fft, search_config.DEFAULT_TAPS
 
     # 1. fast vs literal on the same inputs and the same candidates: M = 2 BSs, 8 x 8 grid of candidate ToA pairs
     m, n_cand = 2, 64
@@ -41,13 +41,13 @@ def main(argv=None):
     y = rng.normal(size=(m, n)) + 1j * rng.normal(size=(m, n))
     t1, t2 = np.meshgrid(np.linspace(0, 2e-6, 8), np.linspace(0, 2e-6, 8), indexing="ij")
     tau = np.stack([t1.ravel(), t2.ravel()], axis=-1)  # (64, 2)
-    v_lit = dpe.ml_cost_literal(y, prs, tau, n_taps, PAPER.scs_hz)
-    v_fast = np.asarray(dpe.ml_cost(y, prs, tau, n_taps, PAPER.scs_hz))
+    v_lit = cost.ml_cost_literal(y, prs, tau, n_taps, PAPER.scs_hz)
+    v_fast = np.asarray(cost.ml_cost(y, prs, tau, n_taps, PAPER.scs_hz))
     agree = float(np.max(np.abs(v_fast - v_lit) / np.abs(v_lit)))
-    t_lit = median_time(lambda: dpe.ml_cost_literal(y, prs, tau, n_taps, PAPER.scs_hz), 1)
-    t_fast = median_time(lambda: dpe.ml_cost(y, prs, tau, n_taps, PAPER.scs_hz), 20)
+    t_lit = median_time(lambda: cost.ml_cost_literal(y, prs, tau, n_taps, PAPER.scs_hz), 1)
+    t_fast = median_time(lambda: cost.ml_cost(y, prs, tau, n_taps, PAPER.scs_hz), 20)
     # the same number on the correlogram grid (exact there): U FFTs per BS give N * U candidate ToAs at once
-    cfg = dpe.SearchConfig()
+    cfg = search_config.SearchConfig()
     t_corr = median_time(lambda: correlogram.correlogram(y, prs, n_taps, cfg.upsample), 20)
 
     # 2. one DPE fix, M = 24, TDL-free unit channel at 20 dB (the search cost does not depend on the channel)
@@ -57,15 +57,15 @@ def main(argv=None):
     prs24 = nr.prs_matrix(range(m))
     ue = np.array([1.0, -2.0, 2.0])
     y24 = signal.received_samples(jax.random.PRNGKey(0), prs24, np.ones((m, 1)), np.zeros((m, 1)),
-                                  dpe.toa(ue, bs, 0.0), 20.0)
+                                  cost.toa(ue, bs, 0.0), 20.0)
     center = np.array([0.0, 0.0, 2.0, 0.0])
-    t_fix = median_time(lambda: dpe.estimate(y24, prs24, bs, center, cfg).cost, 20)
+    t_fix = median_time(lambda: dpe.fix(y24, prs24, bs, center, cfg).cost, 20)
     cfg_pol = dataclasses.replace(cfg, polish=True)
-    t_fix_pol = median_time(lambda: dpe.estimate(y24, prs24, bs, center, cfg_pol).cost, 20)
+    t_fix_pol = median_time(lambda: dpe.fix(y24, prs24, bs, center, cfg_pol).cost, 20)
     t_c24 = median_time(lambda: correlogram.correlogram(y24, prs24, n_taps, cfg.upsample), 20)
     # the honest fix: certified branch and bound over ±30 m x ±30 m and the clock model's c·δt window (±4.5 m),
     # centred 3 m off the UE and on c·δt = 0, spline correlograms included
-    honest = dpe.SearchConfig(method="bnb", half_width_m=30.0, bias_half_width_m=3 * 5e-9 * nr.C)
+    honest = search_config.SearchConfig(method="bnb", half_width_m=30.0, bias_half_width_m=3 * 5e-9 * nr.C)
     off_center = np.array([3.0, -2.0, 2.0, 0.0])
     # its parts, jitted on device arrays as the engine runs them: the spline correlograms from the LS spectrum, and
     # the branch and bound on them
@@ -73,10 +73,10 @@ def main(argv=None):
     window = jnp.asarray(correlogram.window_spectrum(n_taps, n))
     spline = jax.jit(lambda g: correlogram.spline_coefficients(g, window, honest.spline_upsample))
     coef24 = spline(g24)
-    bnb = jax.jit(lambda c: dpe.certified_search(c, jnp.asarray(bs), jnp.asarray(off_center), honest)["cost"])
+    bnb = jax.jit(lambda c: certified_search.certified_search(c, jnp.asarray(bs), jnp.asarray(off_center), honest)[1])
     # this shared 2-core machine's timings drift between runs: the honest fix is timed in ROUNDS rounds of 20, its
     # median of round medians reported with the range
-    rounds = [median_time(lambda: dpe.estimate(y24, prs24, bs, off_center, honest).cost, 20) for _ in range(ROUNDS)]
+    rounds = [median_time(lambda: dpe.fix(y24, prs24, bs, off_center, honest).cost, 20) for _ in range(ROUNDS)]
     t_honest = float(np.median(rounds))
     t_spline = median_time(lambda: spline(g24), 20)
     t_bnb = median_time(lambda: bnb(coef24), 20)

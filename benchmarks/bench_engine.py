@@ -6,7 +6,7 @@
    call (what a single transform costs with its dispatch) and the per-row time of 24 FFTs in one call (the
    throughput the correlograms compete with).  Target: ≤ 3 FFT-equivalents.  Measured on the engine's path, one
    trial of Fig. 9 (24 BSs, 7 SNRs): the three parts of the correlograms computed once for the trial and mixed per
-   SNR (``montecarlo._grid_windows`` in the grid search's window; ``montecarlo._spline_correlograms`` for the
+   SNR (``receiver.grid_windows`` in the grid search's window; ``receiver.spline_correlograms`` for the
    certified search), divided by 24 × 7; and, for reference, one whole correlogram from one LS spectrum
    (``correlogram.energy_grid``, ``correlogram.spline_coefficients``).
 2. Precision: complex64 against complex128 correlograms on the same signals — the time of each and the ToA error
@@ -17,7 +17,7 @@
    the first chunk (compile + 100 trials) and ``--trials`` in all are timed; the 5000-trial time is extrapolated
    from them (or measured with ``--full``).  Target: ≤ 120 s.
 5. Fig. 9's honest receiver (the certified search, the book's costliest runs): time per trial (7 SNRs × 4 M)
-   after the compile, with the engine's batches on one thread and on ``montecarlo.default_workers()`` threads,
+   after the compile, with the engine's batches on one thread and on ``engine.default_workers()`` threads,
    each in a fresh process with an empty result cache (``--honest-trials`` trials).
 6. The OTDoA fix (Fig. 10: the 4 nearest BSs of a random UE, noisy ToAs, no polish): per fix with cvxpy's own
    ``Problem.solve`` (Parameters set, the reduction chain applies them) and with ``otdoa.Solver.solve`` (the data
@@ -39,7 +39,7 @@ import numpy as np
 
 from benchutil import median_time, write
 
-from dpe5g import correlogram, deployment, dpe, montecarlo, otdoa, paper
+from dpe5g import correlogram, deployment, draw, engine, grid_search, otdoa, paper, receiver, trials
 from dpe5g.nr import C, PAPER
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -47,23 +47,23 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 
 RUN_FIG9 = """
 import json, sys, time
-from dpe5g import montecarlo, paper
+from dpe5g import paper
 n, cache = int(sys.argv[1]), sys.argv[2]
 t0 = time.perf_counter()
-montecarlo.run(paper.fig9_truth(100), cache=cache, progress=False)
+engine.run(paper.fig9_truth(100), cache=cache, progress=False)
 t1 = time.perf_counter()
-montecarlo.run(paper.fig9_truth(n), cache=cache, progress=False)
+engine.run(paper.fig9_truth(n), cache=cache, progress=False)
 print(json.dumps({"first_chunk_s": t1 - t0, "total_s": time.perf_counter() - t0}))
 """
 
 
 RUN_HONEST = """
 import json, sys, time
-from dpe5g import montecarlo, paper
+from dpe5g import paper
 n, cache, workers = int(sys.argv[1]), sys.argv[2], int(sys.argv[3])
-montecarlo.run(paper.fig9_honest(1), cache=cache, progress=False, workers=workers)  # compile
+engine.run(paper.fig9_honest(1), cache=cache, progress=False, workers=workers)  # compile
 t0 = time.perf_counter()
-montecarlo.run(paper.fig9_honest(1 + n), cache=cache, progress=False, workers=workers)
+engine.run(paper.fig9_honest(1 + n), cache=cache, progress=False, workers=workers)
 print(json.dumps({"per_trial_s": (time.perf_counter() - t0) / n}))
 """
 
@@ -129,8 +129,8 @@ def main(argv=None):
 
     # signals of one Fig. 9 trial at 20 dB: 24 links, engine's own draws
     e = paper.fig9_truth(1)
-    ex = montecarlo.example(e, 0, list(e.snrs_db).index(20.0))
-    g = correlogram.ls_spectrum(jnp.fft.fft(jnp.asarray(ex["y"]), axis=-1, norm="ortho"), jnp.asarray(ex["prs"]))
+    ex = draw.example(e, 0, list(e.snrs_db).index(20.0))
+    g = correlogram.ls_spectrum(jnp.fft.fft(jnp.asarray(ex.y), axis=-1, norm="ortho"), jnp.asarray(ex.prs))
     m = g.shape[0]
     cfg, honest = e.receiver_search(), paper.fig9_honest(1).receiver_search()
     window = jnp.asarray(correlogram.window_spectrum(honest.n_taps, PAPER.n_fft))
@@ -145,20 +145,20 @@ def main(argv=None):
     t_spline = median_time(lambda: spline(g), 50) / m
 
     # the engine's path: one trial's parts, mixed for its 7 SNRs (the grid's in the search's window)
-    e_d = montecarlo._draw_fn(e, e.load_deployment())(montecarlo.trial_key(e.seed, 0))
+    e_d = draw.draw_fn(e, e.load_deployment())(draw.trial_key(e.seed, 0))
     n_snr = e.n_snr
 
     @jax.jit
     def grid_engine(arrays):
         d = arrays | {"per_link_power": False}  # Fig. 9: every link at the SNR (a static flag of the draws)
-        parts, _ = montecarlo._grid_windows(d, cfg)
-        p = parts(dpe.grid_window(d["bs"], jnp.concatenate([d["ue"], d["bias"][None] * C]), cfg))  # once a trial
-        a, b = montecarlo._noise_form(d)
+        parts, _ = receiver.grid_windows(d, cfg)
+        p = parts(grid_search.grid_window(d.bs_xyz, jnp.concatenate([d.ue_xyz, d.clock_bias_s[None] * C]), cfg))  # once a trial
+        a, b = receiver.noise_scales(d)
         return jnp.stack([correlogram.mix_parts(p, a[s], b[s]) for s in range(n_snr)])  # as ``windows`` mixes
 
     @jax.jit
     def spline_engine(arrays):
-        f = montecarlo._spline_correlograms(arrays | {"per_link_power": False}, honest, window)
+        f = receiver.spline_correlograms(arrays | {"per_link_power": False}, honest, window)
         return jnp.stack([f(s) for s in range(n_snr)])
 
     e_arrays = {k: v for k, v in e_d.items() if k != "per_link_power"}
@@ -177,18 +177,18 @@ def main(argv=None):
 
     # 3. profile of one (trial, SNR) of the Fig. 9 truth-centred experiment, batch of 2 trials as the engine runs
     dep = e.load_deployment()
-    draw = montecarlo._draw_fn(e, dep)
-    keys = jax.vmap(lambda t: montecarlo.trial_key(e.seed, t))(jnp.arange(20))
-    f_draw = jax.jit(lambda k: jax.lax.map(lambda kk: (lambda d: d["y0"].sum() + d["noise"].sum())(draw(kk)), k,
+    draw_one = draw.draw_fn(e, dep)
+    keys = jax.vmap(lambda t: draw.trial_key(e.seed, t))(jnp.arange(20))
+    f_draw = jax.jit(lambda k: jax.lax.map(lambda kk: (lambda d: d.y0.sum() + d.noise.sum())(draw_one(kk)), k,
                                            batch_size=2))
 
-    def corr_all(kk):  # the correlogram parts in the search's window, once per trial (``montecarlo._grid_windows``)
-        d = draw(kk)
-        parts, _ = montecarlo._grid_windows(d, cfg)
-        return parts(dpe.grid_window(d["bs"], jnp.concatenate([d["ue"], d["bias"][None] * C]), cfg)).sum()
+    def corr_all(kk):  # the correlogram parts in the search's window, once per trial (``receiver.grid_windows``)
+        d = draw_one(kk)
+        parts, _ = receiver.grid_windows(d, cfg)
+        return parts(grid_search.grid_window(d.bs_xyz, jnp.concatenate([d.ue_xyz, d.clock_bias_s[None] * C]), cfg)).sum()
 
     f_corr = jax.jit(lambda k: jax.lax.map(corr_all, k, batch_size=2))
-    fn = montecarlo._trial_fn(e, dep)
+    fn = trials.grid_trial_fn(e, dep)
     ext = jnp.zeros((20, e.n_snr, len(e.m_values), 4))
     f_all = jax.jit(lambda k: jax.lax.map(lambda a: fn(*a), (k, ext), batch_size=2))
     n_ts = 20 * e.n_snr
@@ -201,7 +201,7 @@ def main(argv=None):
     f9 = fig9_from_empty_cache(n_fig9)
 
     # 5. the honest receiver per trial, one thread against the default
-    n_workers = montecarlo.default_workers()
+    n_workers = engine.default_workers()
     h1 = fig9_honest_per_trial(args.honest_trials, 1)
     hw = fig9_honest_per_trial(args.honest_trials, n_workers)
 

@@ -1,9 +1,11 @@
 """dpe5g: reproducible companion to "5G Direct Position Estimation for Precise Localization in Dense Urban Area".
 
 Modules are named after the paper's objects: ``nr`` (numerology, PRS), ``channel`` (TR 38.901 TDL, eqs. (1)–(2)),
-``signal`` (eqs. (3)–(6)), ``correlogram`` (the LS CIR estimate both receivers share), ``dpe`` (eqs. (7)–(10)), ``otdoa``,
-``deployment`` and ``scenario`` (Section III), ``montecarlo`` (Section IV), ``figures`` (one registered producer per
-figure) and ``plots`` (their drawing).
+``signal`` (eqs. (3)–(6)), ``correlogram`` (the LS CIR estimate both receivers share), ``cost`` (eqs. (7)–(10)),
+``search_config``, ``grid_search`` and ``certified_search`` (the two searches), ``receiver`` (correlograms → fix),
+``dpe`` (the public fix), ``otdoa``, ``deployment`` and ``scenario`` (Section III); the Monte Carlo of Section IV as a
+pipeline: ``experiment`` → ``draw`` → ``trials`` → ``engine`` → ``store`` → ``results``; ``paper`` (the paper's
+experiments), ``figures`` (one registered producer per figure) and ``plots`` (their drawing).
 
 Importing the package turns on JAX float64: ToAs are ~1e-6 s and must be resolved to ~1e-10 s, and the phases
 k Δf τ reach hundreds of cycles, which float32 cannot carry to the precision the estimators need.
@@ -33,7 +35,7 @@ from pathlib import Path
 XLA_OPT_LEVEL = 1
 
 
-def _xla_flags(flags: str, level: str | None) -> str:
+def xla_flags(flags: str, level: str | None) -> str:
     """XLA_FLAGS with the backend optimisation level ``level`` ("0"–"3"; None: ``XLA_OPT_LEVEL``; "xla": unchanged)
     added, unless ``flags`` sets it already."""
     level = str(XLA_OPT_LEVEL) if level is None else level.strip()
@@ -53,7 +55,7 @@ def _cli_starting() -> bool:
 
 
 try:
-    os.environ["XLA_FLAGS"] = _xla_flags(os.environ.get("XLA_FLAGS", ""), os.environ.get("DPE5G_XLA_OPT_LEVEL"))
+    os.environ["XLA_FLAGS"] = xla_flags(os.environ.get("XLA_FLAGS", ""), os.environ.get("DPE5G_XLA_OPT_LEVEL"))
 except ValueError as exc:
     if not _cli_starting():
         raise

@@ -192,7 +192,7 @@ def rmse_bound_m(e, n_trials: int, snrs_db=None) -> np.ndarray:
     """The DPE bound on the horizontal error of an urban experiment, as an RMSE over its trials 0 … n_trials−1:
     √(mean_t (CRB_xx + CRB_yy)) per (SNR, M), shape (S, J) in metres, the same (S, J) as ``Results.rmse_m``.
 
-    e : ``montecarlo.Experiment``.  Each trial's links are the engine's (``montecarlo.example``: positions, channels
+    e : ``experiment.Experiment``.  Each trial's links are the engine's (``draw.example``: positions, channels
     with their tap delays known, per-link SNR); the pilots are the full band (the paper's, the engine's).  The
     Fisher information of a link scales with its linear SNR, so it is computed once per link and scaled.
     snrs_db : (S,) SNRs in dB, in the experiment's ``snr_convention``, to use instead of ``e.snrs_db`` (snr_mode "fixed" only: every link at
@@ -218,13 +218,13 @@ def link_information(e, n_trials: int) -> dict:
     band with its channel's tap delays known, link_snr_db (T, I) its SNR of the experiment's first SNR index.
 
     Computing the information costs a projection per link, so the arrays are kept beside the experiment's Monte
-    Carlo results (``montecarlo.cache_dir``, whose key covers the engine's code and the experiment) in a file keyed
+    Carlo results (``store.cache_dir``, whose key covers the engine's code and the experiment) in a file keyed
     by this module's code; a later call with at most as many trials reads them."""
-    from . import montecarlo  # the engine's draws; montecarlo does not import this module
+    from . import draw, experiment, store  # the engine's draws; they do not import this module
     from ._io import atomic_write
 
     n_trials = _checks.integer("n_trials", n_trials, 1, e.n_trials)
-    path = montecarlo.cache_dir(e) / f"link-information-{montecarlo.code_digest(Path(__file__)).hex()[:16]}.npz"
+    path = store.cache_dir(e) / f"link-information-{experiment.code_digest(Path(__file__)).hex()[:16]}.npz"
     if path.exists():
         with np.load(path) as z:
             if z["info_0db"].shape[0] >= n_trials:
@@ -232,11 +232,11 @@ def link_information(e, n_trials: int) -> dict:
     f = subcarrier_frequencies_hz("full")
     out = {"ue": [], "bs": [], "info_0db": [], "link_snr_db": []}
     for t in range(n_trials):
-        ex = montecarlo.example(e, t)
-        out["ue"].append(ex["ue"])
-        out["bs"].append(ex["bs"])
-        out["info_0db"].append([toa_fisher(f, 0.0, ex["gains"][i], ex["delays"][i]) for i in range(ex["bs"].shape[0])])
-        out["link_snr_db"].append(np.asarray(ex["link_snr"]))
+        ex = draw.example(e, t)
+        out["ue"].append(ex.ue_xyz)
+        out["bs"].append(ex.bs_xyz)
+        out["info_0db"].append([toa_fisher(f, 0.0, ex.gains[i], ex.delays_s[i]) for i in range(ex.bs_xyz.shape[0])])
+        out["link_snr_db"].append(np.asarray(ex.link_snr_db))
     out = {k: np.asarray(v, dtype=np.float64) for k, v in out.items()}
     path.parent.mkdir(parents=True, exist_ok=True)
     buf = io.BytesIO()

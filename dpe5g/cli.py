@@ -105,21 +105,21 @@ def _with_option(err: ValueError, options: dict[str, str]) -> ValueError:
 
 
 def run_experiment(args):
-    """The ``montecarlo.Experiment`` of ``dpe5g run``'s arguments: the paper's Fig. 9 set-up (``dpe5g.paper``) with
+    """The ``experiment.Experiment`` of ``dpe5g run``'s arguments: the paper's Fig. 9 set-up (``dpe5g.paper``) with
     the user's deployment, SNRs (dB), M values, trials, receiver window L (taps), delay spread (s), centring, prior
-    σ (m) and seed.  Centring "truth" uses the paper's coarse-to-fine grid (``dpe.SearchConfig()``), "prior" and
+    σ (m) and seed.  Centring "truth" uses the paper's coarse-to-fine grid (``search_config.SearchConfig()``), "prior" and
     "otdoa" the honest certified search (``paper.honest_search()``), as the figures do.  When everything equals one
     of the paper's experiments, that experiment (and its cache) is used."""
     from dataclasses import replace
 
-    from . import dpe, paper, signal
-    from .montecarlo import Experiment
+    from . import paper, search_config, signal
+    from .experiment import Experiment
 
     dep = args.deployment if args.deployment == "tst" else str(Path(args.deployment).resolve())
     try:
         for snr in args.snr:
             signal.check_snr_db(snr)  # one by one, so that the message shows the bad value
-        search = dpe.SearchConfig(n_taps=args.taps) if args.centring == "truth" else replace(paper.honest_search(),
+        search = search_config.SearchConfig(n_taps=args.taps) if args.centring == "truth" else replace(paper.honest_search(),
                                                                                              n_taps=args.taps)
         kw = dict(n_trials=args.trials, seed=args.seed, snrs_db=tuple(args.snr), m_values=tuple(sorted(set(args.m))),
                   delay_spread_s=args.delay_spread, centring=args.centring, search=search, deployment=dep)
@@ -138,41 +138,17 @@ def run_experiment(args):
     return e
 
 
-def _summary(res) -> str:
-    """The study in one line, then the RMSE (m) per SNR (rows) and M (columns) of the DPE (and of the OTDoA fix
-    that centres it, for centring "otdoa"), and for the honest centrings the edge-flag and certified shares."""
-    import numpy as np
-
-    from .montecarlo import OTDOA_DETECTORS
-
-    e = res.experiment
-    prior = f" (σ = {e.prior_scale_m:g} m)" if e.centring == "prior" else ""
-    lines = [f"{e.n_trials} trials, seed {e.seed}, deployment {e.deployment}, delay spread "
-             f"{e.delay_spread_s * 1e9:g} ns, L = {e.receiver_search().n_taps}, centring {e.centring}{prior}"]
-    tables = [("DPE", res.rmse_m())]
-    if res.otdoa_error_m is not None:
-        k = OTDOA_DETECTORS.index(e.toa_method)
-        tables.append((f"OTDoA, {e.toa_method} ToA", np.sqrt(np.mean(res.otdoa_error_m[:, :, k] ** 2, axis=0))))
-    for label, rmse in tables:
-        lines += [f"RMSE (m), {label}:", f"{'SNR (dB)':>9} " + " ".join(f"{f'M = {m}':>9}" for m in e.m_values)]
-        lines += [f"{snr:9g} " + " ".join(f"{v:9.3f}" for v in row) for snr, row in zip(e.snrs_db, rmse)]
-    if e.centring != "truth":
-        lines.append(f"DPE fixes on the window's edge (flagged): {100 * res.edge.mean():.1f} %; certified: "
-                     f"{100 * res.certified.mean():.1f} %")
-    return "\n".join(lines)
-
-
 def _run(args) -> int:
-    from . import montecarlo
+    from . import engine, report
     from ._io import atomic_target
 
     e = run_experiment(args)
     out = _output_file("--out", args.out, (".csv", ".json"), force=args.force)
-    res = montecarlo.run(e, progress=True)
+    res = engine.run(e, progress=True)
     with atomic_target(out) as tmp:  # an existing file is never left half-overwritten
         (res.write_csv if out.suffix.lower() == ".csv" else res.write_json)(tmp)
     n_rows = e.n_trials * len(e.snrs_db) * len(e.m_values)
-    print(_summary(res))
+    print(report.run_summary(res))
     print(f"wrote {out} ({n_rows} rows: one per trial, SNR and M)")
     return 0
 
@@ -221,14 +197,14 @@ def _figures(args) -> int:
 # ---- dpe5g warm -------------------------------------------------------------------------------------------------------
 
 def _warm(args) -> int:
-    from . import montecarlo, paper
+    from . import engine, paper
 
     exps = paper.book_experiments()
     order = exps if args.forward else exps[::-1]
     t0 = time.perf_counter()
     for i, e in enumerate(order, 1):
         t = time.perf_counter()
-        montecarlo.run(e, progress=args.progress, reverse=not args.forward)
+        engine.run(e, progress=args.progress, reverse=not args.forward)
         print(f"[{i}/{len(order)}] {e.name}: {e.n_trials} trials ({time.perf_counter() - t:.1f} s)", flush=True)
     print(f"warm: {len(order)} experiments in the cache ({time.perf_counter() - t0:.1f} s)", flush=True)
     return 0
@@ -275,13 +251,20 @@ def _scene(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from . import dpe, paper
-    from .montecarlo import Experiment
-
-    paper_e = Experiment()
+    """The ``dpe5g`` parser: one subcommand each for run, figures, warm, profile, deployment and scene."""
     p = Parser(prog="dpe5g", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
+    _add_run(sub)
+    _add_other_commands(sub)
+    return p
 
+
+def _add_run(sub) -> None:
+    """``dpe5g run``: its options, with the paper's Fig. 9 set-up as defaults."""
+    from . import paper, search_config
+    from .experiment import Experiment
+
+    paper_e = Experiment()
     r = sub.add_parser(
         "run", help="run a Monte Carlo DPE study (RMSE vs SNR and M) and write its per-trial results",
         description="Run a Monte Carlo DPE study on a deployment: per trial a UE uniform over the region, its M "
@@ -309,8 +292,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--m", type=int, nargs="+", default=list(paper_e.m_values), metavar="M",
                    help=f"numbers of nearest BSs used by the DPE, each >= 3 (x, y and the clock bias are unknown) "
                         f"and <= the deployment's BS count (default: {' '.join(map(str, paper_e.m_values))})")
-    r.add_argument("--taps", type=int, default=dpe.DEFAULT_TAPS, metavar="L",
-                   help=f"receiver window L in taps, 1 to the FFT size (default: {dpe.DEFAULT_TAPS}, chosen in "
+    r.add_argument("--taps", type=int, default=search_config.DEFAULT_TAPS, metavar="L",
+                   help=f"receiver window L in taps, 1 to the FFT size (default: {search_config.DEFAULT_TAPS}, chosen in "
                         f"Chapter 5)")
     r.add_argument("--delay-spread", type=float, default=paper_e.delay_spread_s, metavar="S",
                    help=f"RMS delay spread of the TDL channels in SECONDS (default: "
@@ -332,6 +315,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "nearest link, every other BS at its power from the path loss (Chapter 5)")
     r.set_defaults(func=_run)
 
+
+def _add_other_commands(sub) -> None:
+    """``dpe5g figures``, ``warm``, ``profile``, ``deployment`` and ``scene``."""
     f = sub.add_parser("figures", help="regenerate figures: <out>/<id>.png and <out>/data/<id>.json",
                        description="Regenerate figures into --out DIR, or the committed baselines (figures/ of the "
                                    "repository) with --update-baselines; nothing is written into figures/ otherwise.")
@@ -371,7 +357,6 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", default="urban_scene.html", metavar="FILE.html",
                    help="output HTML file, overwritten if it exists (default: urban_scene.html)")
     s.set_defaults(func=_scene)
-    return p
 
 
 def _one_line(text: str) -> str:

@@ -37,7 +37,7 @@ from . import _checks, signal
 from .nr import PAPER, Numerology
 
 
-#: precision of the grid correlograms the receivers read (``dpe.receiver_correlogram`` for the grid search,
+#: precision of the grid correlograms the receivers read (``receiver.receiver_correlogram`` for the grid search,
 #: ``otdoa.toa_from_spectrum``), chosen from the measurement in the module docstring
 GRID_DTYPE = jnp.complex64
 
@@ -96,7 +96,7 @@ def cir_grid(g, upsample: int) -> jax.Array:
     ĥ_m(j T_s / U) / √N = (1/N) Σ_k g_k e^{j2πkj/(UN)}, one inverse FFT of length U·N of g zero-padded (the bins
     k < N carry the spectrum, the rest are empty: the transform interpolates ĥ exactly between samples).  Returns
     complex (..., M, N·U), g's dtype; traceable.  Linear in g: the engine forms the CIR of every SNR of a trial from
-    those of its noise-free spectrum and its unit noise (``montecarlo``).  (U phase-ramped transforms of length N
+    those of its noise-free spectrum and its unit noise (``receiver.noise_scales``).  (U phase-ramped transforms of length N
     give the same numbers, but XLA fuses g's producers, such as the noise draw, into each of the U products and
     repeats them U times.)"""
     _checks.require_x64()
@@ -195,7 +195,7 @@ def half_sample_cir(g) -> jax.Array:
 def spline_from_energy(e2, window, upsample: int) -> jax.Array:
     """``spline_coefficients`` from the energies e2 (..., M, 2N) at T_s/2 (N |``half_sample_cir``|²), or from any
     real function sampled there (the map is linear: the engine maps the three parts of the energy of a·G + b·G_n
-    once per trial, ``spline_noise_basis``).  Returns real (..., M, N·U)."""
+    once per trial, ``receiver.spline_noise_basis``).  Returns real (..., M, N·U)."""
     n = e2.shape[-1] // 2
     q = np.arange(n + 1)
     prefilter = 6.0 / (4.0 + 2.0 * np.cos(2 * np.pi * q / (n * upsample)))  # 1 / DFT of (1/6, 4/6, 1/6)
@@ -204,25 +204,10 @@ def spline_from_energy(e2, window, upsample: int) -> jax.Array:
     return jnp.fft.irfft(pad, n=n * upsample, axis=-1) * (upsample / 2)
 
 
-def spline_noise_basis(g0, gn, window, upsample: int) -> jax.Array:
-    """The spline coefficients of the three parts of the energy (``energy_parts``) of the LS spectrum a·g0 + b·gn,
-    for any real scales a, b per BS: ``spline_from_energy`` is linear, so the coefficients of a·g0 + b·gn are
-    ``mix_parts`` of these.  The engine's received spectrum at SNR s is a_s y0 + b_s η (the noise-free spectrum and
-    the trial's unit noise, ``montecarlo._noise_form``): one basis per trial serves all its SNRs, 2 inverse FFTs and
-    3 spline maps per BS instead of 1 and 1 per SNR.
-
-    g0, gn : complex (..., M, N); window : ``window_spectrum``.  Returns real (3, ..., M, N·U), float64 as
-    ``spline_coefficients`` (round-off of the mixture, relative to the largest part, ~1e-16)."""
-    # the two transforms in a loop, so that its input is computed once (XLA on the CPU would otherwise fuse the
-    # producers of g0 and gn, such as the noise draw, into the transform's zero padding)
-    h0, hn = jax.lax.map(half_sample_cir, jnp.stack([g0, gn]))
-    return spline_from_energy(energy_parts(h0, hn) * g0.shape[-1], window, upsample)
-
-
 def cir_window(h, start, width: int, n_taps: int, upsample: int) -> jax.Array:
     """The samples of ``cir_grid``'s h (..., M, N·U) that the windowed energies of grid points start … start +
     width − 1 read: W/U + L − 1 whole samples from start on, every offset u.  start : int (..., M), a multiple of U
-    (``dpe.grid_window``), not reduced modulo N·U; width : W, a multiple of U.  Returns complex (..., M, U,
+    (``grid_search.grid_window``), not reduced modulo N·U; width : W, a multiple of U.  Returns complex (..., M, U,
     W/U + L − 1): offsets, samples."""
     n_rows = width // upsample + n_taps - 1
     idx = jnp.mod(start[..., None] + jnp.arange(n_rows * upsample), h.shape[-1])
@@ -234,43 +219,22 @@ def energy_window(hw, n_taps: int, n_fft: int) -> jax.Array:
     """``energy_from_cir`` on the samples of a window (``cir_window``): the correlogram at its W grid points, the
     same numbers as ``energy_grid`` there, bit for bit (the same sums, in the same order).  hw : complex (..., M, U,
     W/U + L − 1); n_fft : N.  Returns real (..., M, W)."""
-    return _window_sums((hw.real**2 + hw.imag**2) * n_fft, n_taps)
+    return window_sums((hw.real**2 + hw.imag**2) * n_fft, n_taps)
 
 
-def _window_sums(e, n_taps: int) -> jax.Array:
-    """The L-tap window sums of energies e (..., M, U, W/U + L − 1) of a window: (..., M, W), offsets interleaved."""
+def window_sums(e, n_taps: int) -> jax.Array:
+    """The L-tap window sums of energies e (..., M, U, W/U + L − 1) of a window (``cir_window``): (..., M, W), the
+    offsets interleaved.  Linear in e."""
     n_rows = e.shape[-1] - n_taps + 1
     w = window_sum(e, n_taps)[..., :n_rows]  # the first W/U sums do not wrap
     return jnp.swapaxes(w, -1, -2).reshape(w.shape[:-2] + (n_rows * w.shape[-2],))
-
-
-def energy_parts(h0, hn) -> jax.Array:
-    """The three parts of the energy of a·ĥ0 + b·ĥn for real a, b: |a ĥ0 + b ĥn|² = a² |ĥ0|² + 2ab Re(ĥ0* ĥn) +
-    b² |ĥn|² (``mix_parts``).  h0, hn : complex (...), the CIR estimates of two spectra (the engine's noise-free
-    spectrum and unit noise, ``montecarlo._noise_form``).  Returns real (3, ...)."""
-    return jnp.stack([h0.real**2 + h0.imag**2, h0.real * hn.real + h0.imag * hn.imag, hn.real**2 + hn.imag**2])
-
-
-def mix_parts(parts, a, b) -> jax.Array:
-    """a² P_0 + 2ab P_1 + b² P_2 from the three parts (3, ..., M, J) of a correlogram (``energy_parts`` after any
-    linear map: the L-tap window sum, the spline's transform), a, b real (..., M): the correlogram of the spectrum
-    a·g0 + b·gn.  Returns real (..., M, J)."""
-    a, b = jnp.asarray(a)[..., None], jnp.asarray(b)[..., None]
-    return (a * a) * parts[0] + (2.0 * a * b) * parts[1] + (b * b) * parts[2]
-
-
-def energy_window_parts(h0w, hnw, n_taps: int, n_fft: int) -> jax.Array:
-    """``energy_window``'s three parts (``energy_parts``) for the windows h0w, hnw (``cir_window``) of two
-    spectra g0, gn: ``mix_parts`` of the result is the window of the correlogram of a·g0 + b·gn, for every a, b.
-    Returns real (3, ..., M, W)."""
-    return _window_sums(energy_parts(h0w, hnw) * n_fft, n_taps)
 
 
 def correlogram(y, prs, n_taps: int, upsample: int) -> jax.Array:
     """Per-BS correlograms of time-domain samples: ``energy_grid`` of ``ls_spectrum(signal.demodulate(y), prs)``.
 
     y, prs : complex (M, N); n_taps : L; upsample : U.  Returns real (M, N·U); entry j of row m is the BS-m term of
-    ``dpe.ml_cost`` at τ = j T_s / U, exactly (U FFTs per BS instead of one per candidate).  The cost is periodic
+    ``cost.ml_cost`` at τ = j T_s / U, exactly (U FFTs per BS instead of one per candidate).  The cost is periodic
     in τ with period N T_s = 1/Δf, so the grid covers every τ modulo that period.
     """
     y, prs = check_inputs(y, prs, n_taps)

@@ -6,17 +6,16 @@ figure-diff test and the book's chapters all go through ``REGISTRY``, so they ca
 
 Payload layout: ``{"id", "paper_ref", "caption", "seed", "config": {...}, "data": {...}}``.
 
-``compute`` keeps each payload in a cache (``payload_path``) keyed by the code of the whole package, so within one
-state of the code a payload is computed once: by the first chapter that shows it, then read by the other chapters,
-the figure-diff and ``make figures``.
+``compute`` keeps each payload in the store (``store.payload_path``) keyed by the code of the whole package, so within
+one state of the code a payload is computed once: by the first chapter that shows it, then read by the other
+chapters, the figure-diff and ``make figures``.  The statistics come from ``results``, the Markdown tables of the
+readings from ``report``.
 """
 
 from __future__ import annotations
 
-import hashlib
 import inspect
 import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -24,9 +23,10 @@ from typing import Any, Callable
 import jax
 import numpy as np
 
-from . import bounds, channel, montecarlo, paper, plots
+from . import (bounds, channel, cost, dpe, draw, engine, experiment, paper, plots, result_plots, results,
+               search_config, store)
 from ._io import atomic_target, atomic_write
-from .nr import PAPER
+from .nr import C, PAPER
 
 
 @dataclass(frozen=True)
@@ -53,22 +53,6 @@ def register(fig_id: str, paper_ref: str | None, caption: str, plot: Callable[[d
     return wrap
 
 
-def _jsonable(x):
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, (np.ndarray, jax.Array)):
-        return _jsonable(np.asarray(x).tolist())
-    if isinstance(x, (np.bool_, bool)):
-        return bool(x)
-    if isinstance(x, (np.integer, int)):
-        return int(x)
-    if isinstance(x, (np.floating, float)):
-        return float(x)
-    return x
-
-
 def get(fig_id: str) -> FigureSpec:
     if fig_id not in REGISTRY:
         raise ValueError(f"figure must be one of {', '.join(REGISTRY)}; got {fig_id!r}")
@@ -80,24 +64,10 @@ def takes_trials(fig_id: str) -> bool:
     return "trials" in inspect.signature(get(fig_id).compute).parameters
 
 
-def payload_path(fig_id: str, trials: int | None = None, cache=None) -> Path:
-    """Where ``compute`` keeps the payload of ``fig_id`` (with ``trials``): ``<cache root>/payloads/<id>-<key>.json``
-    beside the Monte Carlo results (``montecarlo.cache_root``).  The key hashes the figure id, the trial count, the
-    code of every module of the package (``montecarlo.code_digest``: docstrings and comments left out), its data
-    files and the numerical libraries' versions: everything a payload is computed from, so a stored payload is
-    exactly what computing it again would give, and any change of code computes it anew."""
-    here = Path(__file__).resolve().parent
-    h = hashlib.sha256(json.dumps([fig_id, trials, montecarlo.numerics()], sort_keys=True).encode())
-    for path in sorted(here.glob("*.py")):
-        h.update(path.name.encode() + montecarlo.code_digest(path))
-    for path in sorted(p for p in (here / "data").rglob("*") if p.is_file()):
-        h.update(path.name.encode() + path.read_bytes())
-    return montecarlo.cache_root(cache) / "payloads" / f"{fig_id}-{h.hexdigest()[:16]}.json"
-
-
 def compute(fig_id: str, progress: bool = False, trials: int | None = None) -> dict:
-    """Run the producer of ``fig_id`` and return its JSON-able payload, or read it from ``payload_path`` where this
-    code computed it before (the Monte Carlo figures then need no Monte Carlo results either).
+    """Run the producer of ``fig_id`` and return its JSON-able payload, or read it from the store
+    (``store.load_payload``) where this code computed it before (the Monte Carlo figures then need no Monte Carlo
+    results either).
 
     progress : show a progress bar (stderr) where the producer runs a long Monte Carlo (the CLI turns it on).
     trials : Monte Carlo trials per experiment instead of the committed figure's (``dpe5g.paper``); only for the
@@ -112,13 +82,12 @@ def compute(fig_id: str, progress: bool = False, trials: int | None = None) -> d
             raise ValueError(f"trials: figure {fig_id} has no Monte Carlo; trials applies to "
                              f"{', '.join(f for f in REGISTRY if takes_trials(f))}")
         kwargs["trials"] = int(trials)
-    stored = payload_path(fig_id, kwargs.get("trials"))
-    if stored.exists():
-        return json.loads(stored.read_text())
+    stored = store.load_payload(fig_id, kwargs.get("trials"))
+    if stored is not None:
+        return stored
     payload = spec.compute(**kwargs)
-    payload = _jsonable({"id": spec.id, "paper_ref": spec.paper_ref, "caption": spec.caption, **payload})
-    atomic_write(stored, json.dumps(payload).encode())
-    return payload
+    return store.save_payload(fig_id, kwargs.get("trials"),
+                              {"id": spec.id, "paper_ref": spec.paper_ref, "caption": spec.caption, **payload})
 
 
 def render(payload: dict):
@@ -163,51 +132,6 @@ def write(fig_id: str, out_dir, progress: bool = False, trials: int | None = Non
     with atomic_target(png) as tmp:
         plots.save_png(fig, tmp)  # format="png" is explicit, so the ".tmp" name does not matter
     return png, js
-
-
-def compare_data(expected, actual, rtol: float, atol: float, path: str = "") -> tuple[bool, str, float]:
-    """Compare two payloads: numbers with |a - e| <= atol + rtol |e|, everything else exactly.
-
-    Returns (ok, where, largest_abs_difference) with ``where`` the JSON path of the first mismatch or of the
-    largest numeric difference.
-    """
-    worst = (0.0, path)
-    if isinstance(expected, dict) and isinstance(actual, dict):
-        if set(expected) != set(actual):
-            return False, f"{path} keys differ: {sorted(set(expected) ^ set(actual))}", math.inf
-        for k in sorted(expected):
-            ok, where, diff = compare_data(expected[k], actual[k], rtol, atol, f"{path}.{k}")
-            if not ok:
-                return ok, where, diff
-            worst = max(worst, (diff, where))
-        return True, worst[1], worst[0]
-    if isinstance(expected, list) and isinstance(actual, list):
-        if len(expected) != len(actual):
-            return False, f"{path} length {len(expected)} != {len(actual)}", math.inf
-        if expected and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in expected + actual):
-            e = np.asarray(expected, dtype=float)
-            a = np.asarray(actual, dtype=float)
-            diff = np.abs(a - e)
-            bad = diff > atol + rtol * np.abs(e)
-            i = int(np.argmax(diff)) if diff.size else 0
-            if bad.any():
-                j = int(np.argmax(bad))
-                return False, f"{path}[{j}] expected {e[j]!r} got {a[j]!r}", float(diff.max())
-            return True, f"{path}[{i}]", float(diff.max()) if diff.size else 0.0
-        for i, (e, a) in enumerate(zip(expected, actual)):
-            ok, where, diff = compare_data(e, a, rtol, atol, f"{path}[{i}]")
-            if not ok:
-                return ok, where, diff
-            worst = max(worst, (diff, where))
-        return True, worst[1], worst[0]
-    if isinstance(expected, (int, float)) and isinstance(actual, (int, float)) and not isinstance(expected, bool):
-        diff = abs(float(actual) - float(expected))
-        if diff > atol + rtol * abs(float(expected)):
-            return False, f"{path} expected {expected!r} got {actual!r}", diff
-        return True, path, diff
-    if expected != actual:
-        return False, f"{path} expected {expected!r} got {actual!r}", math.inf
-    return True, path, 0.0
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -284,9 +208,9 @@ def cost_surface_payload(n_taps: int | None = None) -> dict:
     Noise-free, taps real and positive (the paper gives amplitudes only), UE height and clock bias known (the paper:
     "the estimation for altitude and clock bias is not involved").  The receiver window is the default L.
     """
-    from . import dpe, nr, signal
+    from . import nr, signal
 
-    n_taps = dpe.DEFAULT_TAPS if n_taps is None else n_taps
+    n_taps = search_config.DEFAULT_TAPS if n_taps is None else n_taps
     m = 8
     ang = np.arange(m) * 2 * np.pi / m
     bs = np.stack([FIG6_RADIUS_M * np.cos(ang), FIG6_RADIUS_M * np.sin(ang), np.full(m, 10.0)], axis=-1)
@@ -294,20 +218,20 @@ def cost_surface_payload(n_taps: int | None = None) -> dict:
     prs = nr.prs_matrix(range(1, m + 1))
     ts = PAPER.sample_period_s
     gains = np.tile(FIG6_TAPS, (m, 1))
-    y = signal.received_noiseless(prs, gains, np.tile(np.arange(3) * ts, (m, 1)), dpe.toa(ue, bs, 0.0))
+    y = signal.received_noiseless(prs, gains, np.tile(np.arange(3) * ts, (m, 1)), cost.toa(ue, bs, 0.0))
     axis = np.arange(-FIG6_HALF_WIDTH_M, FIG6_HALF_WIDTH_M + 1e-9, FIG6_STEP_M)
     rows = []
     for yy in axis:  # one grid row at a time keeps the (candidates, M, N) intermediate small
         xyz = np.stack([axis, np.full_like(axis, yy), np.full_like(axis, ue[2])], axis=-1)
-        rows.append(np.asarray(dpe.ml_cost(y, prs, dpe.toa(xyz, bs, 0.0), n_taps, PAPER.scs_hz)))
-    cost = np.stack(rows)  # [iy, ix]
-    iy, ix = np.unravel_index(np.argmax(cost), cost.shape)
+        rows.append(np.asarray(cost.ml_cost(y, prs, cost.toa(xyz, bs, 0.0), n_taps, PAPER.scs_hz)))
+    surface = np.stack(rows)  # [iy, ix]
+    iy, ix = np.unravel_index(np.argmax(surface), surface.shape)
     return {
         "seed": None,
         "config": {"n_bs": m, "bs_radius_m": FIG6_RADIUS_M, "bs_height_m": 10.0, "ue_xyz": ue, "taps_abs": FIG6_TAPS,
                    "tap_spacing_samples": 1, "n_taps_receiver": n_taps, "n_fft": PAPER.n_fft, "noise": "none",
                    "grid_step_m": FIG6_STEP_M},
-        "data": {"x_m": axis, "y_m": axis, "cost_norm": cost / cost.max(), "cost_max": cost.max(),
+        "data": {"x_m": axis, "y_m": axis, "cost_norm": surface / surface.max(), "cost_max": surface.max(),
                  "peak_xy": [axis[ix], axis[iy]], "bs_xyz": bs},
     }
 
@@ -328,10 +252,8 @@ FIG8_STEP_M = 0.2
 
 
 def _example():
-    from . import montecarlo
-
     e = paper.fig9_truth(n_trials=EXAMPLE_TRIAL + 1)
-    return e, montecarlo.example(e, EXAMPLE_TRIAL, list(e.snrs_db).index(EXAMPLE_SNR_DB))
+    return e, draw.example(e, EXAMPLE_TRIAL, list(e.snrs_db).index(EXAMPLE_SNR_DB))
 
 
 def deployment_payload() -> dict:
@@ -344,46 +266,34 @@ def deployment_payload() -> dict:
         "config": {"deployment": dep.name, "n_bs": dep.n_bs, "area_m2": dep.area_m2, "example_trial": EXAMPLE_TRIAL,
                    "m": m, "anchor_lat_lon_deg": [dep.anchor_lat_deg, dep.anchor_lon_deg]},
         "data": {"region": dep.region, "buildings": dep.buildings, "streets": [dict(s) for s in dep.streets],
-                 "bs_ids": list(dep.bs_ids), "bs_xyz": dep.bs_xyz, "ue_xyz": ex["ue"],
-                 "link_bs_xyz": ex["bs"][:m], "link_los": ex["los"][:m]},
+                 "bs_ids": list(dep.bs_ids), "bs_xyz": dep.bs_xyz, "ue_xyz": ex.ue_xyz,
+                 "link_bs_xyz": ex.bs_xyz[:m], "link_los": ex.los[:m]},
     }
 
 
 def urban_correlogram_payload() -> dict:
     """Fig. 8: eq. (10) — the correlograms of the M nearest BSs summed — over (x, y) around the example UE, at the
     fix's clock bias, with the DPE fix (grid centred on the truth, the paper's set-up) and the truth."""
-    from . import dpe
-
     e, ex = _example()
     m = EXAMPLE_M
-    y, prs, bs = ex["y"][:m], ex["prs"][:m], ex["bs"][:m]
-    ue, bias = ex["ue"], float(ex["bias"])
-    est = dpe.estimate(y, prs, bs, np.concatenate([ue, [bias]]), e.search)
+    y, prs, bs = ex.y[:m], ex.prs[:m], ex.bs_xyz[:m]
+    ue, bias = ex.ue_xyz, float(ex.clock_bias_s)
+    est = dpe.fix(y, prs, bs, np.concatenate([ue, [bias * C]]), e.search)
     axis = np.arange(-FIG8_HALF_WIDTH_M, FIG8_HALF_WIDTH_M + 1e-9, FIG8_STEP_M)
     rows = []
     for yy in axis:
         xyz = np.stack([ue[0] + axis, np.full_like(axis, ue[1] + yy), np.full_like(axis, ue[2])], axis=-1)
-        rows.append(np.asarray(dpe.ml_cost(y, prs, dpe.toa(xyz, bs, float(est.clock_bias_s)), e.search.n_taps,
+        rows.append(np.asarray(cost.ml_cost(y, prs, cost.toa(xyz, bs, float(est.clock_bias_s)), e.search.n_taps,
                                            PAPER.scs_hz)))
-    cost = np.stack(rows)
+    surface = np.stack(rows)
     return {
         "seed": paper.URBAN_SEED,
         "config": {"example_trial": EXAMPLE_TRIAL, "snr_db": EXAMPLE_SNR_DB, "m": m, "n_taps": e.search.n_taps,
                    "grid_step_m": FIG8_STEP_M, "centring": "truth"},
-        "data": {"x_m": ue[0] + axis, "y_m": ue[1] + axis, "cost_norm": cost / cost.max(), "ue_xyz": ue,
+        "data": {"x_m": ue[0] + axis, "y_m": ue[1] + axis, "cost_norm": surface / surface.max(), "ue_xyz": ue,
                  "true_bias_s": bias, "est_xyz": est.xyz, "est_bias_s": est.clock_bias_s,
-                 "error_m": float(np.linalg.norm(est.xyz[:2] - ue[:2])), "n_los": int(ex["los"][:m].sum())},
+                 "error_m": float(np.linalg.norm(est.xyz[:2] - ue[:2])), "n_los": int(ex.los[:m].sum())},
     }
-
-
-def error_stats(res) -> dict:
-    """RMSE, median, 90 % and 99 % error per (SNR, M) over trials, the RMSE without the edge-flagged fixes, and the
-    shares of fixes on the window's edge and of certified fixes."""
-    err, edge = res.error_m, res.edge
-    kept = np.where(edge, np.nan, err)
-    return {"rmse_m": res.rmse_m(), "median_m": np.median(err, axis=0), "p90_m": np.quantile(err, 0.9, axis=0),
-            "p99_m": np.quantile(err, 0.99, axis=0), "rmse_unflagged_m": np.sqrt(np.nanmean(kept**2, axis=0)),
-            "edge_share": edge.mean(axis=0), "certified_share": res.certified.mean(axis=0)}
 
 
 def experiment_config(e) -> dict:
@@ -397,12 +307,11 @@ def experiment_config(e) -> dict:
 def rmse_payload(experiments: dict, progress: bool = False) -> dict:
     """Fig. 9 from the experiments' results (run or loaded from the cache), one entry per receiver ("honest",
     "truth"): RMSE, median, 90/99 % error per (SNR, M), edge-flag and certified shares; and the LoS share."""
-    from . import montecarlo
 
     data, config = {}, {}
     for name, e in experiments.items():
-        res = montecarlo.run(e, progress=progress)
-        data[name] = error_stats(res)
+        res = engine.run(e, progress=progress)
+        data[name] = results.error_stats(res)
         config[name] = experiment_config(e)
     e = next(iter(experiments.values()))
     bound, bound_cfg = {}, {}
@@ -431,7 +340,7 @@ register("fig09_rmse_vs_snr", "Fig. 9",
          f"{paper.PRIOR_SIGMA_M:g} m "
          "prior, certified search; solid) and the paper's truth-centred grid (dashed); (b) the honest receiver beside the "
          "Cramér–Rao bound (Chapter 8), log axis.",
-         plots.plot_rmse_vs_snr)(
+         result_plots.plot_rmse_vs_snr)(
     lambda progress=False, trials=None: rmse_payload(
         paper.fig9() if trials is None else paper.fig9(honest_trials=trials, truth_trials=trials), progress))
 
@@ -442,30 +351,25 @@ register("fig09_rmse_vs_snr", "Fig. 9",
 CDF_GRID_M = np.logspace(-2, 3, 251)  # error axis of the stored CDFs, 1 cm … 1 km
 
 
-def _quantiles(err):
-    return np.quantile(err, [0.5, 0.9, 0.99])
-
-
 def cdf_payload(experiments: dict, progress: bool = False) -> dict:
     """Fig. 10 from the experiments' results: error CDFs and 50/90/99 % points of each DPE receiver and of OTDoA
     with each detector (all fixes, and without the flagged ones), flagged shares, and the improvement
     1 − p90(DPE)/p90(OTDoA) as the paper computes it (honest DPE against first-path OTDoA)."""
-    from . import montecarlo
 
     data, config = {}, {}
     cdf = lambda err: np.searchsorted(np.sort(err), CDF_GRID_M, side="right") / err.size
     for (case, cen), e in experiments.items():
-        res = montecarlo.run(e, progress=progress)
+        res = engine.run(e, progress=progress)
         d = data.setdefault(case, {})
         err = res.error_m[:, 0, 0]
-        d[f"dpe_{cen}"] = {"cdf": cdf(err), "p50_p90_p99_m": _quantiles(err),
+        d[f"dpe_{cen}"] = {"cdf": cdf(err), "p50_p90_p99_m": results.quantiles(err),
                            "edge_share": float(np.mean(res.edge[:, 0, 0])),
                            "certified_share": float(np.mean(res.certified[:, 0, 0]))}
         if e.otdoa:
-            for k, det in enumerate(montecarlo.OTDOA_DETECTORS):
+            for k, det in enumerate(experiment.OTDOA_DETECTORS):
                 ot, ok = res.otdoa_error_m[:, 0, k, 0], res.otdoa_ok[:, 0, k, 0]
-                d[f"otdoa_{det}"] = {"cdf": cdf(ot), "p50_p90_p99_m": _quantiles(ot),
-                                     "p50_p90_p99_unflagged_m": _quantiles(ot[ok]),
+                d[f"otdoa_{det}"] = {"cdf": cdf(ot), "p50_p90_p99_m": results.quantiles(ot),
+                                     "p50_p90_p99_unflagged_m": results.quantiles(ot[ok]),
                                      "flagged_share": float(np.mean(~ok))}
             d["los_share"] = res.los_share(4)
             d["median_link_snr_db"] = float(np.median(res.link_snr_db))
@@ -480,7 +384,7 @@ register("fig10_cdf_dpe_vs_otdoa", "Fig. 10",
          "CDF of the position error of DPE and OTDoA with the 4 nearest BSs, SNR per link from the UMi path loss: "
          f"DPE centred on the OTDoA fix or on a {paper.PRIOR_SIGMA_M:g} m prior (certified search) and on the truth "
          "(the paper's set-up); "
-         "OTDoA with the first-path and the strongest-peak ToA.", plots.plot_cdf)(
+         "OTDoA with the first-path and the strongest-peak ToA.", result_plots.plot_cdf)(
     lambda progress=False, trials=None: cdf_payload(paper.fig10() if trials is None else paper.fig10(trials), progress))
 
 
@@ -501,17 +405,16 @@ READING_SHORT = {"as_read": "as this book reads it", "peak_otdoa": "… peak-ToA
 def readings_payload(progress: bool = False, trials: int | None = None) -> dict:
     """Each reading of ``paper.READINGS`` tested on each claim of ``paper.CLAIMS`` (``paper.claim_values``), from
     its experiments' results (run or loaded from the cache)."""
-    from . import montecarlo
 
     data = {}
     for name, (label, changes) in paper.READINGS.items():
         ex = paper.reading_experiments(name, trials)
-        r9 = montecarlo.run(ex["fig9"], progress=progress)
+        r9 = engine.run(ex["fig9"], progress=progress)
         e9 = ex["fig9"]
         si = [list(e9.snrs_db).index(s) for s in paper.READING_SNRS_DB]
-        r10 = montecarlo.run(ex["fig10_dpe"], progress=progress)
-        o10 = montecarlo.run(ex["fig10_otdoa"], progress=progress)
-        det = montecarlo.OTDOA_DETECTORS.index(ex["otdoa_detector"])
+        r10 = engine.run(ex["fig10_dpe"], progress=progress)
+        o10 = engine.run(ex["fig10_otdoa"], progress=progress)
+        det = experiment.OTDOA_DETECTORS.index(ex["otdoa_detector"])
         claims = paper.claim_values(r9.rmse_m()[si], paper.READING_SNRS_DB, e9.m_values, r10.error_m[:, 0, 0],
                                     o10.otdoa_error_m[:, 0, det, 0])
         data[name] = {"label": label, "short": READING_SHORT[name], "changes": changes,
@@ -530,41 +433,4 @@ def readings_payload(progress: bool = False, trials: int | None = None) -> dict:
 register("readings_table", None,
          "Which reading of the paper reproduces which of its claims about Figs. 9 and 10: the set-up as this book "
          "reads it (window centred on the truth, RMS delay spread, per-sample SNR, L = 12, first-path OTDoA), one "
-         "reading changed at a time, and the honest receiver.", plots.plot_readings)(readings_payload)
-
-
-def readings_summary(p: dict) -> dict:
-    """Counts of a ``readings_payload``: {"counts": {reading: claims reproduced}, "n_claims", "best" (the most
-    reproduced by one reading), "best_readings", "never": the claims no reading reproduces}."""
-    counts = {n: int(sum(p["data"][n]["reproduced"].values())) for n in p["config"]["reading_order"]}
-    best = max(counts.values())
-    never = [c for c in p["config"]["claim_order"] if not any(d["reproduced"][c] for d in p["data"].values())]
-    return {"counts": counts, "n_claims": len(p["config"]["claim_order"]), "best": best,
-            "best_readings": [n for n, c in counts.items() if c == best], "never": never}
-
-
-def readings_markdown(p: dict, by_claim: bool = False) -> str:
-    """The readings table of a ``readings_payload`` as Markdown: a row per reading, a column per claim, each cell
-    the value and ✓ (reproduced) or ✗ (differs); by_claim: transposed, a row per claim and a column per reading
-    (narrower: the book's page)."""
-    claims, order = p["config"]["claims"], p["config"]["claim_order"]
-    cell = lambda n, c: (f"{plots.format_claim(c, p['data'][n]['values'][c])} "
-                         f"{'✓' if p['data'][n]['reproduced'][c] else '✗'}")
-    if by_claim:
-        names = p["config"]["reading_order"]
-        lines = ["| claim (paper) | " + " | ".join(p["data"][n]["short"] for n in names) + " |",
-                 "|---" * (len(names) + 1) + "|"]
-        lines += [f"| {claims[c]['claim']} ({claims[c]['paper']}) | " + " | ".join(cell(n, c) for n in names) + " |"
-                  for c in order]
-        lines.append("| trials (Fig. 9 / Fig. 10) | " + " | ".join(
-            f"{p['data'][n]['n_trials']['fig9']} / {p['data'][n]['n_trials']['fig10_dpe']}" for n in names) + " |")
-        return "\n".join(lines)
-    short = lambda c: claims[c]["short"].replace("\n", " ")
-    lines = ["| reading | trials (Fig. 9 / Fig. 10) | " + " | ".join(short(c) for c in order) + " |",
-             "|---" * (len(order) + 2) + "|"]
-    for n in p["config"]["reading_order"]:
-        d, t = p["data"][n], p["data"][n]["n_trials"]
-        lines.append(f"| {d['label']} | {t['fig9']} / {t['fig10_dpe']} | "
-                     + " | ".join(f"{plots.format_claim(c, d['values'][c])} {'✓' if d['reproduced'][c] else '✗'}"
-                                  for c in order) + " |")
-    return "\n".join(lines)
+         "reading changed at a time, and the honest receiver.", result_plots.plot_readings)(readings_payload)

@@ -67,10 +67,10 @@ def toa_from_spectrum(g, method, upsample, threshold_db, max_lead_samples, ts, d
     seconds."""
     _checks.require_x64()
     e = correlogram.energy_grid(g.astype(dtype), 1, upsample)  # (M, N·U): |ĥ(j T_s/U)|² · N
-    return jax.vmap(lambda row: _toa_row(row, method, upsample, threshold_db, max_lead_samples, ts))(e)
+    return jax.vmap(lambda row: toa_row(row, method, upsample, threshold_db, max_lead_samples, ts))(e)
 
 
-def _toa_row(e, method, upsample, threshold_db, max_lead_samples, ts):
+def toa_row(e, method, upsample, threshold_db, max_lead_samples, ts):
     j = e.shape[0]
     k = jnp.argmax(e)
     if method == "first_path":

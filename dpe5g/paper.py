@@ -13,8 +13,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from . import dpe
-from .montecarlo import Experiment
+from . import search_config
+from .experiment import Experiment
 
 #: Fig. 9 (Section IV-A): the urban study's seed, and the paper's Monte Carlo size
 URBAN_SEED = 9
@@ -53,7 +53,7 @@ URBAN_WINDOW_TRIALS = 200
 #: with the default window and with a one-tap window (the ML receiver of a single path) on the paper's TDL-D, and the
 #: one-tap window on a nearly single-path TDL-D (K = 40 dB) with a search resolution (5 mm) finer than the bound at
 #: Fig. 9's lowest SNR, so that the bound, not the search, limits it there
-ALL_LOS_CASES = ((dpe.DEFAULT_TAPS, 13.3, 0.05), (1, 13.3, 0.05), (1, 40.0, 0.005))
+ALL_LOS_CASES = ((search_config.DEFAULT_TAPS, 13.3, 0.05), (1, 13.3, 0.05), (1, 40.0, 0.005))
 #: its SNRs: the ends and the middle of Fig. 9's (the bound scales as 10^(−SNR/20), three points show the trend)
 ALL_LOS_SNRS_DB = (10.0, 25.0, 40.0)
 #: trials per receiver: enough to place an RMSE within about 7 % (its standard error is about RMSE / √(2n) for a
@@ -63,10 +63,10 @@ ALL_LOS_TRIALS = 100
 BOUND_TRIALS = 200
 
 
-def honest_search() -> dpe.SearchConfig:
+def honest_search() -> search_config.SearchConfig:
     """The honest receiver's search: certified branch and bound over ±30 m (the bias window comes from the clock
     model, ``Experiment.receiver_search``)."""
-    return dpe.SearchConfig(method="bnb", half_width_m=HONEST_SEARCH_HALF_WIDTH_M)
+    return search_config.SearchConfig(method="bnb", half_width_m=HONEST_SEARCH_HALF_WIDTH_M)
 
 
 def fig9_truth(n_trials: int = FIG9_TRUTH_TRIALS) -> Experiment:
@@ -124,7 +124,7 @@ def fig9_link_budget(n_trials: int = STUDY_TRIALS) -> Experiment:
                       snrs_db=())
 
 
-def urban_window_experiments(search: dpe.SearchConfig | None = None, taps=URBAN_WINDOW_TAPS,
+def urban_window_experiments(search: search_config.SearchConfig | None = None, taps=URBAN_WINDOW_TAPS,
                              n_trials: int = URBAN_WINDOW_TRIALS, prior_sigma_m: float = PRIOR_SIGMA_M) -> dict:
     """The receiver-window study on the urban scenario with an honest receiver: window centred on truth + a
     Gaussian prior error (σ = ``prior_sigma_m`` per axis), the bias window from the clock model, ``search`` (default:
@@ -143,7 +143,7 @@ def urban_window_experiments(search: dpe.SearchConfig | None = None, taps=URBAN_
 
 #: Chapter 8 (beyond the paper): the first-path-aware DPE — the honest receiver with eq. (10)'s L window taps
 #: weighted by an exponential power-delay prior whose decay is the scenario's delay spread
-#: (``dpe.SearchConfig.window_decay_s``) — compared with the flat window on the same trials.  Fig. 9's comparison at
+#: (``search_config.SearchConfig.window_decay_s``) — compared with the flat window on the same trials.  Fig. 9's comparison at
 #: the ends and the middle of its SNRs, on the committed Fig. 9's trials; Fig. 10's on its first trials, centred on
 #: the OTDoA fix (the realistic receiver).  The counts: a paired comparison of two receivers on the same trials needs
 #: fewer trials than an absolute RMSE, and 1000 Fig. 10 trials still put ten fixes beyond the p99

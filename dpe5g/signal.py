@@ -97,7 +97,7 @@ def received_spectrum(prs, freq_response, toa_s, clock_bias_s=0.0, num: Numerolo
     δt in seconds, scalar or (...,), common to the M base stations.  Returns complex (..., M, N).
 
     This is the one signal path of the package: ``received_noiseless`` is its inverse DFT, and the Monte Carlo
-    engine (``dpe5g.montecarlo``) adds its noise here, in the frequency domain, where the receivers start (the DFT is
+    engine (``dpe5g.receiver.spectrum_at``) adds its noise here, in the frequency domain, where the receivers start (the DFT is
     unitary, so CN(0, σ²) per bin is exactly the time-domain AWGN of the same variance).
     """
     _checks.require_x64()

@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import channel, correlogram, dpe, nr, signal
+from . import channel, correlogram, cost, dpe, engine, nr, results, search_config, signal
 from .nr import C
 
 
@@ -49,7 +49,7 @@ def ring_trials(sc: RingScenario, seed: int, n_trials: int):
         ue = jnp.concatenate([xy, jnp.array([sc.ue_height_m])])
         bias = sc.clock_sigma_s * jax.random.normal(k_b, ())
         g = jax.vmap(lambda k: channel.draw_gains(prof, k))(jax.random.split(k_ch, sc.n_bs))
-        y = signal.received_noiseless(prs, g, delays, dpe.toa(ue, bs, 0.0), bias)
+        y = signal.received_noiseless(prs, g, delays, cost.toa(ue, bs, 0.0), bias)
         y = y + signal.awgn(k_n, y.shape, signal.noise_variance(sc.snr_db, prs))
         return y, ue, bias
 
@@ -57,30 +57,26 @@ def ring_trials(sc: RingScenario, seed: int, n_trials: int):
     return y, np.asarray(ue), np.asarray(bias), prs
 
 
-def run_estimates(sc: RingScenario, y, prs, center, cfg: dpe.SearchConfig) -> dpe.Estimate:
+def run_estimates(sc: RingScenario, y, prs, center_m, cfg: search_config.SearchConfig) -> dpe.Fix:
+    """``dpe.fix`` of every ring trial y (T, M, N) in the window around center_m (T, 4) = [x, y, z, c δt] m."""
     t = y.shape[0]
-    return dpe.estimate(y, jnp.broadcast_to(prs, y.shape), np.broadcast_to(sc.bs_xyz(), (t, sc.n_bs, 3)), center, cfg)
+    return dpe.fix(y, jnp.broadcast_to(prs, y.shape), np.broadcast_to(sc.bs_xyz(), (t, sc.n_bs, 3)), center_m, cfg)
 
 
-def errors(est: dpe.Estimate, ue: np.ndarray) -> np.ndarray:
+def errors(est: dpe.Fix, ue: np.ndarray) -> np.ndarray:
     """Horizontal position error in metres, (T,)."""
     return np.linalg.norm(est.xyz[:, :2] - ue[:, :2], axis=1)
 
 
-def summary(err: np.ndarray) -> dict:
-    return {"rmse_m": float(np.sqrt(np.mean(err**2))), "median_m": float(np.median(err)),
-            "p90_m": float(np.quantile(err, 0.9))}
-
-
-def window_study(sc: RingScenario, taps, seed: int, n_trials: int, cfg: dpe.SearchConfig) -> list[dict]:
+def window_study(sc: RingScenario, taps, seed: int, n_trials: int, cfg: search_config.SearchConfig) -> list[dict]:
     """Position error against the receiver window L, grid centred on the truth (the paper's set-up)."""
     y, ue, bias, prs = ring_trials(sc, seed, n_trials)
-    center = np.concatenate([ue, bias[:, None]], axis=-1)
+    center = np.concatenate([ue, bias[:, None] * C], axis=-1)
     rows = []
     for n_taps in taps:
         c = replace(cfg, n_taps=int(n_taps))
         est = run_estimates(sc, y, prs, center, c)
-        rows.append({"n_taps": int(n_taps), **summary(errors(est, ue)),
+        rows.append({"n_taps": int(n_taps), **results.error_summary(errors(est, ue)),
                      "bias_rmse_m": float(np.sqrt(np.mean(((est.clock_bias_s - bias) * C) ** 2)))})
     return rows
 
@@ -89,16 +85,16 @@ def window_study(sc: RingScenario, taps, seed: int, n_trials: int, cfg: dpe.Sear
 COARSE_PRIOR_STEP_M = 2.0
 
 
-def coarse_prior(sc: RingScenario, y, prs, cfg: dpe.SearchConfig) -> np.ndarray:
+def coarse_prior(sc: RingScenario, y, prs, cfg: search_config.SearchConfig) -> np.ndarray:
     """A prior from a coarse fix: eq. (10) on a ``COARSE_PRIOR_STEP_M`` grid over the whole UE square ± 10 m, centred
-    on the BSs."""
+    on the BSs.  Returns the fixes (T, 4) = [x, y, z, c δt] m."""
     t = y.shape[0]
-    coarse = dpe.SearchConfig(n_taps=cfg.n_taps, upsample=cfg.upsample, half_width_m=sc.ue_half_width_m + 10.0,
+    coarse = search_config.SearchConfig(n_taps=cfg.n_taps, upsample=cfg.upsample, half_width_m=sc.ue_half_width_m + 10.0,
                               bias_half_width_m=max(cfg.bias_half_width_m, 4 * sc.clock_sigma_s * C),
                               coarse_step_m=COARSE_PRIOR_STEP_M, final_step_m=COARSE_PRIOR_STEP_M, polish=False)
     center0 = np.tile([0.0, 0.0, sc.ue_height_m, 0.0], (t, 1))
     est = run_estimates(sc, y, prs, center0, coarse)
-    return np.concatenate([est.xyz, est.clock_bias_s[:, None]], axis=-1)
+    return np.concatenate([est.xyz, est.clock_bias_s[:, None] * C], axis=-1)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -146,16 +142,13 @@ def urban_window_table(experiments: dict, progress: bool = False) -> list[dict]:
     """Run (or load) ``paper.urban_window_experiments`` and score every (set-up, M, L): RMSE, median, 90 % error, edge
     and certified shares, and the median certified gap (how far, relative, the window's maximum can lie above the
     fix's cost).  Adds ``rmse_rel``: the RMSE over the smallest RMSE of the same (set-up, M) column."""
-    from . import montecarlo
 
     rows = []
     for (name, n), e in experiments.items():
-        res = montecarlo.run(e, progress=progress)
+        res = engine.run(e, progress=progress)
         for j, m in enumerate(e.m_values):
             err = res.error_m[:, 0, j]
-            rows.append({"setup": name, "m": m, "n_taps": n, "n_trials": e.n_trials, **summary(err),
-                         "edge_share": float(np.mean(res.edge[:, 0, j])),
-                         "certified_share": float(np.mean(res.certified[:, 0, j])),
+            rows.append({"setup": name, "m": m, "n_taps": n, "n_trials": e.n_trials, **results.error_summary(err, res.edge[:, 0, j], res.certified[:, 0, j]),
                          "gap_median": float(np.median(res.gap[:, 0, j]))})
     for r in rows:
         best = min(o["rmse_m"] for o in rows if (o["setup"], o["m"]) == (r["setup"], r["m"]))
@@ -171,20 +164,8 @@ def choose_window(rows: list[dict]) -> int:
     return min(taps, key=lambda n: score[n])
 
 
-def error_summary(err, edge=None, certified=None) -> dict:
-    """Horizontal errors err (T,) m → RMSE, median, 90 % and 99 % errors (m), and the shares of fixes flagged on the
-    window's edge and certified (when given, booleans (T,))."""
-    err = np.asarray(err, dtype=float)
-    out = {**summary(err), "p99_m": float(np.quantile(err, 0.99))}
-    if edge is not None:
-        out["edge_share"] = float(np.mean(edge))
-    if certified is not None:
-        out["certified_share"] = float(np.mean(certified))
-    return out
-
-
 def range_offsets_m(res) -> np.ndarray:
-    """c·(τ_m(fix) − τ_m(truth)) in metres for every link of a ``montecarlo.Results``: the ToA each fix assigns to a
+    """c·(τ_m(fix) − τ_m(truth)) in metres for every link of a ``results.Results``: the ToA each fix assigns to a
     link (its clock bias included) minus the true one, (T, S, J, I); links beyond the J-th M are NaN.  A positive
     offset means the fix places the link's window start after its first path."""
     bs = res.experiment.load_deployment().bs_xyz[res.bs_index]  # (T, I, 3)

@@ -78,7 +78,7 @@ def bench_table() -> str:
     ms = lambda x: f"{1e3 * x:.3g} ms"
     rows = [
         ("eq. (10) literal (explicit matrices), per BS and candidate, N = 4096", ms(s["literal_per_bs_candidate"]), ""),
-        ("eq. (10) fast, one FFT per candidate (`dpe.ml_cost`), per BS and candidate",
+        ("eq. (10) fast, one FFT per candidate (`cost.ml_cost`), per BS and candidate",
          ms(s["fast_per_bs_candidate"]), ""),
         ("speed-up `ml_cost` / literal (agreement {:.1e})".format(b["fast_vs_literal_max_rel_diff"]),
          f"{r['fast_vs_literal']:.0f}×", ""),
@@ -182,17 +182,17 @@ def timing_text() -> str:
 
 
 def readings_table() -> str:
-    from dpe5g import figures
+    from dpe5g import report
 
     p = _load("figures/data/readings_table.json")
-    data, s = p["data"], figures.readings_summary(p)
+    data, s = p["data"], report.readings_summary(p)
     best = ", ".join(f"*{data[n]['label']}*" for n in s["best_readings"])
     head = (f"No reading reproduces all {s['n_claims']} claims" if s["best"] < s["n_claims"]
             else "A reading reproduces every claim")
     return "\n".join([
         f"Each reading of the paper tested on its claims about Figs. 9 and 10 (Chapter 7; ✓ reproduced, ✗ differs; "
         f"Fig. 9 at {', '.join(f'{v:g}' for v in p['config']['snrs_db'])} dB per the reading's SNR convention):", "",
-        figures.readings_markdown(p), "",
+        report.readings_markdown(p), "",
         f"{head}; the most, {s['best']} of {s['n_claims']}, by {best}.  Our reading of the paper's set-up reproduces "
         f"{s['counts']['as_read']}, the honest receiver {s['counts']['honest']}."])
 

@@ -1,4 +1,4 @@
-"""The certified search (``dpe.certified_search``) against an exhaustive evaluation of the same window."""
+"""The certified search (``certified_search.certified_search``) against an exhaustive evaluation of the same window."""
 
 import dataclasses
 import functools
@@ -8,11 +8,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from dpe5g import correlogram, dpe, montecarlo
+from dpe5g import certified_search, correlogram, cost, draw, experiment, search_config
 from dpe5g.nr import C, PAPER
 
 N_TRIALS = 50
-CFG = dpe.SearchConfig(method="bnb", half_width_m=8.0, bias_half_width_m=3 * 5e-9 * C)
+CFG = search_config.SearchConfig(method="bnb", half_width_m=8.0, bias_half_width_m=3 * 5e-9 * C)
 
 
 def _exhaustive_max(coef, bs, center, cfg, step=0.1):
@@ -34,7 +34,7 @@ def _exhaustive_fn(cfg, step):
             xy = jnp.stack([jnp.full(ax.shape, center[0] + x), center[1] + ax], -1)
             d = jnp.sqrt(jnp.sum((xy[:, None, :] - bs[None, :, :2]) ** 2, -1) + (center[2] - bs[None, :, 2]) ** 2)
             pos = (d[:, None, :] + center[3] + ab[None, :, None]) / cell_m  # (XY, B, M)
-            return jnp.max(dpe.spline_values(coef, pos))
+            return jnp.max(certified_search.spline_values(coef, pos))
 
         return jnp.max(jax.lax.map(row, jnp.asarray(ax)))
 
@@ -43,33 +43,33 @@ def _exhaustive_fn(cfg, step):
 
 @pytest.fixture(scope="module")
 def trials():
-    e = montecarlo.Experiment(name="t", n_trials=N_TRIALS, seed=10, snr_mode="link_budget", snrs_db=(), m_values=(4,),
+    e = experiment.Experiment(name="t", n_trials=N_TRIALS, seed=10, snr_mode="link_budget", snrs_db=(), m_values=(4,),
                               centring="prior", search=CFG)
     out = []
     for t in range(N_TRIALS):
-        ex = montecarlo.example(e, t)
+        ex = draw.example(e, t)
         rng = np.random.default_rng(t)
-        center = np.array([*(ex["ue"][:2] + rng.normal(0, 3.0, 2)), ex["ue"][2], 0.0])
+        center = np.array([*(ex.ue_xyz[:2] + rng.normal(0, 3.0, 2)), ex.ue_xyz[2], 0.0])
         out.append((ex, center))
     return e, out
 
 
 def test_certified_search_finds_the_exhaustive_maximum(trials):
     e, items = trials
-    search = jax.jit(lambda coef, bs, c: dpe.certified_search(coef, bs, c, CFG))
+    search = jax.jit(lambda coef, bs, c: certified_search.certified_search(coef, bs, c, CFG))
     worst, n_cert = np.inf, 0
     for ex, center in items:
-        coef = correlogram.spline_correlogram(ex["y"], ex["prs"], CFG.n_taps, CFG.spline_upsample)
-        r = search(coef, jnp.asarray(ex["bs"]), jnp.asarray(center))
-        best = _exhaustive_max(coef, jnp.asarray(ex["bs"]), jnp.asarray(center), CFG)
+        coef = correlogram.spline_correlogram(ex.y, ex.prs, CFG.n_taps, CFG.spline_upsample)
+        r, r_cost = search(coef, jnp.asarray(ex.bs_xyz), jnp.asarray(center))
+        best = _exhaustive_max(coef, jnp.asarray(ex.bs_xyz), jnp.asarray(center), CFG)
         # the returned cost is the spline at the returned point, and no grid point beats it by more than 1e-4
-        q = np.asarray(r["q"])
-        pos = (np.linalg.norm(q[:3] - ex["bs"], axis=1) + q[3]) / (C * PAPER.sample_period_s / CFG.spline_upsample)
-        assert float(dpe.spline_values(coef, jnp.asarray(pos))) == pytest.approx(float(r["cost"]), rel=1e-12)
-        worst = min(worst, float(r["cost"]) / best)
-        n_cert += bool(r["certified"])
-        if bool(r["certified"]):  # a certified fix bounds the maximum of the whole window, grid or not
-            assert best <= float(r["cost"]) * (1 + CFG.gap_tol) * (1 + 1e-12)
+        q = np.asarray(r.q)
+        pos = (np.linalg.norm(q[:3] - ex.bs_xyz, axis=1) + q[3]) / (C * PAPER.sample_period_s / CFG.spline_upsample)
+        assert float(certified_search.spline_values(coef, jnp.asarray(pos))) == pytest.approx(float(r_cost), rel=1e-12)
+        worst = min(worst, float(r_cost) / best)
+        n_cert += bool(r.certified)
+        if bool(r.certified):  # a certified fix bounds the maximum of the whole window, grid or not
+            assert best <= float(r_cost) * (1 + CFG.gap_tol) * (1 + 1e-12)
     assert worst >= 1 - 1e-4, worst
     assert n_cert >= N_TRIALS // 2
 
@@ -82,20 +82,20 @@ def test_certified_search_does_not_depend_on_the_grid_phase(trials):
     L-tap window sum is flat while the window holds its whole channel, so points tens of centimetres apart can tie
     to 1e-7 of the cost; the guard below only asks that the comparison is not vacuous."""
     e, items = trials
-    search = jax.jit(lambda coef, bs, c: dpe.certified_search(coef, bs, c, CFG))
+    search = jax.jit(lambda coef, bs, c: certified_search.certified_search(coef, bs, c, CFG))
     moved = compared = 0
     for ex, center in items:
-        coef = correlogram.spline_correlogram(ex["y"], ex["prs"], CFG.n_taps, CFG.spline_upsample)
-        bs = jnp.asarray(ex["bs"])
-        a = search(coef, bs, jnp.asarray(center))
-        b = search(coef, bs, jnp.asarray(center + np.array([0.37, -0.21, 0.0, 0.13])))
-        if bool(a["edge"]) or bool(b["edge"]):
+        coef = correlogram.spline_correlogram(ex.y, ex.prs, CFG.n_taps, CFG.spline_upsample)
+        bs = jnp.asarray(ex.bs_xyz)
+        a, a_cost = search(coef, bs, jnp.asarray(center))
+        b, b_cost = search(coef, bs, jnp.asarray(center + np.array([0.37, -0.21, 0.0, 0.13])))
+        if bool(a.edge) or bool(b.edge):
             continue
         compared += 1
-        if np.linalg.norm(np.asarray(a["q"]) - np.asarray(b["q"])) > 2 * CFG.box_final_m:
+        if np.linalg.norm(np.asarray(a.q) - np.asarray(b.q)) > 2 * CFG.box_final_m:
             moved += 1
-            tol = (float(a["gap"]) + float(b["gap"]) + 1e-9) * float(a["cost"])
-            assert abs(float(a["cost"]) - float(b["cost"])) <= tol
+            tol = (float(a.gap) + float(b.gap) + 1e-9) * float(a_cost)
+            assert abs(float(a_cost) - float(b_cost)) <= tol
     assert compared >= 0.8 * N_TRIALS and moved <= compared // 2, (compared, moved)
 
 
@@ -107,46 +107,47 @@ def test_chunk_size_and_capacity_do_not_change_an_undropped_fix(trials):
     e, items = trials
     cfgs = [dataclasses.replace(CFG, chunk_boxes=8), dataclasses.replace(CFG, capacity=256, chunk_boxes=64), CFG]
     tiny = dataclasses.replace(CFG, capacity=8, chunk_boxes=8)
-    runs = [jax.jit(lambda coef, bs, c, cfg=cfg: dpe.certified_search(coef, bs, c, cfg)) for cfg in cfgs + [tiny]]
+    runs = [jax.jit(lambda coef, bs, c, cfg=cfg: certified_search.certified_search(coef, bs, c, cfg)) for cfg in cfgs + [tiny]]
     n_tiny_uncertified = 0
     for ex, center in items[:20]:
-        coef = correlogram.spline_correlogram(ex["y"], ex["prs"], CFG.n_taps, CFG.spline_upsample)
-        args = (coef, jnp.asarray(ex["bs"]), jnp.asarray(center))
-        *rs, small = [run(*args) for run in runs]
-        for r in rs[:-1]:
-            if bool(r["certified"]) and bool(rs[-1]["certified"]):
-                np.testing.assert_array_equal(np.asarray(r["q"]), np.asarray(rs[-1]["q"]))
-                assert float(r["cost"]) == float(rs[-1]["cost"])
-        n_tiny_uncertified += not bool(small["certified"])
-        assert float(small["cost"]) <= float(rs[-1]["cost"]) * (1 + CFG.gap_tol)
+        coef = correlogram.spline_correlogram(ex.y, ex.prs, CFG.n_taps, CFG.spline_upsample)
+        args = (coef, jnp.asarray(ex.bs_xyz), jnp.asarray(center))
+        *rs, (small, small_cost) = [run(*args) for run in runs]
+        (last, last_cost) = rs[-1]
+        for r, r_cost in rs[:-1]:
+            if bool(r.certified) and bool(last.certified):
+                np.testing.assert_array_equal(np.asarray(r.q), np.asarray(last.q))
+                assert float(r_cost) == float(last_cost)
+        n_tiny_uncertified += not bool(small.certified)
+        assert float(small_cost) <= float(last_cost) * (1 + CFG.gap_tol)
     assert n_tiny_uncertified >= 10
 
 
 def test_spline_correlogram_is_exact_at_the_knots():
-    ex = montecarlo.example(montecarlo.Experiment(n_trials=1, m_values=(6,), snrs_db=(20.0,)), 0)
-    coef = correlogram.spline_correlogram(ex["y"], ex["prs"], 12, 8)
-    ref = np.asarray(correlogram.correlogram(ex["y"], ex["prs"], 12, 8))
+    ex = draw.example(experiment.Experiment(n_trials=1, m_values=(6,), snrs_db=(20.0,)), 0)
+    coef = correlogram.spline_correlogram(ex.y, ex.prs, 12, 8)
+    ref = np.asarray(correlogram.correlogram(ex.y, ex.prs, 12, 8))
     vals = (np.roll(coef, 1, -1) + 4 * np.asarray(coef) + np.roll(coef, -1, -1)) / 6
     assert np.max(np.abs(vals - ref)) <= 1e-10 * ref.max()
-    tau = np.asarray(dpe.toa(ex["ue"], ex["bs"], float(ex["bias"])))[None] + np.linspace(-30e-9, 30e-9, 41)[:, None]
-    exact = np.asarray(dpe.ml_cost(ex["y"], ex["prs"], tau, 12, PAPER.scs_hz))
-    spl = np.asarray(dpe.spline_values(coef, jnp.asarray(tau / PAPER.sample_period_s * 8)))
+    tau = np.asarray(cost.toa(ex.ue_xyz, ex.bs_xyz, float(ex.clock_bias_s)))[None] + np.linspace(-30e-9, 30e-9, 41)[:, None]
+    exact = np.asarray(cost.ml_cost(ex.y, ex.prs, tau, 12, PAPER.scs_hz))
+    spl = np.asarray(certified_search.spline_values(coef, jnp.asarray(tau / PAPER.sample_period_s * 8)))
     assert np.max(np.abs(spl - exact)) <= 1e-4 * exact.max()
 
 
 def test_bnb_config_rejects_bad_input():
     with pytest.raises(ValueError, match="spline_upsample"):
-        dpe.SearchConfig(method="bnb", spline_upsample=3)
+        search_config.SearchConfig(method="bnb", spline_upsample=3)
     with pytest.raises(ValueError, match="method"):
-        dpe.SearchConfig(method="exhaustive")
+        search_config.SearchConfig(method="exhaustive")
     with pytest.raises(ValueError, match="chunk_boxes"):
-        dpe.SearchConfig(method="bnb", capacity=1024, chunk_boxes=48)
+        search_config.SearchConfig(method="bnb", capacity=1024, chunk_boxes=48)
     with pytest.raises(ValueError, match="z_half_width_m"):
-        dpe.SearchConfig(method="bnb", z_half_width_m=2.0)
+        search_config.SearchConfig(method="bnb", z_half_width_m=2.0)
     with pytest.raises(ValueError, match="otdoa"):
-        montecarlo.Experiment(centring="otdoa")
+        experiment.Experiment(centring="otdoa")
     with pytest.raises(ValueError, match="prior_kind"):
-        montecarlo.Experiment(centring="prior", prior_kind="cauchy")
+        experiment.Experiment(centring="prior", prior_kind="cauchy")
 
 
 FIRST_PATH = dataclasses.replace(CFG, window_decay_s=65e-9, box_final_m=0.0125)
@@ -155,17 +156,17 @@ FIRST_PATH = dataclasses.replace(CFG, window_decay_s=65e-9, box_final_m=0.0125)
 def test_first_path_window_is_the_weighted_cost():
     """The first-path-aware window (tap l weighted by exp(−l T_s / decay)): ``ml_cost`` with weights equals the
     weighted sum of one-tap costs at τ + l T_s (an independent evaluation), and its spline equals ``ml_cost``."""
-    ex = montecarlo.example(montecarlo.Experiment(n_trials=1, m_values=(6,), snrs_db=(20.0,)), 0)
+    ex = draw.example(experiment.Experiment(n_trials=1, m_values=(6,), snrs_db=(20.0,)), 0)
     w = FIRST_PATH.tap_weights()
     assert w[0] == 1.0 and np.all(np.diff(w) < 0)
     np.testing.assert_allclose(w[1:] / w[:-1], np.exp(-PAPER.sample_period_s / 65e-9), rtol=1e-12)
-    tau = np.asarray(dpe.toa(ex["ue"], ex["bs"], float(ex["bias"])))[None] + np.linspace(-30e-9, 30e-9, 41)[:, None]
-    exact = np.asarray(dpe.ml_cost(ex["y"], ex["prs"], tau, 12, PAPER.scs_hz, weights=w))
-    one_tap = sum(w[l] * np.asarray(dpe.ml_cost(ex["y"], ex["prs"], tau + l * PAPER.sample_period_s, 1, PAPER.scs_hz))
+    tau = np.asarray(cost.toa(ex.ue_xyz, ex.bs_xyz, float(ex.clock_bias_s)))[None] + np.linspace(-30e-9, 30e-9, 41)[:, None]
+    exact = np.asarray(cost.ml_cost(ex.y, ex.prs, tau, 12, PAPER.scs_hz, weights=w))
+    one_tap = sum(w[l] * np.asarray(cost.ml_cost(ex.y, ex.prs, tau + l * PAPER.sample_period_s, 1, PAPER.scs_hz))
                   for l in range(12))
     np.testing.assert_allclose(exact, one_tap, rtol=1e-9)
-    coef = correlogram.spline_correlogram(ex["y"], ex["prs"], 12, 8, weights=w)
-    spl = np.asarray(dpe.spline_values(coef, jnp.asarray(tau / PAPER.sample_period_s * 8)))
+    coef = correlogram.spline_correlogram(ex.y, ex.prs, 12, 8, weights=w)
+    spl = np.asarray(certified_search.spline_values(coef, jnp.asarray(tau / PAPER.sample_period_s * 8)))
     assert np.max(np.abs(spl - exact)) <= 1e-4 * exact.max()
 
 
@@ -174,25 +175,25 @@ def test_certified_search_finds_the_exhaustive_maximum_of_the_first_path_cost(tr
     final boxes (1.25 cm here; at the figures' 5 cm most fixes are left uncertified, and counted so); the maximum
     must be found either way."""
     e, items = trials
-    search = jax.jit(lambda coef, bs, c: dpe.certified_search(coef, bs, c, FIRST_PATH))
+    search = jax.jit(lambda coef, bs, c: certified_search.certified_search(coef, bs, c, FIRST_PATH))
     w = FIRST_PATH.tap_weights()
     n_cert = 0
     for ex, center in items[:12]:
-        coef = correlogram.spline_correlogram(ex["y"], ex["prs"], FIRST_PATH.n_taps, FIRST_PATH.spline_upsample, w)
-        r = search(coef, jnp.asarray(ex["bs"]), jnp.asarray(center))
-        best = _exhaustive_max(coef, jnp.asarray(ex["bs"]), jnp.asarray(center), FIRST_PATH)
-        assert float(r["cost"]) >= best * (1 - 1e-4)
-        n_cert += bool(r["certified"])
-        if bool(r["certified"]):
-            assert best <= float(r["cost"]) * (1 + FIRST_PATH.gap_tol) * (1 + 1e-12)
+        coef = correlogram.spline_correlogram(ex.y, ex.prs, FIRST_PATH.n_taps, FIRST_PATH.spline_upsample, w)
+        r, r_cost = search(coef, jnp.asarray(ex.bs_xyz), jnp.asarray(center))
+        best = _exhaustive_max(coef, jnp.asarray(ex.bs_xyz), jnp.asarray(center), FIRST_PATH)
+        assert float(r_cost) >= best * (1 - 1e-4)
+        n_cert += bool(r.certified)
+        if bool(r.certified):
+            assert best <= float(r_cost) * (1 + FIRST_PATH.gap_tol) * (1 + 1e-12)
     assert n_cert >= 6
 
 
 def test_first_path_window_rejects_bad_input():
     with pytest.raises(ValueError, match="window_decay_s"):
-        dpe.SearchConfig(method="bnb", window_decay_s=65.0)  # nanoseconds passed as seconds
+        search_config.SearchConfig(method="bnb", window_decay_s=65.0)  # nanoseconds passed as seconds
     with pytest.raises(ValueError, match="needs method 'bnb'"):
-        dpe.SearchConfig(window_decay_s=65e-9)
+        search_config.SearchConfig(window_decay_s=65e-9)
     with pytest.raises(ValueError, match="weights must be 12"):
         correlogram.window_spectrum(12, 64, np.ones(11))
     with pytest.raises(ValueError, match="weights must be 3"):

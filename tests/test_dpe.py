@@ -4,7 +4,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from dpe5g import correlogram, dpe, nr, signal
+from dpe5g import certified_search, correlogram, cost, dpe, grid_search, nr, search_config, signal
 from dpe5g.nr import C, PAPER, Numerology
 
 
@@ -20,15 +20,15 @@ def random_case(seed, n_fft, m, n_tau):
 @given(st.integers(0, 2**32 - 1), st.sampled_from([64, 256]), st.integers(1, 4), st.integers(1, 12))
 def test_fast_cost_equals_literal(seed, n_fft, m, n_taps):
     y, prs, tau, num = random_case(seed, n_fft, m, 3)
-    lit = dpe.ml_cost_literal(y, prs, tau, n_taps, num.scs_hz)
-    fast = np.asarray(dpe.ml_cost(y, prs, tau, n_taps, num.scs_hz))
+    lit = cost.ml_cost_literal(y, prs, tau, n_taps, num.scs_hz)
+    fast = np.asarray(cost.ml_cost(y, prs, tau, n_taps, num.scs_hz))
     assert np.all(np.abs(fast - lit) <= 1e-9 * np.abs(lit))
 
 
 def test_fast_cost_equals_literal_full_size():
     y, prs, tau, num = random_case(1, 4096, 2, 2)
-    lit = dpe.ml_cost_literal(y, prs, tau, 8, num.scs_hz)
-    fast = np.asarray(dpe.ml_cost(y, prs, tau, 8, num.scs_hz))
+    lit = cost.ml_cost_literal(y, prs, tau, 8, num.scs_hz)
+    fast = np.asarray(cost.ml_cost(y, prs, tau, 8, num.scs_hz))
     assert np.all(np.abs(fast - lit) <= 1e-9 * np.abs(lit))
 
 
@@ -39,8 +39,8 @@ def test_correlogram_exact_on_its_grid():
     ts = num.sample_period_s
     j = np.array([0, 1, 7, 8, 100, 256 * u - 1])
     tau = np.repeat((j * ts / u)[:, None], 3, axis=1)
-    ref = np.asarray(dpe.ml_cost(y, prs, tau, 6, num.scs_hz))
-    got = np.asarray(dpe.correlogram_lookup(corr, tau, ts, u))
+    ref = np.asarray(cost.ml_cost(y, prs, tau, 6, num.scs_hz))
+    got = np.asarray(cost.correlogram_lookup(corr, tau, ts, u))
     assert np.allclose(got, ref, rtol=1e-10)
 
 
@@ -49,8 +49,8 @@ def test_correlogram_cubic_interpolation_between_grid_points():
     ts, u = num.sample_period_s, 8
     corr = correlogram.correlogram(y, prs, 6, u)
     tau = np.random.default_rng(0).uniform(0, 256 * ts, size=(200, 3))
-    ref = np.asarray(dpe.ml_cost(y, prs, tau, 6, num.scs_hz))
-    got = np.asarray(dpe.correlogram_lookup(corr, tau, ts, u))
+    ref = np.asarray(cost.ml_cost(y, prs, tau, 6, num.scs_hz))
+    got = np.asarray(cost.correlogram_lookup(corr, tau, ts, u))
     err = np.abs(got - ref)
     assert err.max() <= 2e-3 * ref.max()
     assert err.max() > 0  # between grid points it is an interpolation, not the exact cost
@@ -63,8 +63,8 @@ def test_cost_of_matched_signal_is_channel_energy():
     ts = PAPER.sample_period_s
     tau = np.array([1.3e-6, 0.77e-6])
     y = signal.received_noiseless(prs, h, np.array([[0, 1, 2]] * 2) * ts, tau)
-    cost = float(dpe.ml_cost(y, prs, tau[None], 3, PAPER.scs_hz)[0])
-    assert cost == pytest.approx(4096 * 2 * np.sum(h[0] ** 2), rel=1e-10)
+    value = float(cost.ml_cost(y, prs, tau[None], 3, PAPER.scs_hz)[0])
+    assert value == pytest.approx(4096 * 2 * np.sum(h[0] ** 2), rel=1e-10)
 
 
 def _geometry(m=8, radius=150.0):
@@ -73,14 +73,14 @@ def _geometry(m=8, radius=150.0):
 
 
 @pytest.mark.parametrize("bias", [0.0, 4e-9])
-def test_estimate_noise_free_three_tap_channel(bias):
+def test_fix_noise_free_three_tap_channel(bias):
     bs = _geometry()
     ue = np.array([3.3, -2.1, 2.0])
     prs = nr.prs_matrix(range(8))
     h = np.tile([0.7079, 1.0, 0.8913], (8, 1))
     ts = PAPER.sample_period_s
-    y = signal.received_noiseless(prs, h, np.tile([0.0, ts, 2 * ts], (8, 1)), dpe.toa(ue, bs, 0.0), bias)
-    est = dpe.estimate(y, prs, bs, np.array([0.0, 0.0, 2.0, 0.0]), dpe.SearchConfig(n_taps=3))
+    y = signal.received_noiseless(prs, h, np.tile([0.0, ts, 2 * ts], (8, 1)), cost.toa(ue, bs, 0.0), bias)
+    est = dpe.fix(y, prs, bs, np.array([0.0, 0.0, 2.0, 0.0]), search_config.SearchConfig(n_taps=3))
     assert np.linalg.norm(est.xyz[:2] - ue[:2]) < 0.1
     assert abs(est.clock_bias_s - bias) * C < 0.1
 
@@ -88,7 +88,7 @@ def test_estimate_noise_free_three_tap_channel(bias):
 def _three_tap(bs, ue, bias, prs):
     h = np.tile([0.7079, 1.0, 0.8913], (len(bs), 1))
     ts = PAPER.sample_period_s
-    return signal.received_noiseless(prs, h, np.tile([0.0, ts, 2 * ts], (len(bs), 1)), dpe.toa(ue, bs, 0.0), bias)
+    return signal.received_noiseless(prs, h, np.tile([0.0, ts, 2 * ts], (len(bs), 1)), cost.toa(ue, bs, 0.0), bias)
 
 
 def test_polish_reaches_the_exact_maximum():
@@ -96,41 +96,41 @@ def test_polish_reaches_the_exact_maximum():
     ue = np.array([3.33, -2.17, 2.0])
     y = _three_tap(bs, ue, 2e-9, prs)
     center = np.array([0.0, 0.0, 2.0, 0.0])
-    grid = dpe.estimate(y, prs, bs, center, dpe.SearchConfig(n_taps=3))
-    pol = dpe.estimate(y, prs, bs, center, dpe.SearchConfig(n_taps=3, polish=True))
+    grid = dpe.fix(y, prs, bs, center, search_config.SearchConfig(n_taps=3))
+    pol = dpe.fix(y, prs, bs, center, search_config.SearchConfig(n_taps=3, polish=True))
     assert np.linalg.norm(pol.xyz - ue) < 0.01 < np.linalg.norm(grid.xyz - ue)
     assert abs(pol.clock_bias_s - 2e-9) * C < 0.01
     assert pol.cost >= grid.cost
 
 
-def test_estimate_3d_search():
+def test_fix_3d_search():
     # BSs at different heights make z observable; the search starts 3 m below the true UE height
     bs = _geometry(radius=60.0)
     bs[:, 2] = [5.0, 40.0, 10.0, 25.0, 5.0, 40.0, 10.0, 25.0]
     prs = nr.prs_matrix(range(8))
     ue = np.array([1.4, 2.6, 4.5])
     y = _three_tap(bs, ue, 2e-9, prs)
-    cfg = dpe.SearchConfig(n_taps=3, z_half_width_m=5.0, polish=True)
-    est = dpe.estimate(y, prs, bs, np.array([0.0, 0.0, 1.5, 0.0]), cfg)
+    cfg = search_config.SearchConfig(n_taps=3, z_half_width_m=5.0, polish=True)
+    est = dpe.fix(y, prs, bs, np.array([0.0, 0.0, 1.5, 0.0]), cfg)
     assert np.linalg.norm(est.xyz - ue) < 0.05
-    flat = dpe.estimate(y, prs, bs, np.array([0.0, 0.0, 1.5, 0.0]), dpe.SearchConfig(n_taps=3))
+    flat = dpe.fix(y, prs, bs, np.array([0.0, 0.0, 1.5, 0.0]), search_config.SearchConfig(n_taps=3))
     assert flat.xyz[2] == 1.5  # without the z search the height stays at the centre's
 
 
-def test_estimate_batched_equals_single():
+def test_fix_batched_equals_single():
     bs = _geometry()
     prs = nr.prs_matrix(range(8))
     keys = jax.random.split(jax.random.PRNGKey(0), 2)
     ues = np.array([[1.0, 2.0, 2.0], [-4.0, 0.5, 2.0]])
     ys = np.stack([
-        signal.received_samples(k, prs, np.ones((8, 1)), np.zeros((8, 1)), dpe.toa(u, bs, 0.0), 10.0)
+        signal.received_samples(k, prs, np.ones((8, 1)), np.zeros((8, 1)), cost.toa(u, bs, 0.0), 10.0)
         for k, u in zip(keys, ues)
     ])
     center = np.array([0.0, 0.0, 2.0, 0.0])
-    batch = dpe.estimate(ys, np.stack([prs] * 2), np.stack([bs] * 2), np.stack([center] * 2))
-    chunked = dpe.estimate(ys, np.stack([prs] * 2), np.stack([bs] * 2), np.stack([center] * 2), batch_size=1)
+    batch = dpe.fix(ys, np.stack([prs] * 2), np.stack([bs] * 2), np.stack([center] * 2))
+    chunked = dpe.fix(ys, np.stack([prs] * 2), np.stack([bs] * 2), np.stack([center] * 2), batch_size=1)
     for i in range(2):
-        one = dpe.estimate(ys[i], prs, bs, center)
+        one = dpe.fix(ys[i], prs, bs, center)
         assert np.allclose(batch.xyz[i], one.xyz, atol=1e-9)
         assert np.allclose(chunked.xyz[i], one.xyz, atol=1e-9)
 
@@ -138,17 +138,17 @@ def test_estimate_batched_equals_single():
 def test_bad_inputs():
     y, prs, tau, num = random_case(3, 64, 2, 1)
     with pytest.raises(ValueError, match="n_taps"):
-        dpe.ml_cost(y, prs, tau, 0, num.scs_hz)
+        cost.ml_cost(y, prs, tau, 0, num.scs_hz)
     with pytest.raises(ValueError, match="tau must have shape"):
-        dpe.ml_cost(y, prs, tau[:, :1], 4, num.scs_hz)
+        cost.ml_cost(y, prs, tau[:, :1], 4, num.scs_hz)
     with pytest.raises(ValueError, match="y and prs"):
-        dpe.ml_cost(y, prs[:1], tau, 4, num.scs_hz)
+        cost.ml_cost(y, prs[:1], tau, 4, num.scs_hz)
     with pytest.raises(ValueError, match="z_half_width_m"):
-        dpe.SearchConfig(z_half_width_m=-1.0)
+        search_config.SearchConfig(z_half_width_m=-1.0)
     with pytest.raises(ValueError, match="final_step_m"):
-        dpe.SearchConfig(final_step_m=5.0)
+        search_config.SearchConfig(final_step_m=5.0)
     with pytest.raises(ValueError, match="finite"):
-        dpe.estimate(np.zeros((2, 4096), complex), nr.prs_matrix([1, 2]), _geometry(2), [np.nan, 0, 2, 0])
+        dpe.fix(np.zeros((2, 4096), complex), nr.prs_matrix([1, 2]), _geometry(2), [np.nan, 0, 2, 0])
 
 
 def test_ls_estimate_recovers_the_channel():
@@ -179,8 +179,8 @@ def test_window_taps_on_the_band_spacing_keep_the_first_path(spacing):
     window = jnp.asarray(correlogram.window_spectrum(taps, n, None, s))
     coef = correlogram.spline_coefficients(jnp.asarray(g)[None], window, u)
     t = tau0 + np.arange(-20.0, 3.0, 1 / 64)
-    cost = np.asarray(dpe.spline_values(coef, jnp.asarray(t * u)[:, None]))
-    at_path = float(dpe.spline_values(coef, jnp.asarray([[tau0 * u]]))[0])
+    cost = np.asarray(certified_search.spline_values(coef, jnp.asarray(t * u)[:, None]))
+    at_path = float(certified_search.spline_values(coef, jnp.asarray([[tau0 * u]]))[0])
     if spacing == "band":
         assert at_path >= cost.max() * (1 - 5e-5)  # the spline's own error is ≤ 2e-5 of the peak (Chapter 3)
     else:
@@ -205,14 +205,14 @@ def test_grid_window_holds_every_lookup_of_the_search(dx, dy, db, which):
     """Every grid point the search's cubic reads, at any level (first level around the centre, finer levels around any
     point the previous level can pick), lies inside ``grid_window``'s W points; so the windowed search is the whole
     correlogram's (Chapter 3 checks one fix; this checks the bound, for several search configs)."""
-    cfg = [dpe.SearchConfig(), dpe.SearchConfig(half_width_m=3.0, bias_half_width_m=0.0),
-           dpe.SearchConfig(z_half_width_m=5.0, upsample=8), dpe.SearchConfig(coarse_step_m=2.0, final_step_m=0.05)][which]
+    cfg = [search_config.SearchConfig(), search_config.SearchConfig(half_width_m=3.0, bias_half_width_m=0.0),
+           search_config.SearchConfig(z_half_width_m=5.0, upsample=8), search_config.SearchConfig(coarse_step_m=2.0, final_step_m=0.05)][which]
     rng = np.random.default_rng(int(abs(dx * 1e3)) % 1000)
     bs = np.column_stack([rng.uniform(-300, 300, (12, 2)), rng.uniform(5, 40, 12)])
     center = np.array([dx, dy, 2.0, db])
-    start = np.asarray(dpe.grid_window(jax.numpy.asarray(bs), jax.numpy.asarray(center), cfg))
-    width = dpe.grid_window_cells(cfg)
-    reach_xy, reach_z, reach_b = dpe._grid_reach(cfg)
+    start = np.asarray(grid_search.grid_window(jax.numpy.asarray(bs), jax.numpy.asarray(center), cfg))
+    width = grid_search.grid_window_cells(cfg)
+    reach_xy, reach_z, reach_b = grid_search.grid_reach(cfg)
     # the candidates' extreme points: the corners and faces of the reach box, and a dense sample inside it
     ax = np.linspace(-1, 1, 9)
     off = np.stack(np.meshgrid(ax * reach_xy, ax * reach_xy, ax * reach_z, ax * reach_b, indexing="ij"), -1).reshape(-1, 4)

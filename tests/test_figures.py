@@ -9,7 +9,7 @@ Image (figures/<id>.png): matplotlib's compare_images RMS over pixels (0–255 s
 On failure the message names the figure and the largest difference, and a diff image is written to
 ``figure-diff/<id>-failed-diff.png`` in the repository.
 
-The Monte Carlo figures read ``dpe5g.montecarlo``'s cache when it holds the experiment for the current code (the
+The Monte Carlo figures read the engine's store (``dpe5g.store``) when it holds the experiment for the current code (the
 cache key hashes the config and the source of every module the numbers depend on); on a fresh clone the first
 build computes it, so ``make test`` there regenerates Fig. 9 from its seed.
 """
@@ -22,7 +22,8 @@ import numpy as np
 import pytest
 from matplotlib.testing.compare import compare_images
 
-from dpe5g import figures
+from dpe5g import figures, store
+from figure_diff import compare_data
 
 pytestmark = pytest.mark.book  # reads the figures' Monte Carlo results, which the book's chapters compute
 
@@ -60,7 +61,7 @@ def test_figure_data(fig_id, regenerated):
     _, js = regenerated(fig_id)
     expected = json.loads((BASELINE / "data" / f"{fig_id}.json").read_text())
     actual = json.loads(js.read_text())
-    ok, where, diff = figures.compare_data(expected, actual, DATA_RTOL, DATA_ATOL)
+    ok, where, diff = compare_data(expected, actual, DATA_RTOL, DATA_ATOL)
     assert ok, f"{fig_id}: data differ from baseline at {where} (largest |difference| {diff:.3g})"
 
 
@@ -82,7 +83,7 @@ def test_compare_data_catches_a_change():
     payload = figures.compute("fig01_tdl_a")
     changed = json.loads(json.dumps(payload))
     changed["data"]["pdp_db"][3] += 1e-3
-    ok, where, diff = figures.compare_data(payload, changed, DATA_RTOL, DATA_ATOL)
+    ok, where, diff = compare_data(payload, changed, DATA_RTOL, DATA_ATOL)
     assert not ok and "pdp_db[3]" in where and diff == pytest.approx(1e-3)
 
 
@@ -175,7 +176,7 @@ def test_payload_is_computed_once_per_state_of_the_code(tmp_path, monkeypatch):
     instead of computing it again: the stored payload is what a new computation gives, and a different figure or trial
     count has its own entry."""
     monkeypatch.setenv("DPE5G_CACHE", str(tmp_path))
-    path = figures.payload_path("fig01_tdl_a")
+    path = store.payload_path("fig01_tdl_a")
     assert path.parent == tmp_path / "payloads" and not path.exists()
     first = figures.compute("fig01_tdl_a")
     assert path.exists() and json.loads(path.read_text()) == first
@@ -183,8 +184,8 @@ def test_payload_is_computed_once_per_state_of_the_code(tmp_path, monkeypatch):
     stored["data"]["pdp_db"][0] = 123.0  # a marker: a second compute must return the stored payload
     path.write_text(json.dumps(stored))
     assert figures.compute("fig01_tdl_a")["data"]["pdp_db"][0] == 123.0
-    others = {figures.payload_path("fig02_tdl_b"), figures.payload_path("fig09_rmse_vs_snr", 50),
-              figures.payload_path("fig09_rmse_vs_snr", 60), path}
+    others = {store.payload_path("fig02_tdl_b"), store.payload_path("fig09_rmse_vs_snr", 50),
+              store.payload_path("fig09_rmse_vs_snr", 60), path}
     assert len(others) == 4
     path.unlink()
     assert figures.compute("fig01_tdl_a") == first

@@ -1,49 +1,113 @@
-"""Module boundaries: a module's ``_private`` names stay inside it (the style guide), checked on the AST."""
+"""Module boundaries: a module's ``_private`` names stay inside it (the style guide), in the package, the tests, the
+benchmarks, the scripts and the chapters (their code cells and the code they show), checked on the AST."""
 
 import ast
 import re
 from pathlib import Path
 
-PKG = Path(__file__).resolve().parent.parent / "dpe5g"
-CHAPTERS = Path(__file__).resolve().parent.parent / "chapters"
+ROOT = Path(__file__).resolve().parent.parent
+PKG = ROOT / "dpe5g"
+CHAPTERS = ROOT / "chapters"
 MODULES = {p.stem for p in PKG.glob("*.py")}
+OUTSIDE = [p for d in ("tests", "benchmarks", "scripts") for p in sorted((ROOT / d).glob("*.py"))]
 
 
 def private_uses(source: str, own: str) -> list[str]:
-    """``mod._name`` attribute uses and ``from .mod import _name`` imports of another package module's private
-    names in ``source`` (a module named with a leading underscore, like ``_checks``, is a shared helper module and
-    its public names may be used)."""
+    """``mod._name`` attribute uses and ``from .mod import _name`` / ``from dpe5g.mod import _name`` imports of
+    another package module's private names in ``source``; ``own`` is the module the source belongs to ("" outside
+    the package).  ``import dpe5g`` then ``dpe5g._name`` counts as the package's own ``__init__``'s private name.  A
+    module named with a leading underscore, like ``_checks``, is a shared helper module and its public names may be
+    used."""
     tree = ast.parse(source)
     aliases = {}
     bad = []
     for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                if a.name == "dpe5g" or a.name.startswith("dpe5g."):
+                    aliases[a.asname or a.name.split(".")[0]] = "__init__" if a.asname is None else a.name[6:]
         if isinstance(node, ast.ImportFrom) and (node.level == 1 or (node.module or "").startswith("dpe5g")):
             mod = (node.module or "").removeprefix("dpe5g").lstrip(".")
             for a in node.names:
                 if not mod and a.name in MODULES:  # from . import dpe
                     aliases[a.asname or a.name] = a.name
-                elif mod and mod != own and a.name.startswith("_"):
-                    bad.append(f"from {mod} import {a.name}")
+                elif a.name.startswith("_") and not a.name.startswith("__") and (mod or "__init__") != own:
+                    bad.append(f"from {mod or 'dpe5g'} import {a.name}")
     for node in ast.walk(tree):
         if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.attr.startswith("_")
-                and not node.attr.startswith("__") and aliases.get(node.value.id, own) != own):
+                and not node.attr.startswith("__") and node.value.id in aliases and aliases[node.value.id] != own):
             bad.append(f"{node.value.id}.{node.attr} (line {node.lineno})")
     return bad
 
 
+def chapter_code(text: str) -> str:
+    """The code cells of a MyST notebook, their option lines left out."""
+    cells = re.findall(r"```\{code-cell\}[^\n]*\n(.*?)```", text, re.S)
+    return "\n\n".join("\n".join(line for line in c.split("\n") if not line.startswith((":", "%", "---")))
+                       for c in cells)
+
+
 def test_private_names_stay_in_their_module():
-    bad = {p.name: private_uses(p.read_text(), p.stem) for p in PKG.glob("*.py")}
-    assert not {k: v for k, v in bad.items() if v}, bad
+    bad = {p.name: found for p in PKG.glob("*.py") if (found := private_uses(p.read_text(), p.stem))}
+    assert not bad, bad
 
 
-def test_chapters_use_public_names_only():
-    pat = re.compile(r"\b(" + "|".join(sorted(m for m in MODULES if not m.startswith("_"))) + r")\._[a-z]\w*")
-    bad = {p.name: pat.findall(p.read_text()) for p in CHAPTERS.glob("*.md")}
-    assert not {k: v for k, v in bad.items() if v}, bad
+def test_tests_benchmarks_and_scripts_use_public_names_only():
+    bad = {str(p.relative_to(ROOT)): found for p in OUTSIDE if (found := private_uses(p.read_text(), ""))}
+    assert not bad, bad
 
 
-def test_the_lint_catches_a_private_call():
+def test_chapters_use_and_show_public_names_only():
+    shown = re.compile(r"```\{literalinclude\} [^\n]*\n(?::[\w-]+:[^\n]*\n)*?:pyobject: ([\w.]+)")
+    bad = {}
+    for p in sorted(CHAPTERS.glob("*.md")):
+        text = p.read_text()
+        found = private_uses(chapter_code(text), "")
+        found += [f"literalinclude {name}" for name in shown.findall(text) if any(
+            part.startswith("_") and not part.startswith("__") for part in name.split("."))]
+        if found:
+            bad[p.name] = found
+    assert not bad, bad
+
+
+def test_the_lint_catches_a_private_use():
     src = "from . import dpe, _checks\nx = dpe._ml_cost(1)\ny = _checks.integer('a', 1, 0, 2)\n"
     assert private_uses(src, "otdoa") == ["dpe._ml_cost (line 2)"]
     assert private_uses("from .dpe import _lookup\n", "otdoa") == ["from dpe import _lookup"]
+    assert private_uses("from dpe5g.cost import _lookup\n", "") == ["from cost import _lookup"]
+    assert private_uses("from dpe5g import _xla\n", "") == ["from dpe5g import _xla"]
+    assert private_uses("import dpe5g\nx = dpe5g._xla\n", "") == ["dpe5g._xla (line 2)"]
+    assert private_uses("from dpe5g import cost as c\nx = c._lookup\n", "") == ["c._lookup (line 2)"]
     assert private_uses("from . import dpe\nx = dpe._lookup\n", "dpe") == []
+    assert private_uses("from dpe5g import cost\nx = cost.lookup\n", "") == []
+    text = "```{code-cell} ipython3\n:tags: [hide-input]\nfrom dpe5g import cost\ncost._lookup(1)\n```\n"
+    assert private_uses(chapter_code(text), "") == ["cost._lookup (line 2)"]
+
+
+#: the style guide's sizes: a function fits on a screen, a module in a head
+MAX_FUNCTION_LINES = 80
+MAX_MODULE_LINES = 500
+
+
+def too_long(source: str) -> list[str]:
+    """The functions of ``source`` longer than ``MAX_FUNCTION_LINES`` (decorators left out), and the module itself
+    if it is longer than ``MAX_MODULE_LINES``."""
+    out = [f"module: {len(source.splitlines())} lines"] if len(source.splitlines()) > MAX_MODULE_LINES else []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            n = node.end_lineno - node.lineno + 1
+            if n > MAX_FUNCTION_LINES:
+                out.append(f"{node.name}: {n} lines")
+    return out
+
+
+def test_functions_and_modules_fit_in_a_head():
+    bad = {p.name: found for p in sorted(PKG.glob("*.py")) if (found := too_long(p.read_text()))}
+    assert not bad, bad
+
+
+def test_the_size_check_counts_lines():
+    body = "\n".join(f"    x{i} = {i}" for i in range(MAX_FUNCTION_LINES))
+    assert too_long(f"def f():\n{body}\n") == ["f: 81 lines"]
+    assert too_long(f"def f():\n{body[:-len(f'    x{MAX_FUNCTION_LINES - 1} = {MAX_FUNCTION_LINES - 1}') - 1]}\n") == []
+    assert too_long("x = 1\n" * (MAX_MODULE_LINES + 1)) == [f"module: {MAX_MODULE_LINES + 1} lines"]

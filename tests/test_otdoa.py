@@ -17,8 +17,8 @@ def _brute_force(bs, t, ue_z, centre, half=300.0):
         p = np.stack([gx, gy, np.full_like(gx, ue_z)], axis=-1)
         d = np.linalg.norm(p[..., None, :] - bs, axis=-1)
         r = (d[..., 1:] - d[..., :1]) - C * (t[1:] - t[0])
-        cost = np.sum(r**2, axis=-1)
-        i = np.unravel_index(np.argmin(cost), cost.shape)
+        ssr = np.sum(r**2, axis=-1)
+        i = np.unravel_index(np.argmin(ssr), ssr.shape)
         best = np.array([gx[i], gy[i]])
         half, step = 5 * step, step / 5
     return best

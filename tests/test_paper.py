@@ -5,7 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from dpe5g import channel, paper, signal
+from dpe5g import channel, paper, signal, store
 
 
 def test_claim_values_apply_each_claims_test():
@@ -62,14 +62,12 @@ def test_readings_are_experiments_that_differ_in_their_reading_only():
 
 
 def test_book_experiments_one_entry_per_run_at_its_largest_count():
-    from dpe5g import montecarlo
-
     exps = paper.book_experiments()
-    dirs = [montecarlo.cache_dir(e).name for e in exps]
+    dirs = [store.cache_dir(e).name for e in exps]
     assert len(dirs) == len(set(dirs))
     by_dir = dict(zip(dirs, exps))
     # Chapter 5 reads the first REUSE_COMPARE_TRIALS of the reuse reading's run: listed once, at the reading's count
-    assert by_dir[montecarlo.cache_dir(paper.fig9_power(reuse=paper.REUSE)).name].n_trials == paper.READING_TRIALS
+    assert by_dir[store.cache_dir(paper.fig9_power(reuse=paper.REUSE)).name].n_trials == paper.READING_TRIALS
     for e in (paper.fig9_honest(), paper.fig9_truth(), paper.fig10()[("pr_los", "truth")], paper.fig9_honest_readings(),
               paper.fig9_all_los(*paper.ALL_LOS_CASES[-1])):
-        assert by_dir[montecarlo.cache_dir(e).name].n_trials >= e.n_trials
+        assert by_dir[store.cache_dir(e).name].n_trials >= e.n_trials

@@ -4,7 +4,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from dpe5g import nr, signal
+from dpe5g import cost, engine, experiment, nr, signal
 from dpe5g.nr import Numerology
 
 SMALL = Numerology(scs_hz=30e3, n_fft=64, n_rb=5)
@@ -71,12 +71,12 @@ def test_computing_refuses_without_float64():
     """float64 is guaranteed where dpe5g computes: with x64 turned off after import, the entry points refuse."""
     import jax
 
-    from dpe5g import correlogram, dpe, montecarlo, otdoa, signal
+    from dpe5g import correlogram, otdoa, signal
 
     prs = np.ones((2, 64), complex)
     calls = [lambda: signal.ofdm_symbol(prs), lambda: signal.demodulate(prs),
-             lambda: correlogram.ls_spectrum(prs, prs), lambda: dpe.ml_cost(prs, prs, np.zeros(2), 4, 30e3),
-             lambda: otdoa.toa(prs, prs), lambda: montecarlo.run(montecarlo.Experiment(n_trials=1), progress=False)]
+             lambda: correlogram.ls_spectrum(prs, prs), lambda: cost.ml_cost(prs, prs, np.zeros(2), 4, 30e3),
+             lambda: otdoa.toa(prs, prs), lambda: engine.run(experiment.Experiment(n_trials=1), progress=False)]
     jax.config.update("jax_enable_x64", False)
     try:
         for call in calls:

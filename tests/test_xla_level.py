@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import dpe5g
-from dpe5g import dpe, montecarlo
+from dpe5g import engine, experiment, results, search_config
 
 SMALL = dict(n_trials=4, seed=3, snrs_db=(15.0, 30.0), m_values=(4, 6))
 #: a truth-centred grid search, the certified search on a prior, and the certified search on the OTDoA fixes
@@ -22,28 +22,28 @@ EXPERIMENTS = {
 }
 SCRIPT = textwrap.dedent("""
     import sys, numpy as np
-    from dpe5g import dpe, montecarlo
+    from dpe5g import engine, experiment, search_config
     from tests.test_xla_level import EXPERIMENTS, SMALL, fields
     out = {}
     for k, kw in EXPERIMENTS.items():
-        e = montecarlo.Experiment(**SMALL, **{**kw, "search": dpe.SearchConfig(**kw["search"])})
-        r = montecarlo.run(e, cache=sys.argv[1], progress=False)
+        e = experiment.Experiment(**SMALL, **{**kw, "search": search_config.SearchConfig(**kw["search"])})
+        r = engine.run(e, cache=sys.argv[1], progress=False)
         out.update({f"{k}/{f}": getattr(r, f) for f in fields(e)})
     np.savez(sys.argv[2], **out)
 """)
 
 
 def fields(e):
-    return montecarlo.Results.FIELDS + (montecarlo.Results.OTDOA_FIELDS if e.otdoa else ())
+    return results.Results.FIELDS + (results.Results.OTDOA_FIELDS if e.otdoa else ())
 
 
 def test_the_flag_is_added_unless_set():
-    assert dpe5g._xla_flags("", None) == f"--xla_backend_optimization_level={dpe5g.XLA_OPT_LEVEL}"
-    assert dpe5g._xla_flags("--xla_foo=1", "3") == "--xla_foo=1 --xla_backend_optimization_level=3"
-    assert dpe5g._xla_flags("--xla_backend_optimization_level=2", "1") == "--xla_backend_optimization_level=2"
-    assert dpe5g._xla_flags("--xla_foo=1", "xla") == "--xla_foo=1"
+    assert dpe5g.xla_flags("", None) == f"--xla_backend_optimization_level={dpe5g.XLA_OPT_LEVEL}"
+    assert dpe5g.xla_flags("--xla_foo=1", "3") == "--xla_foo=1 --xla_backend_optimization_level=3"
+    assert dpe5g.xla_flags("--xla_backend_optimization_level=2", "1") == "--xla_backend_optimization_level=2"
+    assert dpe5g.xla_flags("--xla_foo=1", "xla") == "--xla_foo=1"
     with pytest.raises(ValueError, match="DPE5G_XLA_OPT_LEVEL must be one of 0, 1, 2, 3 or xla, got '7'"):
-        dpe5g._xla_flags("", "7")
+        dpe5g.xla_flags("", "7")
 
 
 def test_results_are_the_same_bits_at_xlas_default_level(tmp_path):
@@ -58,7 +58,7 @@ def test_results_are_the_same_bits_at_xlas_default_level(tmp_path):
     assert r.returncode == 0, r.stderr
     theirs = np.load(tmp_path / "default.npz")
     for k, kw in EXPERIMENTS.items():
-        e = montecarlo.Experiment(**SMALL, **{**kw, "search": dpe.SearchConfig(**kw["search"])})
-        ours = montecarlo.run(e, cache=tmp_path / "ours", progress=False)
+        e = experiment.Experiment(**SMALL, **{**kw, "search": search_config.SearchConfig(**kw["search"])})
+        ours = engine.run(e, cache=tmp_path / "ours", progress=False)
         for f in fields(e):
             np.testing.assert_array_equal(getattr(ours, f), theirs[f"{k}/{f}"], err_msg=f"{k}/{f}")

@@ -1,0 +1,318 @@
+"""One trial's draws (Section IV): the UE, its nearest BSs, their LoS states, channels and SNRs, the clock bias, the
+noise-free received spectra and one unit noise spectrum, as a typed pytree (``TrialDraw``).
+
+One trial = one UE position uniform over the deployment's region at the UE height, the ``max(m_values)`` nearest
+BSs, a LoS/NLoS draw per link (eq. (11)), TDL-D (K = 13.3 dB) for LoS and TDL-C for NLoS links at 65 ns, a truncated
+Gaussian clock bias and a unit noise spectrum, which the receiver scales to each SNR's variance (``receiver``: one
+noise draw serves every SNR, and every M reads the nearest of the same links — common random numbers).  The signal
+is simulated in the frequency domain, where both receivers start (``signal.received_spectrum``).  Every draw of
+trial t comes from ``trial_key(seed, t)`` = fold_in(PRNGKey(seed), t), so results do not depend on the batch size,
+the chunk size, the thread or the machine.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import _checks, channel, cost, deployment, nr, receiver, scenario, signal
+from .experiment import Experiment
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class CoChannelDraw:
+    """With PRS reuse and ``co_channel``: every other BS of the deployment (X of them, nearest first), which transmits
+    on its resource too.  res (X,) resource index; prs (X, N) pilots; y0 (X, N) noise-free received spectra (unit
+    power); snr_db (S, X) per-sample SNR at each SNR index."""
+
+    res: jax.Array
+    prs: jax.Array
+    y0: jax.Array
+    snr_db: jax.Array
+
+
+@dataclass(frozen=True)
+class ReuseDraw:
+    """With PRS reuse (``Experiment.prs_reuse`` = n_res > 0): the resource (comb offset) res (I,) of every link,
+    and the other BSs (``CoChannelDraw``, None without ``co_channel``)."""
+
+    res: jax.Array
+    co_channel: CoChannelDraw | None
+    n_res: int
+
+
+jax.tree_util.register_dataclass(ReuseDraw, data_fields=["res", "co_channel"], meta_fields=["n_res"])
+
+
+@dataclass(frozen=True)
+class TrialDraw:
+    """The draws of one trial (``draw_fn``), arrays over the I = max(m_values) nearest links, nearest first.
+
+    ue_xyz (3,) m; clock_bias_s (); bs_index (I,) deployment index; bs_xyz (I, 3) m; los (I,) bool; prs (I, N)
+    pilots; gains (I, L) complex tap gains and delays_s (I, L) s (padded with zero-gain taps to the longer profile);
+    y0 (I, N) noise-free received spectrum (unit power); link_snr_db (S, I) per-sample SNR of each link at each SNR
+    index; link_sinr_db (S, I) its SINR (equal to the SNR without co-channel interference); noise (I, N) the trial's
+    unit noise spectrum, CN(0, 1) per bin; reuse : ``ReuseDraw`` with PRS reuse, else None.  per_link_power
+    (static): whether the links' received powers differ (snr_mode "link_budget" or "nearest"), which sets how the
+    receiver scales signal and noise (``receiver.spectrum_at``)."""
+
+    ue_xyz: jax.Array
+    clock_bias_s: jax.Array
+    bs_index: jax.Array
+    bs_xyz: jax.Array
+    los: jax.Array
+    prs: jax.Array
+    gains: jax.Array
+    delays_s: jax.Array
+    y0: jax.Array
+    link_snr_db: jax.Array
+    link_sinr_db: jax.Array
+    noise: jax.Array
+    reuse: ReuseDraw | None
+    per_link_power: bool
+
+    @property
+    def n_snr(self) -> int:
+        return self.link_snr_db.shape[0]
+
+
+jax.tree_util.register_dataclass(
+    TrialDraw, data_fields=["ue_xyz", "clock_bias_s", "bs_index", "bs_xyz", "los", "prs", "gains", "delays_s", "y0",
+                            "link_snr_db", "link_sinr_db", "noise", "reuse"], meta_fields=["per_link_power"])
+
+
+def trial_key(seed: int, t) -> jax.Array:
+    """The key every draw of trial t comes from: fold_in(PRNGKey(seed), t)."""
+    return jax.random.fold_in(jax.random.PRNGKey(seed), t)
+
+
+def trial_keys(seed: int, start: int, stop: int) -> jax.Array:
+    """``trial_key`` of trials start … stop − 1: (T, 2) uint32."""
+    return jax.vmap(lambda t: trial_key(seed, t))(jnp.arange(start, stop))
+
+
+def profiles(e: Experiment) -> tuple[channel.TDLProfile, channel.TDLProfile]:
+    """The NLoS (TDL-C) and LoS (TDL-D) profiles of the experiment."""
+    return (channel.tdl_profile("C", e.delay_spread_s, definition=e.delay_spread_def),
+            channel.tdl_profile("D", e.delay_spread_s, e.k_factor_db, definition=e.delay_spread_def))
+
+
+def link_snr_db(e: Experiment, rx_dbm, rx_nearest_dbm, snrs) -> jax.Array:
+    """Per-sample SNR (S, n) of links with received powers ``rx_dbm`` (n,) dBm: from the link budget (snr_mode
+    "link_budget", S = 1), or the nearest link's SNR ``snrs`` (S,) plus the power difference (snr_mode "nearest");
+    then read in the experiment's ``snr_convention``."""
+    if e.snr_mode == "link_budget":
+        snr = e.link.model_snr_db(rx_dbm - e.link.noise_dbm)[None, :]
+    else:
+        snr = snrs[:, None] + (rx_dbm - rx_nearest_dbm)[None, :]
+    return signal.per_sample_snr_db(snr, e.snr_convention)
+
+
+def sinr_db(link_snr, reuse: ReuseDraw | None) -> jax.Array:
+    """SINR (S, I) of every link: its SNR over 1 + the SNRs (linear) of the BSs on its resource (the other links
+    and the co-channel BSs of ``reuse``), all per sample, so the pilots' equal power cancels; the SNR itself without
+    co-channel interference."""
+    if reuse is None or reuse.co_channel is None:
+        return link_snr
+    x = reuse.co_channel
+    p_link, p_x = 10.0 ** (link_snr / 10.0), 10.0 ** (x.snr_db / 10.0)
+    res = jnp.concatenate([reuse.res, x.res])
+    per_res = jax.vmap(lambda p: jax.ops.segment_sum(p, res, num_segments=reuse.n_res))(
+        jnp.concatenate([p_link, p_x], axis=1))  # (S, R) total received power per resource, in noise units
+    interference = per_res[:, reuse.res] - p_link
+    return 10.0 * jnp.log10(p_link / (1.0 + interference))
+
+
+def draw_fn(e: Experiment, dep: deployment.Deployment):
+    """Build the traceable trial key → ``TrialDraw`` of the trial with that key (``trial_key``), shared by the
+    engine, ``example`` and ``draw_links``.  The seed is not read (it enters through the key), so one compiled
+    engine serves every seed.
+
+    Each link's channel is TDL-D if LoS and TDL-C if not; its frequency response is ``channel.frequency_response``
+    of the profile it belongs to, and the received spectrum ``signal.received_spectrum`` (the one signal path;
+    ``signal.received_noiseless`` is its inverse DFT, which a test checks against the engine).  With PRS reuse the
+    co-channel BSs' draws come from fold_in(key, 2000), so the links' draws are those of the same experiment
+    without reuse."""
+    links = _LinkModel(e, dep)
+    m_max = max(e.m_values)
+
+    def draw(key):
+        k_ue, k_los, k_c, k_d, k_b, k_sf, k_n = jax.random.split(key, 7)
+        ue, d2d, order = links.place_ue(k_ue)
+        idx = order[:m_max]  # nearest first
+        bs = links.bs_all[idx]
+        if e.los_mode == "pr_los":
+            los = jax.random.uniform(k_los, (m_max,)) < scenario.los_probability(d2d[idx])
+        elif e.los_mode == "all_los":
+            los = jnp.ones(m_max, dtype=bool)
+        else:  # two of the four nearest LoS, which two at random
+            los = jax.random.permutation(k_los, jnp.array([True, True, False, False]))
+        bias = scenario.clock_bias(k_b, e.clock_sigma_s, e.clock_bound_sigmas)
+        h, gains = links.channels(los, k_c, k_d, m_max)
+        prs = links.prs_all[idx]
+        y_clean = signal.received_spectrum(prs, h, cost.toa(ue, bs), bias)
+        if e.snr_mode == "fixed":
+            rx = None
+            snr = signal.per_sample_snr_db(jnp.broadcast_to(links.snrs[:, None], (links.snrs.size, m_max)),
+                                           e.snr_convention)
+        else:
+            rx = links.received_dbm(d2d[idx], bs, los, k_sf, idx)
+            snr = link_snr_db(e, rx, rx[0], links.snrs)
+        reuse = None
+        if e.prs_reuse:
+            x = links.co_channel(key, ue, d2d, order[m_max:], rx, bias, snr.shape[0]) if e.co_channel else None
+            reuse = ReuseDraw(res=links.res_all[idx], co_channel=x, n_res=e.prs_reuse)
+        noise = signal.awgn(k_n, y_clean.shape, 1.0)  # CN(0, 1) per bin, scaled per SNR by ``receiver.spectrum_at``
+        return TrialDraw(ue_xyz=ue, clock_bias_s=bias, bs_index=idx, bs_xyz=bs, los=los, prs=prs, gains=gains,
+                         delays_s=jnp.where(los[:, None], links.delays_d, links.delays_c), y0=y_clean,
+                         link_snr_db=snr, link_sinr_db=sinr_db(snr, reuse), noise=noise, reuse=reuse,
+                         per_link_power=e.snr_mode != "fixed")
+
+    return draw
+
+
+class _LinkModel:
+    """The deployment and channel model of an experiment, as the traceable pieces ``draw_fn`` composes."""
+
+    def __init__(self, e: Experiment, dep: deployment.Deployment):
+        self.e, self.dep = e, dep
+        self.nlos, self.los_prof = profiles(e)
+        self.n_taps = max(self.nlos.n_taps, self.los_prof.n_taps)
+        pad = lambda a: np.pad(np.asarray(a), (0, self.n_taps - len(a)))
+        self.delays_c, self.delays_d = pad(self.nlos.delays_s), pad(self.los_prof.delays_s)
+        if e.prs_reuse:  # TS 38.211's pattern; each BS on its resource (comb offset) with its PRS ID
+            res_np, ids_np = dep.prs_plan(e.prs_reuse)
+            pattern = nr.PrsPattern(e.prs_reuse)
+            self.prs_all = jnp.asarray(np.stack([nr.prs_per_subcarrier(int(i), pattern, int(r))
+                                                 for i, r in zip(ids_np, res_np)]))
+            self.res_all = jnp.asarray(res_np)
+        else:
+            self.prs_all = jnp.asarray(nr.prs_matrix(range(dep.n_bs)))  # PRS ID = deployment index
+        self.bs_all = jnp.asarray(dep.bs_xyz)
+        self.pw_all = jnp.asarray(dep.power_dbm)
+        self.snrs = jnp.asarray(e.snrs_db if e.snr_mode != "link_budget" else (0.0,), dtype=jnp.float64)
+
+    def place_ue(self, k_ue):
+        """The UE (3,) m uniform over the region at the UE height, its 2-D distance (B,) m to every BS and the BSs
+        ordered nearest first (B,)."""
+        x0, y0, x1, y1 = self.dep.region
+        xy = jax.random.uniform(k_ue, (2,), minval=jnp.array([x0, y0]), maxval=jnp.array([x1, y1]))
+        ue = jnp.concatenate([xy, jnp.array([self.dep.ue_height_m])])
+        d2d = jnp.linalg.norm(self.bs_all[:, :2] - xy, axis=-1)
+        return ue, d2d, jnp.argsort(d2d)
+
+    def channels(self, los, k_c, k_d, n):
+        """(n, N) frequency responses and (n, L) gains of n links with LoS flags ``los``."""
+        nlos, los_prof, n_taps = self.nlos, self.los_prof, self.n_taps
+        g_c = jax.vmap(lambda kk: channel.draw_gains(nlos, kk))(jax.random.split(k_c, n))
+        g_d = jax.vmap(lambda kk: channel.draw_gains(los_prof, kk))(jax.random.split(k_d, n))
+        h = jnp.where(los[:, None], channel.frequency_response(g_d, los_prof.delays_s),
+                      channel.frequency_response(g_c, nlos.delays_s))  # (n, N), eq. (5)
+        gains = jnp.where(los[:, None], jnp.pad(g_d, ((0, 0), (0, n_taps - g_d.shape[1]))),
+                          jnp.pad(g_c, ((0, 0), (0, n_taps - g_c.shape[1]))))
+        return h, gains
+
+    def received_dbm(self, d2d, bs, los, k_sf, sel):
+        """Received power P_tx - PL - SF (dBm) of the links to the BSs ``sel`` (deployment indices), the in-band
+        SNR's numerator."""
+        e = self.e
+        pl = scenario.path_loss_umi_db(d2d, bs[:, 2], self.dep.ue_height_m, e.link.fc_hz, los)
+        sf = jax.random.normal(k_sf, (sel.shape[0],)) * jnp.where(los, scenario.SIGMA_SF_LOS_DB,
+                                                                   scenario.SIGMA_SF_NLOS_DB)
+        return self.pw_all[sel] - pl - sf
+
+    def co_channel(self, key, ue, d2d, idx_x, rx, bias, n_snr) -> CoChannelDraw:
+        """The other BSs idx_x (X,) of the deployment, keyed from fold_in(key, 2000); rx (I,) dBm the links'
+        received powers (the nearest link's sets the SNR scale)."""
+        e, n_x = self.e, idx_x.shape[0]
+        if not n_x:
+            return CoChannelDraw(res=self.res_all[idx_x], prs=self.prs_all[idx_x],
+                                 y0=jnp.zeros((0, self.prs_all.shape[1]), self.prs_all.dtype),
+                                 snr_db=jnp.zeros((n_snr, 0)))
+        k_xl, k_xc, k_xd, k_xs = jax.random.split(jax.random.fold_in(key, 2000), 4)
+        bs_x = self.bs_all[idx_x]
+        los_x = (jnp.ones(n_x, dtype=bool) if e.los_mode == "all_los"
+                 else jax.random.uniform(k_xl, (n_x,)) < scenario.los_probability(d2d[idx_x]))
+        h_x, _ = self.channels(los_x, k_xc, k_xd, n_x)
+        y_x = signal.received_spectrum(self.prs_all[idx_x], h_x, cost.toa(ue, bs_x), bias)
+        snr_x = link_snr_db(e, self.received_dbm(d2d[idx_x], bs_x, los_x, k_xs, idx_x), rx[0], self.snrs)
+        return CoChannelDraw(res=self.res_all[idx_x], prs=self.prs_all[idx_x], y0=y_x, snr_db=snr_x)
+
+
+def prior_center(e: Experiment, ue, key) -> jax.Array:
+    """Centring "prior": truth + a horizontal error from the stated prior, keyed by fold_in(trial key, 1000) so the
+    trial's other draws are unchanged; the height is the known UE height and c δt is 0.  Returns (4,) metres."""
+    key = jax.random.fold_in(key, 1000)
+    if e.prior_kind == "gaussian":
+        err = e.prior_scale_m * jax.random.normal(key, (2,))
+    else:
+        k_r, k_a = jax.random.split(key)
+        r = e.prior_scale_m * jnp.sqrt(jax.random.uniform(k_r))
+        a = 2 * jnp.pi * jax.random.uniform(k_a)
+        err = r * jnp.stack([jnp.cos(a), jnp.sin(a)])
+    return jnp.concatenate([ue[:2] + err, ue[2:3], jnp.zeros(1)])
+
+
+@dataclass(frozen=True)
+class TrialExample:
+    """One trial at one SNR index exactly as the receivers see it, as NumPy arrays (``example``).
+
+    The fields of ``TrialDraw`` (the SNR and SINR at that index only: link_snr_db, link_sinr_db (I,); with PRS
+    reuse, ``reuse.co_channel.snr_db`` (X,)), without the unit noise, and y (I, N) the received samples (the inverse
+    DFT of ``receiver.spectrum_at``; in units of the noise where the links' powers differ), y0 (I, N) the links'
+    noise-free samples at unit power."""
+
+    ue_xyz: np.ndarray
+    clock_bias_s: np.ndarray
+    bs_index: np.ndarray
+    bs_xyz: np.ndarray
+    los: np.ndarray
+    prs: np.ndarray
+    gains: np.ndarray
+    delays_s: np.ndarray
+    y: np.ndarray
+    y0: np.ndarray
+    link_snr_db: np.ndarray
+    link_sinr_db: np.ndarray
+    reuse: ReuseDraw | None
+
+
+def example(e: Experiment, trial: int, snr_index: int = 0) -> TrialExample:
+    """The draws and received samples of trial ``trial`` at SNR index ``snr_index``, from the engine's own key and
+    draw (``trial_key``, ``draw_fn``, ``receiver.spectrum_at``)."""
+    dep = e.load_deployment()
+    _checks.integer("trial", trial, 0, e.n_trials - 1)
+    _checks.integer("snr_index", snr_index, 0, e.n_snr - 1)
+    d = draw_fn(e, dep)(trial_key(e.seed, trial))
+    reuse = None
+    if d.reuse is not None:
+        x = d.reuse.co_channel
+        if x is not None:
+            x = CoChannelDraw(res=np.asarray(x.res), prs=np.asarray(x.prs), y0=np.asarray(x.y0),
+                              snr_db=np.asarray(x.snr_db)[snr_index])
+        reuse = ReuseDraw(res=np.asarray(d.reuse.res), co_channel=x, n_res=d.reuse.n_res)
+    a = lambda v: np.asarray(v)
+    return TrialExample(ue_xyz=a(d.ue_xyz), clock_bias_s=a(d.clock_bias_s), bs_index=a(d.bs_index),
+                        bs_xyz=a(d.bs_xyz), los=a(d.los), prs=a(d.prs), gains=a(d.gains), delays_s=a(d.delays_s),
+                        y=a(signal.ofdm_symbol(receiver.spectrum_at(d, snr_index))), y0=a(signal.ofdm_symbol(d.y0)),
+                        link_snr_db=a(d.link_snr_db)[snr_index], link_sinr_db=a(d.link_sinr_db)[snr_index],
+                        reuse=reuse)
+
+
+def draw_links(e: Experiment, n_trials: int) -> dict:
+    """Link draws only (no DPE) for trials 0 … n_trials-1: LoS flags (T, I), per-sample link SNR and SINR
+    (T, S, I), 2-D distances (T, I) in metres — the statistics Chapter 4 shows, from the same keys as the engine."""
+    draw = draw_fn(e, e.load_deployment())
+
+    @jax.jit
+    def one(key):
+        d = draw(key)
+        return d.los, d.link_snr_db, d.link_sinr_db, jnp.linalg.norm(d.bs_xyz[:, :2] - d.ue_xyz[:2], axis=-1)
+
+    los, snr, sinr, dist = jax.lax.map(one, trial_keys(e.seed, 0, n_trials), batch_size=64)
+    return {"los": np.asarray(los), "link_snr_db": np.asarray(snr), "link_sinr_db": np.asarray(sinr),
+            "d2d_m": np.asarray(dist)}

@@ -1,0 +1,222 @@
+"""The Monte Carlo engine (Section IV): runs an experiment's trials in batches (vmap) and threads, through programs
+compiled once per the part of the experiment they read (``trials.program_config``), and keeps the results in the
+store (``store.ChunkCache``): chunks already there are loaded, the others computed and written as they finish.
+
+Every draw of trial t comes from ``draw.trial_key(seed, t)``, so results do not depend on the batch size, the chunk
+size, the number of threads or which chunks come from the store.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from functools import lru_cache, partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import _checks, otdoa, receiver, trials
+from .draw import trial_keys
+from .experiment import Experiment, deployment_digest
+from .results import Results
+from .store import ChunkCache, sliced_chunk, snr_superset_runs
+
+#: trials vmapped together by ``run``, per search method (speed only; results do not depend on it): the grid search
+#: runs the same steps for every trial and gains from batching; the certified search's loops run as long as the
+#: slowest trial of a batch needs, so its fixes run one trial at a time whatever the batch size
+#: (``ChunkRunner.bnb``), and so do its experiments' OTDoA step 1 and prior centres
+BATCH_SIZE = {"grid": 2, "bnb": 1}
+
+_BUILDERS = {"grid_trial": trials.grid_trial_fn, "bnb_prep": trials.bnb_prep_fn, "toa": trials.toa_fn,
+             "prior": trials.prior_fn}
+
+
+def compiled_program(e: Experiment, program: str):
+    """``e``'s program ``program`` (``trials.PROGRAMS``), one object per ``trials.program_config`` and deployment
+    file content, so that the runs of one process that share it trace and compile it once."""
+    key = trials.program_config(e, program)
+    return _compiled(program, key, "" if program == "bnb_fix" else deployment_digest(e))
+
+
+@lru_cache(maxsize=32)
+def _compiled(program: str, key, digest: str):
+    if program == "bnb_fix":
+        return trials.bnb_fix_fn(*key)
+    return _BUILDERS[program](key, key.load_deployment())
+
+
+@partial(jax.jit, static_argnames=("fn",))
+def run_batch(args, fn, shared=()):
+    """fn(*a, *shared) for each a of ``args``, vmapped over their leading axis (the batch); ``shared`` goes to every
+    call.  A batch of one trial calls fn on it directly (vmap would turn any while loop into a batched one that
+    carries its state through a select at every step; the results are the same bits)."""
+    if args[0].shape[0] == 1:
+        return jax.tree.map(lambda o: o[None], fn(*(a[0] for a in args), *shared))
+    return jax.vmap(lambda *a: fn(*a, *shared))(*args)
+
+
+def run_chunk(args, fn, batch_size: int, shared=(), workers: int = 1) -> dict | tuple:
+    """fn(*a, *shared) for each a of ``args`` (NumPy arrays, trials on the leading axis), ``batch_size`` trials per
+    call of one compiled batch function; the last batch is filled up by repeating its last trial, whose copies are
+    dropped.  So the compiled program depends on the batch size, never on the chunk's length: a run of 3 trials
+    reuses the executable of a run of 5000 (in this process, and through JAX's persistent cache in others).
+    workers : batches computed at once, each in its own thread (XLA runs a call of the certified search's loops on
+    one core, and releases the GIL while it runs); the first batch runs alone, so the program is traced and compiled
+    once.  A batch's result depends only on its trials, never on the thread or the order.
+    Returns fn's outputs as NumPy arrays, trials on the leading axis."""
+    n = args[0].shape[0]
+
+    def one(a):
+        take = np.minimum(np.arange(a, a + batch_size), n - 1)
+        out = run_batch(tuple(x[take] for x in args), fn, shared)
+        return jax.tree.map(lambda o, k=min(batch_size, n - a): np.asarray(o)[:k], out)
+
+    return jax.tree.map(lambda *p: np.concatenate(p), *threaded(one, range(0, n, batch_size), workers))
+
+
+def threaded(fn, items, workers: int) -> list:
+    """[fn(i) for i in items], ``workers`` at once in threads, the first alone (so that what it compiles is compiled
+    once, then shared by the threads)."""
+    parts = [fn(items[0])]
+    if len(items) > 1 and workers > 1:
+        with ThreadPoolExecutor(min(workers, len(items) - 1)) as pool:
+            parts += list(pool.map(fn, items[1:]))
+    else:
+        parts += [fn(i) for i in items[1:]]
+    return parts
+
+
+class ChunkRunner:
+    """The compiled computation of a chunk of trials: OTDoA step 1 and its convex fixes (when the experiment asks),
+    then the DPE fixes; built on first use (compiling is the slow part) and shared by every chunk of a run."""
+
+    def __init__(self, e: Experiment):
+        self.e = e
+        self.dep = e.load_deployment()
+        self.bnb = e.search.method == "bnb"
+        if self.bnb:  # two programs: the trial's draws and correlogram windows, then a fix per (SNR, M)
+            self.prep = compiled_program(e, "bnb_prep")
+            self.fix = compiled_program(e, "bnb_fix")
+        else:
+            self.fn = compiled_program(e, "grid_trial")
+        self.toa_fn = compiled_program(e, "toa") if e.otdoa else None
+        self.prior_fn = compiled_program(e, "prior") if e.centring == "prior" else None
+        self.window = jnp.asarray(receiver.receiver_window(e.receiver_search(), e.prs_reuse)) if self.bnb else None
+        # one compiled OTDoA problem per M, built once per run (``otdoa.Solver`` reads cvxpy's data map when built)
+        self.solvers = {m: otdoa.Solver(m) for m in e.m_values} if e.otdoa else None
+
+    def __call__(self, start: int, stop: int, batch_size: int, workers: int = 1) -> dict:
+        e = self.e
+        keys = np.asarray(trial_keys(e.seed, start, stop))
+        if not e.otdoa:
+            return self._dpe(keys, None, batch_size, workers)
+        # step 1 on the same signals (regenerated from the same keys), then the convex fixes, in pieces: the fixes of
+        # piece k+1 (Python, one core) are solved while the DPE of piece k runs (XLA, the GIL released)
+        toas, ue, idx = run_chunk((keys,), self.toa_fn, batch_size, workers=workers)
+        n = stop - start
+        step = max(-(-n // self.OTDOA_PIECES), 1)
+        ots, dpes = [], []
+        with ThreadPoolExecutor(1) as background:
+            for a in range(0, n, step):
+                sl = slice(a, min(a + step, n))
+                ot = trials.otdoa_fixes(e, self.dep, toas[sl], ue[sl], idx[sl], self.solvers)
+                ext = trials.otdoa_centers(e, self.dep, ot, idx[sl]) if e.centring == "otdoa" else None
+                ots.append(ot)
+                dpes.append(background.submit(self._dpe, keys[sl], ext, batch_size, workers))
+            dpes = [f.result() for f in dpes]
+        return {k: np.concatenate([p[k] for p in dpes]) for k in dpes[0]} | {
+            k: np.concatenate([p[k] for p in ots]) for k in ots[0]}
+
+    #: pieces of a chunk whose OTDoA fixes and DPE overlap (speed only: every trial is computed on its own)
+    OTDOA_PIECES = 4
+
+    def _dpe(self, keys, ext, batch_size: int, workers: int) -> dict:
+        """The DPE fixes of trials ``keys``; ext (T, S, J, 4) the window centres of centring "otdoa" (else None)."""
+        e = self.e
+        if ext is None:
+            ext = np.zeros((len(keys), e.n_snr, len(e.m_values), 4))
+        if e.centring == "prior":
+            ext[:] = run_chunk((keys,), self.prior_fn, batch_size, workers=workers)[:, None, None, :]
+        if self.bnb:
+            return self.bnb_fixes(keys, ext, workers)
+        return run_chunk((keys, ext), self.fn, batch_size, workers=workers)
+
+    def bnb_fixes(self, keys, ext, workers: int) -> dict:
+        """The certified search's trials, one at a time (its loops run as long as the slowest trial of a batch needs,
+        so it is not batched; ``workers`` trials at once, in threads, the first alone so that each program is
+        compiled once): ``trials.bnb_prep_fn``, then ``trials.bnb_fix_fn``.  Returns the fields of ``Results``."""
+
+        def one(i):
+            trial, bs, centers, sls, starts = self.prep(keys[i], self.window, ext[i])
+            r = jax.tree.map(np.asarray, self.fix(bs, centers, sls, starts))  # WindowFix (S, J, ...)
+            trial = {k: np.asarray(v) for k, v in trial.items()}
+            bias, err = (np.asarray(a) for a in trials.score(r.q, trial["ue_xyz"]))
+            return trial | {"est_xyz": r.q[..., :3], "est_bias_s": bias, "error_m": err,
+                            "center_xyz": np.asarray(centers)[..., :3], "edge": r.edge, "gap": r.gap,
+                            "certified": r.certified}
+
+        parts = threaded(one, range(len(keys)), workers)
+        return {k: np.stack([p[k] for p in parts]) for k in parts[0]}
+
+
+def default_workers() -> int:
+    """Batches ``run`` computes at once by default: DPE5G_WORKERS if set, else the CPUs this process may use."""
+    env = os.environ.get("DPE5G_WORKERS")
+    if env is not None:
+        try:
+            return _checks.integer("DPE5G_WORKERS", int(env), 1, 256)
+        except ValueError:
+            raise ValueError(f"DPE5G_WORKERS must be an integer in [1, 256], got {env!r}") from None
+    return max(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1), 1)
+
+
+def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = True,
+        batch_size: int | None = None, reverse: bool = False, workers: int | None = None) -> Results:
+    """Run (or resume, or load) an experiment; returns its ``Results``.
+
+    Chunks already in the cache (``ChunkCache``) are loaded, the others computed and written as they finish; a chunk
+    that another process wrote meanwhile is read, not computed again, and a chunk that a cached run of the same
+    experiment at more SNRs holds is sliced from it (``store.snr_superset_runs``).  progress : a tqdm bar with ETA on stderr.
+    batch_size : trials vmapped together (memory/speed only; results do not depend on it; the certified search's
+    fixes run one trial at a time); None: ``BATCH_SIZE`` of the experiment's search method.  reverse : compute the
+    missing chunks last first (``warm`` does, so that a process filling the cache beside one that runs forward meets
+    it in the middle instead of repeating its chunks).
+    workers : batches of a chunk computed at once, in threads (speed only; results do not depend on it); None:
+    ``default_workers()``.
+    """
+    _checks.require_x64()
+    batch_size = BATCH_SIZE[e.search.method] if batch_size is None else batch_size
+    _checks.integer("batch_size", batch_size, 1, 4096)
+    workers = default_workers() if workers is None else _checks.integer("workers", workers, 1, 256)
+    e.load_deployment()  # validates m_values against the deployment before any work
+    store = ChunkCache(e, cache).open()
+    if os.environ.get("DPE5G_RUN_LOG"):  # the book build records what its chapters run (tests/test_warm.py)
+        with open(os.environ["DPE5G_RUN_LOG"], "a") as f:
+            f.write(json.dumps({"run": store.dir.name, "n_trials": e.n_trials}) + "\n")
+    todo = store.missing()
+    bar = None
+    if todo and progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=e.n_trials, initial=e.n_trials - sum(b - a for a, b in todo), desc=f"{e.name} trials",
+                   unit="trial", file=sys.stderr, dynamic_ncols=True)
+    runner = None
+    supersets = snr_superset_runs(e, cache) if todo else []
+    try:
+        for start, stop in (todo[::-1] if reverse else todo):
+            if not store.path(start, stop).exists():  # (another process may have written it since `missing`)
+                src = next(((c, ix) for c, ix in supersets if c.path(start, stop).exists()), None)
+                if src is not None:  # a run at more SNRs holds these trials
+                    store.save(start, stop, sliced_chunk(src[0].path(start, stop), src[1]))
+                else:
+                    runner = runner or ChunkRunner(e)
+                    store.save(start, stop, runner(start, stop, batch_size, workers))
+            if bar is not None:
+                bar.update(stop - start)
+    finally:
+        if bar is not None:
+            bar.close()
+    return Results(e, **store.load(Results.FIELDS + (Results.OTDOA_FIELDS if e.otdoa else ())))

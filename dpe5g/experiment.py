@@ -1,0 +1,230 @@
+"""The Monte Carlo experiment (Section IV): one frozen config of the scenario, the links, the receiver and the run,
+and the key of its results (the config, the code it runs, the deployment file, the numerical libraries).
+
+Pipeline: ``experiment`` (what to run) → ``draw`` (one trial's draws) → ``receiver`` (correlograms and fixes) →
+``trials`` (the per-trial programs) → ``engine`` (batches, threads, compiled programs) → ``store`` (chunks on disk)
+→ ``results`` (per-trial arrays and their statistics).
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import hashlib
+import json
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from . import _checks, channel, deployment, nr, otdoa, scenario, search_config, signal
+from .nr import C
+
+#: the modules whose code the results depend on (``Experiment.key`` hashes their syntax trees)
+SOURCES = ("channel.py", "correlogram.py", "deployment.py", "cost.py", "grid_search.py", "certified_search.py",
+           "dpe.py", "experiment.py", "draw.py", "receiver.py", "trials.py", "engine.py", "store.py", "nr.py",
+           "otdoa.py", "scenario.py", "signal.py")
+
+LOS_MODES = ("pr_los", "two_of_four", "all_los")
+#: OTDoA ToA detector settings used by the engine (``dpe5g.otdoa.toa``'s defaults)
+OTDOA_UPSAMPLE = 8
+OTDOA_THRESHOLD_DB = -10.0
+OTDOA_MAX_LEAD = 64
+SNR_MODES = ("fixed", "link_budget", "nearest")
+#: PRS frequency reuse factors: 0 — the paper's model (full-band PRS on all N bins, one symbol, every link received
+#: alone); R in ``nr.PRS_COMB_SIZES`` — TS 38.211's comb R, fully staggered over R symbols, BSs on R resources
+PRS_REUSES = (0,) + nr.PRS_COMB_SIZES
+CENTRINGS = ("truth", "prior", "otdoa")
+PRIOR_KINDS = ("gaussian", "disc")
+#: both OTDoA ToA detectors run on the same signals; the first is the main baseline, the second the naive one
+OTDOA_DETECTORS = ("first_path", "peak")
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """One urban Monte Carlo experiment.
+
+    name : label (cache directory prefix).  n_trials, seed : trials t = 0 … n_trials-1 draw from fold_in(seed, t).
+    snr_mode : "fixed" — every link at each SNR of ``snrs_db`` (per-sample SNR of ``dpe5g.signal``, dB), as Fig. 9;
+        "link_budget" — each link's SNR from the UMi path loss and shadow fading (``link``), ``snrs_db`` must be ();
+        "nearest" — the nearest BS's link at each SNR of ``snrs_db``, every other BS (interferers included) at its
+        received-power difference from it (transmit power, path loss and shadow fading of ``link``'s model): Fig. 9's
+        SNR axis with per-link power from the path loss.
+    m_values : numbers of nearest BSs used by the DPE (each ≤ the deployment's BS count).
+    los_mode : "pr_los" — each link LoS with the probability of eq. (11); "two_of_four" — the paper's stated case for
+        Fig. 10: of the four nearest links, two (chosen at random) LoS and two NLoS (needs max(m_values) = 4);
+        "all_los" — every link LoS (TDL-D; not the paper's: Chapter 8 compares it with the Cramér–Rao bound).
+    centring : where the receiver centres its search window.  "truth" — on the true position and clock bias (the
+        paper's set-up, a labelled comparison only: the window's position and grid phase then carry the truth);
+        "prior" — on truth + an error drawn from the stated prior (``prior_kind``, ``prior_scale_m``), keyed per trial;
+        "otdoa" — on that trial's OTDoA fix (detector ``toa_method``; needs ``otdoa``).  In "prior" and "otdoa" the
+        clock-bias window is centred on 0 and spans the clock model's support, ± clock_bound_sigmas · clock_sigma_s
+        · c (``receiver_search``), so nothing about the truth reaches the search.
+    prior_kind, prior_scale_m : "gaussian" — an isotropic horizontal error with σ = prior_scale_m per axis;
+        "disc" — uniform over a disc of radius prior_scale_m.
+    delay_spread_s, k_factor_db : TDL-C (NLoS) / TDL-D (LoS) at this delay spread; TDL-D's K.
+    delay_spread_def : what delay_spread_s means for both profiles (``channel.DELAY_SPREAD_DEFS``): "rms", TR
+        38.901's RMS spread (default), or "span", first to last tap (the paper's text; Chapter 7's readings).
+    snr_convention : what the SNRs mean (``signal.SNR_CONVENTIONS``), in both SNR modes: "per_sample" (default) or
+        "total", after correlation over the N samples (the per-sample SNR is then 10 log10 N dB lower).  The results'
+        link_snr_db is always the per-sample SNR the links were simulated at.
+    clock_sigma_s, clock_bound_sigmas : UE clock bias, Gaussian σ truncated at ± bound · σ.
+    search : the DPE search; link : the link budget; deployment : "tst" or a path to a JSON/CSV deployment.
+    otdoa : also run the OTDoA baseline (``dpe5g.otdoa``) on the same received signals, for every SNR and M, with
+        both ToA detectors of ``OTDOA_DETECTORS``;
+    toa_method : the detector whose OTDoA fix centres the search in centring "otdoa".
+    prs_reuse : ``PRS_REUSES``.  0 (default) — the paper's model: every link's PRS on all N bins in one symbol,
+        received alone (its own noise, no other BS).  R > 0 — Table I's PRS frequency reuse: the PRS of TS 38.211
+        with comb R over R symbols on the 3276 active subcarriers (``nr.PrsPattern(R)``, the pilot energy of the
+        paper's symbol), each BS on the comb offset and with the PRS ID of ``deployment.prs_plan`` (R resources).
+        Every BS of the deployment transmits; the UE receives on each resource the sum of its BSs' signals through
+        their own channels, path loss and ToA, plus one noise (co-channel links share their REs and so their noise).
+        Needs per-BS power: snr_mode "link_budget" or "nearest"; and the certified search, whose window taps are
+        then spaced for the pilots' band (``receiver.receiver_window``).
+    co_channel : with prs_reuse > 0, whether the co-channel BSs' signals are received (True, default) or left out
+        (the pattern and the shared noise alone, for comparison).
+    chunk_trials : trials per cache file (results do not depend on it; resuming needs the same value).
+    """
+
+    name: str = "urban"
+    n_trials: int = 5000
+    seed: int = 9
+    snr_mode: str = "fixed"
+    snrs_db: tuple[float, ...] = (10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0)
+    m_values: tuple[int, ...] = (6, 12, 18, 24)
+    los_mode: str = "pr_los"
+    centring: str = "truth"
+    prior_kind: str = "gaussian"
+    prior_scale_m: float = 5.0
+    delay_spread_s: float = 65e-9
+    delay_spread_def: str = "rms"
+    snr_convention: str = "per_sample"
+    k_factor_db: float = 13.3
+    clock_sigma_s: float = 5e-9
+    clock_bound_sigmas: float = 3.0
+    search: search_config.SearchConfig = field(default_factory=search_config.SearchConfig)
+    link: scenario.LinkBudget = field(default_factory=scenario.LinkBudget)
+    deployment: str = "tst"
+    otdoa: bool = False
+    toa_method: str = "first_path"
+    prs_reuse: int = 0
+    co_channel: bool = True
+    chunk_trials: int = 100
+
+    def __post_init__(self):
+        _checks.integer("n_trials", self.n_trials, 1, 10_000_000)
+        _checks.integer("seed", self.seed, 0, 2**31 - 1)
+        _checks.integer("chunk_trials", self.chunk_trials, 1, 100_000)
+        _checks.one_of("snr_mode", self.snr_mode, SNR_MODES)
+        _checks.one_of("los_mode", self.los_mode, LOS_MODES)
+        _checks.one_of("centring", self.centring, CENTRINGS)
+        _checks.one_of("toa_method", self.toa_method, otdoa.TOA_METHODS)
+        _checks.one_of("prior_kind", self.prior_kind, PRIOR_KINDS)
+        _checks.one_of("delay_spread_def", self.delay_spread_def, channel.DELAY_SPREAD_DEFS)
+        _checks.one_of("snr_convention", self.snr_convention, signal.SNR_CONVENTIONS)
+        _checks.in_range("prior_scale_m", self.prior_scale_m, 0.0, 1000.0, "m")
+        if self.centring == "otdoa" and not self.otdoa:
+            raise ValueError("centring 'otdoa' centres the search on the OTDoA fix; set otdoa=True")
+        _checks.one_of("prs_reuse", self.prs_reuse, PRS_REUSES)
+        if not isinstance(self.co_channel, bool):
+            raise ValueError(f"co_channel must be True or False, got {self.co_channel!r}")
+        if self.prs_reuse and self.search.method != "bnb":
+            raise ValueError("prs_reuse > 0 needs the certified search (search.method 'bnb'): its receiver window is "
+                             "spaced for the PRS band (correlogram.band_tap_spacing), which the grid search's "
+                             f"sample-shift window cannot be; got {self.search.method!r}")
+        if self.prs_reuse and self.snr_mode == "fixed":
+            raise ValueError("prs_reuse > 0 needs each BS's received power for its interference: snr_mode must be "
+                             "'link_budget' or 'nearest', got 'fixed'")
+        if self.snr_mode != "link_budget":
+            if len(self.snrs_db) == 0:
+                raise ValueError(f"snrs_db must list at least one SNR (dB) when snr_mode is {self.snr_mode!r}")
+            signal.check_snr_db(np.asarray(self.snrs_db))
+        elif len(self.snrs_db):
+            raise ValueError(f"snrs_db must be empty when snr_mode is 'link_budget' (the SNR comes from the path "
+                             f"loss), got {self.snrs_db!r}")
+        if len(self.m_values) == 0 or list(self.m_values) != sorted(set(self.m_values)):
+            raise ValueError(f"m_values must be a non-empty increasing tuple of BS counts, got {self.m_values!r}")
+        for m in self.m_values:
+            _checks.integer("m_values entry", m, 3, 1024)
+        if self.los_mode == "two_of_four" and max(self.m_values) != 4:
+            raise ValueError(f"los_mode 'two_of_four' fixes the LoS state of the four nearest links; m_values must "
+                             f"end in 4, got {self.m_values!r}")
+        channel.check_delay_spread(self.delay_spread_s)
+        _checks.in_range("k_factor_db", self.k_factor_db, -30.0, 60.0, "dB")
+        _checks.in_range("clock_sigma_s", self.clock_sigma_s, 0.0, 1e-6, "s")
+        _checks.in_range("clock_bound_sigmas", self.clock_bound_sigmas, 0.1, 10.0, "σ")
+
+    def receiver_search(self) -> search_config.SearchConfig:
+        """The search the receiver runs: ``search`` as given for centring "truth"; otherwise with the clock-bias
+        window set from the clock model (± clock_bound_sigmas · clock_sigma_s · c, centred on 0)."""
+        if self.centring == "truth":
+            return self.search
+        return dataclasses.replace(self.search, bias_half_width_m=self.clock_bound_sigmas * self.clock_sigma_s * C)
+
+    @property
+    def n_snr(self) -> int:
+        return max(len(self.snrs_db), 1)
+
+    def load_deployment(self) -> deployment.Deployment:
+        dep = deployment.tst() if self.deployment == "tst" else deployment.load_deployment(self.deployment)
+        if max(self.m_values) > dep.n_bs:
+            raise ValueError(f"m_values must not exceed the deployment's {dep.n_bs} base stations, "
+                             f"got {self.m_values!r}")
+        return dep
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    def key(self) -> str:
+        """Hash of the config, of the code (``code_digest``) and data the results depend on, and of the numerical
+        libraries' versions and JAX's precision.  Leaves out ``n_trials`` and ``chunk_trials``: trial t's result
+        depends on neither, so a longer run reuses a shorter one's chunks."""
+        h = hashlib.sha256()
+        d = self.to_dict()
+        d.pop("chunk_trials")
+        d.pop("n_trials")
+        h.update(json.dumps(d, sort_keys=True, default=str).encode())
+        here = Path(__file__).resolve().parent
+        for name in SOURCES:
+            h.update(code_digest(here / name))
+        h.update(deployment_digest(self).encode())
+        h.update(json.dumps(numerics()).encode())
+        return h.hexdigest()[:16]
+
+
+def code_digest(path: Path) -> bytes:
+    """A module's code for the cache key: its syntax tree without docstrings, comments or line numbers, so that
+    editing the prose of a module does not invalidate cached results, while any change of code does.  Remembered per
+    file version (path, modification time and size: an edited file is parsed again), as parsing costs about 40 ms
+    and every key reads every module."""
+    st = Path(path).stat()
+    return _code_digest(str(Path(path).resolve()), st.st_mtime_ns, st.st_size)
+
+
+@lru_cache(maxsize=64)
+def _code_digest(path: str, mtime_ns: int, size: int) -> bytes:
+    tree = ast.parse(Path(path).read_text())
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if (isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and body
+                and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant)
+                and isinstance(body[0].value.value, str)):
+            node.body = body[1:] or [ast.Pass()]
+    return ast.dump(tree).encode()
+
+
+def numerics() -> dict:
+    """What else the numbers depend on: the versions of the numerical libraries (the OTDoA baseline's convex solver
+    included) and JAX's float precision."""
+    from importlib.metadata import version
+
+    return {**{lib: version(lib) for lib in ("jax", "jaxlib", "numpy", "cvxpy", "clarabel")},
+            "x64": bool(jax.config.jax_enable_x64)}
+
+
+def deployment_digest(e: Experiment) -> str:
+    """SHA-256 of the experiment's deployment file (the built-in TST file for "tst")."""
+    dep = deployment.TST_FILE if e.deployment == "tst" else Path(e.deployment)
+    return hashlib.sha256(dep.read_bytes()).hexdigest()

@@ -1,0 +1,63 @@
+"""Tables of results for people: the readings of the paper against its claims (Markdown, for the book and the
+README) and a run's summary (text, for ``dpe5g run``).  The numbers come from ``results`` and the figures' payloads."""
+
+from __future__ import annotations
+
+from . import result_plots
+from .results import Results
+
+
+def run_summary(res: Results) -> str:
+    """The study in one line, then the RMSE (m) per SNR (rows) and M (columns) of the DPE (and of the OTDoA fix
+    that centres it, for centring "otdoa"), and for the honest centrings the edge-flag and certified shares."""
+    e = res.experiment
+    prior = f" (σ = {e.prior_scale_m:g} m)" if e.centring == "prior" else ""
+    lines = [f"{e.n_trials} trials, seed {e.seed}, deployment {e.deployment}, delay spread "
+             f"{e.delay_spread_s * 1e9:g} ns, L = {e.receiver_search().n_taps}, centring {e.centring}{prior}"]
+    tables = [("DPE", res.rmse_m())]
+    if res.otdoa_error_m is not None:
+        tables.append((f"OTDoA, {e.toa_method} ToA", res.otdoa_rmse_m(e.toa_method)))
+    for label, rmse in tables:
+        lines += [f"RMSE (m), {label}:", f"{'SNR (dB)':>9} " + " ".join(f"{f'M = {m}':>9}" for m in e.m_values)]
+        lines += [f"{snr:9g} " + " ".join(f"{v:9.3f}" for v in row) for snr, row in zip(e.snrs_db, rmse)]
+    if e.centring != "truth":
+        lines.append(f"DPE fixes on the window's edge (flagged): {100 * res.edge.mean():.1f} %; certified: "
+                     f"{100 * res.certified.mean():.1f} %")
+    return "\n".join(lines)
+
+
+def readings_summary(p: dict) -> dict:
+    """Counts of a ``readings_payload``: {"counts": {reading: claims reproduced}, "n_claims", "best" (the most
+    reproduced by one reading), "best_readings", "never": the claims no reading reproduces}."""
+    counts = {n: int(sum(p["data"][n]["reproduced"].values())) for n in p["config"]["reading_order"]}
+    best = max(counts.values())
+    never = [c for c in p["config"]["claim_order"] if not any(d["reproduced"][c] for d in p["data"].values())]
+    return {"counts": counts, "n_claims": len(p["config"]["claim_order"]), "best": best,
+            "best_readings": [n for n, c in counts.items() if c == best], "never": never}
+
+
+def readings_markdown(p: dict, by_claim: bool = False) -> str:
+    """The readings table of a ``readings_payload`` as Markdown: a row per reading, a column per claim, each cell
+    the value and ✓ (reproduced) or ✗ (differs); by_claim: transposed, a row per claim and a column per reading
+    (narrower: the book's page)."""
+    claims, order = p["config"]["claims"], p["config"]["claim_order"]
+    cell = lambda n, c: (f"{result_plots.format_claim(c, p['data'][n]['values'][c])} "
+                         f"{'✓' if p['data'][n]['reproduced'][c] else '✗'}")
+    if by_claim:
+        names = p["config"]["reading_order"]
+        lines = ["| claim (paper) | " + " | ".join(p["data"][n]["short"] for n in names) + " |",
+                 "|---" * (len(names) + 1) + "|"]
+        lines += [f"| {claims[c]['claim']} ({claims[c]['paper']}) | " + " | ".join(cell(n, c) for n in names) + " |"
+                  for c in order]
+        lines.append("| trials (Fig. 9 / Fig. 10) | " + " | ".join(
+            f"{p['data'][n]['n_trials']['fig9']} / {p['data'][n]['n_trials']['fig10_dpe']}" for n in names) + " |")
+        return "\n".join(lines)
+    short = lambda c: claims[c]["short"].replace("\n", " ")
+    lines = ["| reading | trials (Fig. 9 / Fig. 10) | " + " | ".join(short(c) for c in order) + " |",
+             "|---" * (len(order) + 2) + "|"]
+    for n in p["config"]["reading_order"]:
+        d, t = p["data"][n], p["data"][n]["n_trials"]
+        lines.append(f"| {d['label']} | {t['fig9']} / {t['fig10_dpe']} | "
+                     + " | ".join(f"{result_plots.format_claim(c, d['values'][c])} {'✓' if d['reproduced'][c] else '✗'}"
+                                  for c in order) + " |")
+    return "\n".join(lines)

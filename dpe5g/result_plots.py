@@ -1,0 +1,343 @@
+"""Drawing of the Monte Carlo results from their data (never from live computation): Figs. 9 and 10, the readings
+of the paper against its claims, and the studies of Chapters 5 and 8, in the style of ``plots``."""
+
+from __future__ import annotations
+
+import numpy as np
+from matplotlib.colors import ListedColormap
+from matplotlib.figure import Figure
+from matplotlib.ticker import FixedLocator, FormatStrFormatter, LogLocator, MultipleLocator, NullFormatter
+
+from .plots import COLORS, style
+
+
+#: Values the paper states in its text (Section IV), drawn on Figs. 9 and 10 as black-edged stars (``PAPER_MARKER``;
+#: no curve of ours uses a star) labelled "paper (text)".
+#: Only what the sentences say: Fig. 9 gives one point (M = 6, 10 dB, "within 6 m") and "sub-meter" without an SNR or M;
+#: Fig. 10 gives DPE's 90 % and 99 % points and OTDoA's 90 % point.
+PAPER_FIG9_RMSE_M = {"m": 6, "snr_db": 10.0, "rmse_m": 6.0}  # "an overall RMSE constrained within 6 m, even in the
+#   worst simulation scenario where only 6 candidate BSs are used and the SNR is as low as 10 dB"
+PAPER_FIG9_SUB_METRE_M = 1.0  # "As the number of available positioning sources increases, a sub-meter positioning
+#   accuracy can be achieved, particularly when the propagation environment provides a high signal quality"
+PAPER_FIG10_DPE_M = {0.9: 2.0, 0.99: 7.0}  # "the RMSE obtained by 5G DPE can be constrained within 7 m for 99% of the
+#   use cases, with a 90% probability of achieving an RMSE within 2 m"
+PAPER_FIG10_OTDOA_M = {0.9: 42.0}  # "the conventional OTDoA method results in a 42-meter RMSE for 90% of the use cases"
+PAPER_MARKER = dict(marker="*", color="k", markersize=13, markerfacecolor="#ffd500", markeredgecolor="k", mew=1.0,
+                    ls="none", zorder=6, clip_on=False)
+
+
+def log_ticks(ax, lo: float, hi: float) -> None:
+    """A log y axis over [lo, hi] with enough labelled ticks to read values off.
+
+    Within about a decade and a half: labels at 1, 1.2, 1.5, 2, 3, 4, 5, 6, 8 × 10^k and a light minor grid in
+    between (steps of 0.1 × 10^k up to 2 × 10^k), so a value reads to 0.1 m around 1 m.  Up to three decades: labels
+    at 1, 2, 5 × 10^k, minor grid at the other integers.  Wider: labels at the decades.
+    """
+    ax.set_yscale("log")
+    ax.set_ylim(lo, hi)
+    span = np.log10(hi / lo)
+    if span <= 1.5:
+        major = (1.0, 1.2, 1.5, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0)
+        minor = (1.1, 1.3, 1.4, 1.6, 1.7, 1.8, 1.9, 2.5, 3.5, 4.5, 7.0, 9.0)
+    elif span <= 3.0:
+        major, minor = (1.0, 2.0, 5.0), (3.0, 4.0, 6.0, 7.0, 8.0, 9.0)
+    else:
+        major, minor = (1.0,), (2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0)
+    decades = 10.0 ** np.arange(np.floor(np.log10(lo)) - 1, np.ceil(np.log10(hi)) + 1)
+
+    def at(mantissas):
+        v = np.round(np.outer(decades, mantissas).ravel(), 12)
+        return v[(v >= lo) & (v <= hi)]
+
+    ax.yaxis.set_major_locator(FixedLocator(at(major)))
+    ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))
+    ax.yaxis.set_minor_locator(FixedLocator(at(minor)))
+    ax.yaxis.set_minor_formatter(NullFormatter())
+    ax.grid(True, which="major", alpha=0.45)
+    ax.grid(True, which="minor", alpha=0.15)
+
+
+def plot_rmse_vs_snr(payload: dict):
+    """Fig. 9: RMSE of the horizontal error against the per-sample SNR, one colour per M; solid: the honest
+    receiver (window on a prior, certified search), dashed: the paper's truth-centred grid.  A payload with one
+    receiver only (the chapters' studies) is drawn solid.  Where the SNR axis holds 10 dB and M = 6 is drawn, the
+    values the paper's text states are drawn as well (``PAPER_FIG9_*``)."""
+    d = payload["data"]
+    c = payload["config"]
+    snr = np.asarray(c["snrs_db"])
+    recv = [r for r in ("honest", "truth") if r in d]
+    style_of = {"honest": ("-", "honest: prior-centred, certified"), "truth": ("--", "paper's set-up: truth-centred")}
+    pv = PAPER_FIG9_RMSE_M
+    paper_text = snr.min() <= pv["snr_db"] <= snr.max() and pv["m"] in c["m_values"]
+    with_bound = "bound_m" in d and "honest" in d
+    with style():
+        fig = Figure(figsize=(7.4, (6.0 if paper_text else 5.2) + (4.4 if with_bound else 0.0)), layout="constrained")
+        if with_bound:  # panel (b) below: the honest RMSE beside the Cramér–Rao bound on a log axis
+            top, bottom = fig.subfigures(2, 1, height_ratios=[6.0 if paper_text else 5.2, 4.4])
+        else:
+            top, bottom = fig, None
+        if paper_text:  # a broken axis: the paper's 6 m on a short top panel, our curves readable to 0.1 m below
+            ax_top, ax = top.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [1, 5], "hspace": 0.02})
+        else:
+            ax_top, ax = None, top.subplots()
+        for r in recv:
+            ls, lab = style_of[r] if len(recv) > 1 else ("-", "")
+            rmse = np.asarray(d[r]["rmse_m"])
+            for j, (m, marker, col) in enumerate(zip(c["m_values"], "osd^v<>", COLORS)):
+                ax.plot(snr, rmse[:, j], ls, marker=marker, color=col, mfc="none" if ls == "--" else col,
+                        label=f"M = {m}" if r == recv[0] else None)
+        for r in recv if len(recv) > 1 else ():
+            ax.plot([], [], style_of[r][0], color="0.3",
+                    label=f"{style_of[r][1]} ({c['receivers'][r]['n_trials']} trials)")
+        vals = np.concatenate([np.asarray(d[r]["rmse_m"]).ravel() for r in recv])
+        if paper_text:
+            ax_top.plot([pv["snr_db"]], [pv["rmse_m"]], **PAPER_MARKER,
+                        label=f"paper (text): within {pv['rmse_m']:g} m, M = {pv['m']} at {pv['snr_db']:g} dB")
+            ax_top.set_ylim(pv["rmse_m"] - 1.0, pv["rmse_m"] + 1.0)
+            ax_top.yaxis.set_major_locator(MultipleLocator(1.0))
+            ax_top.yaxis.set_major_formatter(FormatStrFormatter("%g"))
+            ax_top.grid(True, which="major", alpha=0.35)
+            ax_top.spines["bottom"].set_visible(False)
+            ax.spines["top"].set_visible(False)
+            ax_top.tick_params(bottom=False, labelbottom=False)
+            for a, y in ((ax_top, 0.0), (ax, 1.0)):  # the break marks
+                a.plot([0.0, 1.0], [y, y], transform=a.transAxes, ls="none", marker=[(-1, -0.5), (1, 0.5)],
+                       markersize=10, color="k", mew=1, clip_on=False)
+            ax.axhline(PAPER_FIG9_SUB_METRE_M, color="k", lw=1.0, ls=(0, (1, 2)), zorder=1.5,
+                       label="paper (text): sub-metre with more BSs at high SNR (no SNR given)")
+            vals = np.concatenate([vals, [PAPER_FIG9_SUB_METRE_M]])
+        lo, hi = vals.min(), vals.max()
+        if hi / lo < 4:  # a narrow range: linear axis, labelled every 0.1 m
+            ax.set_ylim(lo - 0.05 * (hi - lo) - 0.02, hi + 0.05 * (hi - lo) + 0.02)
+            ax.yaxis.set_major_locator(MultipleLocator(0.1))
+            ax.yaxis.set_major_formatter(FormatStrFormatter("%.1f"))
+            ax.grid(True, which="major", alpha=0.35)
+        else:  # a wide range: log axis with labelled intermediate ticks
+            log_ticks(ax, lo / 1.15, hi * 1.15)
+        ax.set_xlabel("SNR per time-domain sample, before correlation (dB)")
+        ax.set_ylabel("RMSE (m)")
+        ax.set_xticks(snr)
+        handles, labels = ax.get_legend_handles_labels()
+        if ax_top is not None:
+            h2, l2 = ax_top.get_legend_handles_labels()
+            handles, labels = handles + h2, labels + l2
+        ax.legend(handles, labels, fontsize=9, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2,
+                  frameon=False)
+        (ax_top or ax).set_title(("(a) " if with_bound else "") + f"{100 * d['los_share_all']:.0f} % of links LoS",
+                                 fontsize=10)
+        if with_bound:
+            axb = bottom.subplots()
+            _draw_rmse_and_bound(axb, snr, c["m_values"], {"": d["honest"]["rmse_m"]}, d["bound_m"])
+            axb.set_title(f"(b) honest receiver (solid), Cramér–Rao bound (dotted, {c['bound_trials']} trials)",
+                          fontsize=10)
+            axb.set_xlabel("SNR per time-domain sample, before correlation (dB)")
+            axb.set_ylabel("RMSE (m)")
+            axb.set_xticks(snr)
+    return fig
+
+
+def plot_cdf(payload: dict):
+    """Fig. 10: error CDFs of the DPE receivers and of OTDoA; left the paper's case (2 of 4 links LoS), right LoS
+    from eq. (11).  Both panels carry the points the paper's text states (``PAPER_FIG10_*``) as stars."""
+    grid = np.asarray(payload["config"]["error_grid_m"])
+    data = payload["data"]
+    titles = {"two_of_four": "(a) 2 of 4 links LoS (paper's case)", "pr_los": "(b) LoS from eq. (11)"}
+    curves = [("dpe_otdoa", "DPE centred on OTDoA fix", "#1f77b4", "-"),
+              ("dpe_prior", "DPE centred on 5 m prior", "#2ca02c", "-"),
+              ("dpe_truth", "DPE centred on truth (paper)", "0.45", "--"),
+              ("otdoa_first_path", "OTDoA, first-path ToA", "#d62728", "-"),
+              ("otdoa_peak", "OTDoA, peak ToA (naive)", "#ff7f0e", ":")]
+    dpe_lab = ", ".join(f"{100 * q:g} % within {v:g} m" for q, v in PAPER_FIG10_DPE_M.items())
+    ot_lab = ", ".join(f"{100 * q:g} % at {v:g} m" for q, v in PAPER_FIG10_OTDOA_M.items())
+    with style():
+        fig = Figure(figsize=(10.0, 5.6), layout="constrained")
+        axes = fig.subplots(1, 2, sharey=True)
+        for ax, case in zip(axes, ("two_of_four", "pr_los")):
+            d = data[case]
+            for key, lab, col, ls in curves:
+                q = d[key]["p50_p90_p99_m"]
+                ax.step(grid, d[key]["cdf"], ls, where="post", color=col, label=f"{lab}: 90 % {q[1]:.1f} m")
+            for lev in (0.9, 0.99):
+                ax.axhline(lev, color="0.5", lw=0.7, ls=":")
+            ax.plot(list(PAPER_FIG10_DPE_M.values()), list(PAPER_FIG10_DPE_M), **PAPER_MARKER,
+                    label=f"paper (text), DPE: {dpe_lab}")
+            ax.plot(list(PAPER_FIG10_OTDOA_M.values()), list(PAPER_FIG10_OTDOA_M),
+                    **{**PAPER_MARKER, "markerfacecolor": "w"}, label=f"paper (text), OTDoA: {ot_lab}")
+            ax.set_xscale("log")
+            ax.set_xlim(0.03, 1000)
+            ax.set_ylim(0, 1.0)
+            ax.set_yticks(np.arange(0, 1.01, 0.1))
+            ax.set_xlabel("horizontal position error (m)")
+            ax.set_title(titles[case], fontsize=10)
+            ax.legend(fontsize=9, loc="upper left", bbox_to_anchor=(0.0, -0.12), frameon=False)
+        axes[0].set_ylabel("CDF")
+    return fig
+
+
+def plot_window_study(rows: list[dict]):
+    """Chapter 5: RMSE (left) and 90 % error (right) of the honest receiver against the receiver window L, one line
+    per (set-up, M) of ``studies.urban_window_table``."""
+    cols = sorted({(r["setup"], r["m"]) for r in rows})
+    with style():
+        fig = Figure(figsize=(9.0, 3.8), layout="constrained")
+        axes = fig.subplots(1, 2)
+        for (setup, m), col, marker in zip(cols, COLORS, "osd^v<>"):
+            sel = sorted((r for r in rows if (r["setup"], r["m"]) == (setup, m)), key=lambda r: r["n_taps"])
+            taps = [r["n_taps"] for r in sel]
+            for ax, key in zip(axes, ("rmse_m", "p90_m")):
+                ax.plot(taps, [r[key] for r in sel], marker=marker, color=col, label=f"{setup}, M = {m}")
+        for ax, lab in zip(axes, ("RMSE (m)", "90 % error (m)")):
+            ax.set_xscale("log", base=2)
+            ax.set_yscale("log")
+            ax.set_xticks(sorted({r["n_taps"] for r in rows}))
+            ax.set_xticklabels([str(n) for n in sorted({r["n_taps"] for r in rows})])
+            ax.yaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+            ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))
+            ax.yaxis.set_minor_formatter(FormatStrFormatter(""))
+            ax.grid(True, which="both", alpha=0.3)
+            ax.set_xlabel("receiver window L (taps)")
+            ax.set_ylabel(lab)
+        axes[1].legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False)
+    return fig
+
+
+def _draw_rmse_and_bound(ax, snr, m_values, curves: dict, bound, styles=("-", "--", "-.")) -> None:
+    """RMSE curves {label: (S, J)} (one colour per M, one line style per curve) and the bound (S, J) dotted, on a
+    log axis with labelled ticks."""
+    bound = np.asarray(bound)
+    vals = [bound.ravel()]
+    for k, (label, rmse) in enumerate(curves.items()):
+        rmse = np.asarray(rmse)
+        vals.append(rmse.ravel())
+        for j, (m, marker, col) in enumerate(zip(m_values, "osd^v<>", COLORS)):
+            ax.plot(snr, rmse[:, j], styles[k % len(styles)], marker=marker, color=col, ms=5,
+                    label=f"M = {m}" if k == 0 else None)
+        if label:
+            ax.plot([], [], styles[k % len(styles)], color="0.3", label=label)
+    for j, col in zip(range(bound.shape[1]), COLORS):
+        ax.plot(snr, bound[:, j], ":", color=col, lw=2)
+    ax.plot([], [], ":", color="0.3", lw=2, label="Cramér–Rao bound (tap delays known)")
+    vals = np.concatenate(vals)
+    log_ticks(ax, vals.min() / 1.3, vals.max() * 1.3)
+
+
+def plot_rmse_and_bound(payload: dict):
+    """Chapter 8 (not in the paper): RMSE of receivers against the per-sample SNR beside the Cramér–Rao bound, log
+    axis, one colour per M.  payload: snrs_db (S,), m_values (J,), curves {label: (S, J) RMSE in m} drawn solid,
+    dashed, …, bound (S, J) in m drawn dotted."""
+    snr = np.asarray(payload["snrs_db"])
+    with style():
+        fig = Figure(figsize=(7.4, 5.4), layout="constrained")
+        ax = fig.subplots()
+        _draw_rmse_and_bound(ax, snr, payload["m_values"], payload["curves"], payload["bound_m"])
+        ax.set_xlabel("SNR per time-domain sample, before correlation (dB)")
+        ax.set_ylabel("RMSE of the horizontal position (m)")
+        ax.set_xticks(snr)
+        ax.legend(fontsize=9, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2, frameon=False)
+    return fig
+
+
+def format_claim(claim_id: str, value: float) -> str:
+    """A claim's value as the readings table prints it: metres, a ratio, or a percentage."""
+    if claim_id in ("fig9_falls", "fig9_more_hurts"):
+        return f"{value:.2f}×"
+    if claim_id in ("fig9_saturation", "fig10_gain"):
+        return f"{100 * value:.1f} %"
+    return f"{value:.1f} m" if value >= 10 else f"{value:.2f} m"
+
+
+def plot_readings(payload: dict):
+    """The readings table (Chapter 7): one row per reading of the paper, one column per claim of Figs. 9–10, each
+    cell its value, green where it meets the claim and red where it differs."""
+    claims, data = payload["config"]["claims"], payload["data"]
+    ids, names = payload["config"]["claim_order"], payload["config"]["reading_order"]
+    ok = np.array([[data[n]["reproduced"][c] for c in ids] for n in names], dtype=float)
+    with style():
+        fig = Figure(figsize=(12.0, 0.55 * len(names) + 2.6), layout="constrained")
+        ax = fig.subplots()
+        ax.imshow(ok, cmap=ListedColormap(["#f4c7c3", "#c6e9c6"]), vmin=0, vmax=1, aspect="auto")
+        for i, n in enumerate(names):
+            for j, c in enumerate(ids):
+                ax.text(j, i, format_claim(c, data[n]["values"][c]), ha="center", va="center", fontsize=9)
+        ax.set_xticks(range(len(ids)), [claims[c]["short"] for c in ids], rotation=30, ha="right", fontsize=9)
+        ax.set_yticks(range(len(names)), [data[n]["short"] for n in names], fontsize=9)
+        ax.set_xticks(np.arange(len(ids) + 1) - 0.5, minor=True)
+        ax.set_yticks(np.arange(len(names) + 1) - 0.5, minor=True)
+        ax.grid(which="major", visible=False)
+        ax.grid(which="minor", color="w", lw=2)
+        ax.tick_params(which="both", length=0)
+        ax.set_title("Which reading of the paper reproduces which claim (green: reproduced, red: differs)",
+                     fontsize=10)
+    return fig
+
+
+def plot_link_sinr(groups: dict):
+    """Chapter 4: CDF of the per-link SNR (dashed) and SINR with PRS reuse (solid), one colour per group of links.
+    groups : {label: {"snr_db": array, "sinr_db": array}} (per-sample dB, any shape, flattened)."""
+    with style():
+        fig = Figure(figsize=(7.4, 4.0), layout="constrained")
+        ax = fig.subplots()
+        lo, hi = np.inf, -np.inf
+        for (label, g), col in zip(groups.items(), COLORS):
+            for key, ls, what in (("snr_db", "--", "SNR"), ("sinr_db", "-", "SINR")):
+                v = np.sort(np.ravel(g[key]))
+                lo, hi = min(lo, np.quantile(v, 0.005)), max(hi, np.quantile(v, 0.995))
+                ax.step(v, np.arange(1, v.size + 1) / v.size, ls, where="post", color=col, label=f"{label}: {what}")
+        ax.axvline(0.0, color="k", lw=0.8, ls=":")
+        ax.set_xlim(lo - 2, hi + 2)
+        ax.set_ylim(0, 1)
+        ax.set_yticks(np.arange(0, 1.01, 0.1))
+        ax.set_xlabel("per-sample SNR / SINR of a link (dB)")
+        ax.set_ylabel("CDF over links")
+        ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+    return fig
+
+
+def plot_reuse_rmse(payload: dict):
+    """Chapter 5: RMSE against the nearest link's per-sample SNR for each M, one panel per set-up of the payload
+    {"snrs_db", "m_values", "setups": {label: (S, J) RMSE}} (the same trials in every panel), log axis."""
+    snr = np.asarray(payload["snrs_db"])
+    setups = payload["setups"]
+    vals = np.concatenate([np.ravel(v) for v in setups.values()])
+    with style():
+        fig = Figure(figsize=(3.3 * len(setups) + 0.6, 4.2), layout="constrained")
+        axes = np.atleast_1d(fig.subplots(1, len(setups), sharey=True))
+        for ax, (label, rmse) in zip(axes, setups.items()):
+            rmse = np.asarray(rmse)
+            for j, (m, marker, col) in enumerate(zip(payload["m_values"], "osd^v<>", COLORS)):
+                ax.plot(snr, rmse[:, j], "-", marker=marker, color=col, label=f"M = {m}")
+            ax.set_title(label, fontsize=9)
+            ax.set_xticks(snr)
+            ax.set_xlabel("SNR of the nearest link (dB)")
+            log_ticks(ax, vals.min() / 1.15, vals.max() * 1.15)
+        axes[0].set_ylabel("RMSE (m)")
+        axes[-1].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+    return fig
+
+
+def plot_reuse_cdf(payload: dict):
+    """Chapter 6: error CDFs of the OTDoA-centred DPE (solid) and first-path OTDoA (dashed) with and without PRS reuse,
+    one panel per LoS case.  payload {"cases": {case: {label: {"dpe": errors, "otdoa": errors}}}}."""
+    titles = {"two_of_four": "(a) 2 of 4 links LoS (paper's case)", "pr_los": "(b) LoS from eq. (11)"}
+    n_cases = len(payload["cases"])
+    if n_cases == 0:
+        raise ValueError("plot_reuse_cdf: payload['cases'] is empty, need at least one LoS case")
+    with style():
+        fig = Figure(figsize=(5.0 * n_cases + (1.5 if n_cases == 1 else 0.0), 4.8), layout="constrained")
+        axes = np.atleast_1d(fig.subplots(1, n_cases, sharey=True))
+        for ax, (case, runs) in zip(axes, payload["cases"].items()):
+            for (label, errs), col in zip(runs.items(), COLORS):
+                for key, ls, what in (("dpe", "-", "DPE on OTDoA fix"), ("otdoa", "--", "OTDoA, first path")):
+                    v = np.sort(np.asarray(errs[key]))
+                    ax.step(v, np.arange(1, v.size + 1) / v.size, ls, where="post", color=col,
+                            label=f"{what}, {label}: 90 % {np.quantile(v, 0.9):.1f} m")
+            ax.axhline(0.9, color="0.5", lw=0.7, ls=":")
+            ax.set_xscale("log")
+            ax.set_xlim(0.03, 1000)
+            ax.set_ylim(0, 1)
+            ax.set_yticks(np.arange(0, 1.01, 0.1))
+            ax.set_xlabel("horizontal position error (m)")
+            ax.set_title(titles.get(case, case), fontsize=10)
+            ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(0.0, -0.14), frameon=False)
+        axes[0].set_ylabel("CDF")
+    return fig

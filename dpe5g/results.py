@@ -1,0 +1,133 @@
+"""Per-trial results of an experiment (``Results``), their export as a tidy table (CSV, JSON), and the one home of
+the error statistics every product reads: RMSE, median, 90 % and 99 % points, flagged and certified shares."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .experiment import OTDOA_DETECTORS, Experiment
+
+@dataclass(frozen=True)
+class Results:
+    """Per-trial results of an experiment (arrays over trials t, SNR index s, M index j, link i of the nearest).
+
+    ue_xyz (T, 3) m; clock_bias_s (T,); bs_index (T, I) deployment index of the i-th nearest BS; los (T, I) bool;
+    link_snr_db (T, S, I) per-sample SNR of each link; link_sinr_db (T, S, I) its SINR (co-channel interference of
+    ``prs_reuse`` and thermal noise; equal to the SNR without interference); est_xyz (T, S, J, 3) m;
+    est_bias_s (T, S, J);
+    error_m (T, S, J) horizontal error; center_xyz (T, S, J, 3) the search window's centre; edge (T, S, J) the fix
+    lies on the window's boundary (flagged); gap (T, S, J) the certified relative gap (NaN for the grid search);
+    certified (T, S, J).  With ``otdoa``, per detector d of ``OTDOA_DETECTORS``: otdoa_toa_s (T, S, D, I) the
+    estimated ToAs (clock bias included), otdoa_xyz (T, S, D, J, 3), otdoa_error_m (T, S, D, J), otdoa_ok
+    (T, S, D, J) False where the fix is flagged.
+    """
+
+    experiment: Experiment
+    ue_xyz: np.ndarray
+    clock_bias_s: np.ndarray
+    bs_index: np.ndarray
+    los: np.ndarray
+    link_snr_db: np.ndarray
+    link_sinr_db: np.ndarray
+    est_xyz: np.ndarray
+    est_bias_s: np.ndarray
+    error_m: np.ndarray
+    center_xyz: np.ndarray
+    edge: np.ndarray
+    gap: np.ndarray
+    certified: np.ndarray
+    otdoa_toa_s: np.ndarray | None = None
+    otdoa_xyz: np.ndarray | None = None
+    otdoa_error_m: np.ndarray | None = None
+    otdoa_ok: np.ndarray | None = None
+
+    FIELDS = ("ue_xyz", "clock_bias_s", "bs_index", "los", "link_snr_db", "link_sinr_db", "est_xyz", "est_bias_s",
+              "error_m", "center_xyz", "edge", "gap", "certified")
+    OTDOA_FIELDS = ("otdoa_toa_s", "otdoa_xyz", "otdoa_error_m", "otdoa_ok")
+
+    def rmse_m(self) -> np.ndarray:
+        """(S, J) RMSE of the horizontal error over trials."""
+        return np.sqrt(np.mean(self.error_m**2, axis=0))
+
+    def otdoa_rmse_m(self, detector: str) -> np.ndarray:
+        """(S, J) RMSE of the OTDoA fixes of ``detector`` (``OTDOA_DETECTORS``) over trials."""
+        if self.otdoa_error_m is None:
+            raise ValueError(f"experiment {self.experiment.name!r} ran no OTDoA baseline (otdoa=False)")
+        k = OTDOA_DETECTORS.index(detector)
+        return np.sqrt(np.mean(self.otdoa_error_m[:, :, k] ** 2, axis=0))
+
+    def los_share(self, m: int | None = None) -> float:
+        """Fraction of LoS links among the m nearest (all simulated links if None) over all trials."""
+        return float(np.mean(self.los if m is None else self.los[:, :m]))
+
+    def table(self) -> list[dict]:
+        """Tidy rows: one per (trial, SNR, M) with the error, the estimate, the LoS count of the links used, their
+        LoS flags nearest first ("L" LoS, "N" NLoS) and their per-sample SNR and SINR in dB, nearest first
+        (";"-separated)."""
+        e = self.experiment
+        snrs = e.snrs_db if e.snr_mode != "link_budget" else ("link",)
+        per_link = lambda a: ";".join(f"{v:.2f}" for v in a)
+        rows = []
+        for t in range(self.error_m.shape[0]):
+            for s, snr in enumerate(snrs):
+                for j, m in enumerate(e.m_values):
+                    rows.append({"trial": t, "snr_db": snr, "m": m, "error_m": float(self.error_m[t, s, j]),
+                                 "est_x_m": float(self.est_xyz[t, s, j, 0]), "est_y_m": float(self.est_xyz[t, s, j, 1]),
+                                 "true_x_m": float(self.ue_xyz[t, 0]), "true_y_m": float(self.ue_xyz[t, 1]),
+                                 "n_los": int(self.los[t, :m].sum()),
+                                 "los_flags": "".join("L" if f else "N" for f in self.los[t, :m]),
+                                 "link_snr_db": per_link(self.link_snr_db[t, s, :m]),
+                                 "link_sinr_db": per_link(self.link_sinr_db[t, s, :m]),
+                                 "edge": bool(self.edge[t, s, j]), "certified": bool(self.certified[t, s, j])})
+                    if self.otdoa_error_m is not None:
+                        for d, name in enumerate(OTDOA_DETECTORS):
+                            rows[-1].update({f"otdoa_{name}_error_m": float(self.otdoa_error_m[t, s, d, j]),
+                                             f"otdoa_{name}_ok": bool(self.otdoa_ok[t, s, d, j])})
+        return rows
+
+    def write_csv(self, path) -> None:
+        """The tidy table as CSV."""
+        import csv
+
+        rows = self.table()
+        with open(path, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
+
+    def write_json(self, path) -> None:
+        """The tidy table as JSON, with the experiment's config beside it."""
+        doc = {"experiment": json.loads(json.dumps(self.experiment.to_dict(), default=str)), "rows": self.table()}
+        Path(path).write_text(json.dumps(doc, indent=1) + "\n")
+
+
+def quantiles(err) -> np.ndarray:
+    """The 50, 90 and 99 % points (3,) of errors err (T,) m."""
+    return np.quantile(err, [0.5, 0.9, 0.99])
+
+
+def error_summary(err, edge=None, certified=None) -> dict:
+    """Horizontal errors err (T,) m → RMSE, median, 90 % and 99 % errors (m), and the shares of fixes flagged on the
+    window's edge and certified (when given, booleans (T,))."""
+    err = np.asarray(err, dtype=float)
+    out = {"rmse_m": float(np.sqrt(np.mean(err**2))), "median_m": float(np.median(err)),
+           "p90_m": float(np.quantile(err, 0.9)), "p99_m": float(np.quantile(err, 0.99))}
+    if edge is not None:
+        out["edge_share"] = float(np.mean(edge))
+    if certified is not None:
+        out["certified_share"] = float(np.mean(certified))
+    return out
+
+
+def error_stats(res: Results) -> dict:
+    """RMSE, median, 90 % and 99 % error per (SNR, M) over trials, (S, J) each, the RMSE without the edge-flagged
+    fixes, and the shares of fixes on the window's edge and of certified fixes."""
+    err, edge = res.error_m, res.edge
+    kept = np.where(edge, np.nan, err)
+    return {"rmse_m": res.rmse_m(), "median_m": np.median(err, axis=0), "p90_m": np.quantile(err, 0.9, axis=0),
+            "p99_m": np.quantile(err, 0.99, axis=0), "rmse_unflagged_m": np.sqrt(np.nanmean(kept**2, axis=0)),
+            "edge_share": edge.mean(axis=0), "certified_share": res.certified.mean(axis=0)}

@@ -1,0 +1,227 @@
+"""The per-trial programs of the engine: trial key → draws (``draw``) → receiver (``receiver``) → scored fixes.
+
+The grid search runs as one program per trial (``grid_trial_fn``).  The certified search runs as two, the draws and
+the windows of the spline correlograms (``bnb_prep_fn``), then the search per (SNR, M) (``bnb_fix_fn``), so that
+the search, the slow part to compile, is compiled once per search config, M values and number of SNRs for every
+experiment.  The OTDoA baseline's step 1 (ToAs, ``toa_fn``) runs in XLA on the same signals, its convex fixes in
+NumPy (``otdoa_fixes``).  Every function reads the parts of an ``Experiment`` that ``program_config`` keeps, so
+experiments that differ elsewhere share one compiled program.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import correlogram, deployment, grid_search, otdoa, receiver
+from .certified_search import spline_window
+from .draw import TrialDraw, draw_fn, prior_center
+from .experiment import OTDOA_DETECTORS, Experiment
+from .nr import C, PAPER
+from .search_config import SearchConfig, WindowFix
+
+#: OTDoA ToA detector settings used by the engine (``dpe5g.otdoa.toa``'s defaults)
+OTDOA_UPSAMPLE = 8
+OTDOA_THRESHOLD_DB = -10.0
+OTDOA_MAX_LEAD = 64
+
+#: the programs of a run, each compiled for the part of the experiment it reads (``program_config``)
+PROGRAMS = ("grid_trial", "bnb_prep", "bnb_fix", "toa", "prior")
+
+
+def program_config(e: Experiment, program: str) -> Experiment | tuple[SearchConfig, tuple[int, ...]]:
+    """The part of ``e`` that ``program`` (``PROGRAMS``) reads; the one key of compiled programs.
+
+    Every program: not the name, the seed (it enters through the trial keys), nor the trial and chunk counts.
+    "toa", "prior": nothing else is cleared.  "grid_trial", "bnb_prep": nor how a non-truth window centre is
+    obtained (it enters as an input), and for the certified search the receiver window L and its weights (they enter
+    as ``correlogram.window_spectrum``, an input).  "bnb_fix": the receiver's ``SearchConfig`` without its window (it
+    enters through the coefficients) and the M values, a pair.  Experiments that differ only in what is cleared share one compiled
+    program (and, through JAX's persistent compilation cache, one compiled executable across processes)."""
+    if program not in PROGRAMS:
+        raise ValueError(f"program must be one of {PROGRAMS}, got {program!r}")
+    run_free = dataclasses.replace(e, name="", seed=0, n_trials=1, chunk_trials=1)
+    if program in ("toa", "prior"):
+        return run_free
+    if program == "bnb_fix":
+        return dataclasses.replace(e.receiver_search(), n_taps=1, window_decay_s=0.0), tuple(e.m_values)
+    search = (dataclasses.replace(e.search, n_taps=1, window_decay_s=0.0) if e.search.method == "bnb"
+              else e.search)
+    d = Experiment()
+    centre = {} if e.centring == "truth" else dict(centring="prior", prior_kind=d.prior_kind,
+                                                    prior_scale_m=d.prior_scale_m, otdoa=False,
+                                                    toa_method=d.toa_method)
+    return dataclasses.replace(run_free, search=search, **centre)
+
+
+def truth_center(d: TrialDraw) -> jax.Array:
+    """The window centre of centring "truth" (the paper's set-up, a labelled comparison): the true position and
+    c δt, (4,) m."""
+    return jnp.concatenate([d.ue_xyz, d.clock_bias_s[None] * C])
+
+
+def trial_fields(d: TrialDraw) -> dict:
+    """The per-trial fields of ``results.Results`` that come from the draws."""
+    return {"ue_xyz": d.ue_xyz, "clock_bias_s": d.clock_bias_s, "bs_index": d.bs_index, "los": d.los,
+            "link_snr_db": d.link_snr_db, "link_sinr_db": d.link_sinr_db}
+
+
+def grid_trial_fn(e: Experiment, dep: deployment.Deployment):
+    """The traceable per-trial function of the grid search: (trial key, ext_center (S, J, 4) m) → the trial's
+    fields of ``results.Results``.  ext_center is the window centre of every (SNR, M) in the non-truth centrings:
+    the trial's prior centre, or its OTDoA fixes."""
+    draw = draw_fn(e, dep)
+    cfg = e.receiver_search()
+    # one window centre for every M only when it is the truth: the experiment this function is built from
+    # (``program_config``) names both external centrings "prior", and the OTDoA fixes differ between the M values
+    shared_centre = e.centring == "truth"
+
+    def one(key, ext_center):
+        d = draw(key)
+        c0 = truth_center(d)  # read in centring "truth" only
+        bs = d.bs_xyz
+        parts, windows = receiver.grid_windows(d, cfg)
+        if shared_centre and parts is not None and not cfg.polish:  # every SNR's first level in one lookup
+            start = grid_search.grid_window(bs, c0, cfg, PAPER)
+            a, b = receiver.noise_scales(d)
+            r = receiver.mixed_grid_fixes(parts(start), start, a, b, bs, c0, cfg, e.m_values, PAPER)
+            return scored_fields(d, r, jnp.broadcast_to(c0, r.q.shape))
+
+        def per_snr(s):
+            g = correlogram.ls_spectrum(receiver.spectrum_at(d, s), d.prs)  # read by the polish only
+            if shared_centre:  # one window and one first level for every M
+                corr = windows(s, grid_search.grid_window(bs, c0, cfg, PAPER))
+                r = grid_search.nested_grid_fixes(corr, g, bs, c0, cfg, e.m_values, PAPER)
+                return r, jnp.broadcast_to(c0, (len(e.m_values), 4))
+            fixes = []
+            for j, m in enumerate(e.m_values):
+                c = ext_center[s, j]
+                corr = grid_search.first_rows(windows(s, grid_search.grid_window(bs, c, cfg, PAPER)), m)
+                fixes.append(receiver.fix_in_window(g[:m], bs[:m], c, cfg, PAPER, corr=corr))
+            return jax.tree.map(lambda *f: jnp.stack(f), *fixes), ext_center[s]
+
+        r, centers = jax.lax.map(per_snr, jnp.arange(d.n_snr))  # (S, J, ...)
+        return scored_fields(d, r, centers)
+
+    return one
+
+
+def scored_fields(d: TrialDraw, r: WindowFix, centers) -> dict:
+    """The trial's fields of ``results.Results`` from its draws d, its fixes r (arrays (S, J, ...)) and window
+    centres (S, J, 4) m, scored against the truth."""
+    return trial_fields(d) | {"est_xyz": r.q[..., :3], "est_bias_s": r.q[..., 3] / C,
+                              "error_m": jnp.linalg.norm(r.q[..., :2] - d.ue_xyz[:2], axis=-1),
+                              "center_xyz": centers[..., :3], "edge": r.edge, "gap": r.gap,
+                              "certified": r.certified}
+
+
+def bnb_prep_fn(e: Experiment, dep: deployment.Deployment):
+    """The certified search's first program, jitted: (trial key, window, window centres ext (S, J, 4) m of the
+    non-truth centrings) → (the trial's draw fields (``trial_fields``), BS positions (I, 3) m, the window centres
+    (S, J, 4) m, the part of each BS's spline correlogram each window reaches (``spline_window``: coefficients
+    (S, J, I, cells + 3) and their first knots (S, J, I))).  Only the windows, not the whole correlograms, pass to
+    ``bnb_fix_fn``."""
+    draw = draw_fn(e, dep)
+    cfg = e.receiver_search()
+
+    def bnb_prep(key, window, ext):
+        d = draw(key)
+        centers = jnp.broadcast_to(truth_center(d), ext.shape) if e.centring == "truth" else ext
+        correlograms = receiver.spline_correlograms(d, cfg, window)
+
+        def per_snr(a):
+            s, cen = a
+            coef = correlograms(s)
+            return jax.vmap(lambda c: spline_window(coef, d.bs_xyz, c, cfg, PAPER))(cen)
+
+        sls, starts = jax.lax.map(per_snr, (jnp.arange(d.n_snr), centers))  # (S, J, I, ...)
+        return trial_fields(d), d.bs_xyz, centers, sls, starts
+
+    return jax.jit(bnb_prep)
+
+
+def bnb_fix_fn(cfg: SearchConfig, m_values: tuple[int, ...]):
+    """The certified search's fixes of one trial, jitted: (BS positions (I, 3) m, window centres (S, J, 4) m, the
+    windows of the spline correlograms (``spline_window``: (S, J, I, cells + 3) and (S, J, I))) → ``WindowFix``
+    (S, J, ...), with the M nearest BSs for each M of ``m_values``.  cfg is the receiver's search without its window
+    L (``program_config`` "bnb_fix"), so one program serves every experiment with that search, those M and as many
+    SNRs."""
+    def certified_fix(bs, centers, sls, starts):
+        def per_snr(a):
+            cen, sl, st = a
+            fixes = [receiver.fix_in_window(None, bs[:m], cen[j], cfg, PAPER, corr=(sl[j, :m], st[j, :m]))
+                     for j, m in enumerate(m_values)]
+            return jax.tree.map(lambda *f: jnp.stack(f), *fixes)
+
+        return jax.lax.map(per_snr, (centers, sls, starts))
+
+    return jax.jit(certified_fix)
+
+
+@jax.jit
+def score(q, ue):
+    """Fixes q (..., 4) (x, y, z, c δt in metres) → their clock bias (...) s and horizontal error (...) m against
+    the true UE position ue (3,): scored as ``scored_fields`` scores them, in XLA (NumPy rounds the same
+    expressions differently in the last bit)."""
+    return q[..., 3] / C, jnp.linalg.norm(q[..., :2] - ue[:2], axis=-1)
+
+
+def prior_fn(e: Experiment, dep: deployment.Deployment):
+    """Traceable key → the trial's "prior" window centre (4,) m (``draw.prior_center``)."""
+    draw = draw_fn(e, dep)
+    return lambda key: prior_center(e, draw(key).ue_xyz, key)
+
+
+def toa_fn(e: Experiment, dep: deployment.Deployment):
+    """Traceable key → (ToAs (S, D, I) of every link with each detector of ``OTDOA_DETECTORS`` (OTDoA step 1),
+    the true UE position (3,) (to score the fixes), the indices (I,) of the nearest BSs)."""
+    draw = draw_fn(e, dep)
+
+    def one(key):
+        d = draw(key)
+
+        def per_snr(s):
+            g = correlogram.ls_spectrum(receiver.spectrum_at(d, s), d.prs)
+            return jnp.stack([otdoa.toa_from_spectrum(g, meth, OTDOA_UPSAMPLE, OTDOA_THRESHOLD_DB, OTDOA_MAX_LEAD,
+                                                      PAPER.sample_period_s) for meth in OTDOA_DETECTORS])
+
+        return jax.lax.map(per_snr, jnp.arange(d.n_snr)), d.ue_xyz, d.bs_index
+
+    return one
+
+
+def otdoa_fixes(e: Experiment, dep: deployment.Deployment, toas: np.ndarray, ue: np.ndarray, idx: np.ndarray,
+                solvers: dict) -> dict:
+    """OTDoA fixes (cvxpy, one compiled problem per M: ``solvers`` {M: ``otdoa.Solver``}) from a chunk's ToAs
+    (T, S, D, I) of every detector, the true UE positions (T, 3) (for the error only) and the nearest BSs' indices
+    (T, I); flagged, never dropped.  Returns the OTDoA fields of ``results.Results``."""
+    n_t, n_s, n_d = toas.shape[:3]
+    xyz = np.full((n_t, n_s, n_d, len(e.m_values), 3), np.nan)
+    ok = np.zeros((n_t, n_s, n_d, len(e.m_values)), dtype=bool)
+    for t in range(n_t):
+        for j, m in enumerate(e.m_values):
+            bs = dep.bs_xyz[idx[t, :m]]
+            for s in range(n_s):
+                for k in range(n_d):
+                    f = solvers[m].solve(bs, toas[t, s, k, :m], float(ue[t, 2]))
+                    xyz[t, s, k, j], ok[t, s, k, j] = f.xyz, f.ok
+    err = np.linalg.norm(xyz[..., :2] - ue[:, None, None, None, :2], axis=-1)
+    return {"otdoa_toa_s": toas, "otdoa_xyz": xyz, "otdoa_error_m": err, "otdoa_ok": ok}
+
+
+def otdoa_centers(e: Experiment, dep: deployment.Deployment, ot: dict, idx: np.ndarray) -> np.ndarray:
+    """Centring "otdoa": the window centre of each (trial, SNR, M) is the OTDoA fix of detector ``toa_method`` at
+    the known UE height with c δt = 0; where that fix is not finite (solver failure), the centroid of the M BSs
+    used (known to the receiver).  Returns (T, S, J, 4) metres."""
+    k = OTDOA_DETECTORS.index(e.toa_method)
+    xyz = ot["otdoa_xyz"][:, :, k]  # (T, S, J, 3)
+    out = np.zeros(xyz.shape[:3] + (4,))
+    out[..., :3] = xyz
+    out[..., 2] = dep.ue_height_m
+    bad = ~np.all(np.isfinite(xyz), axis=-1)
+    for t, s, j in zip(*np.nonzero(bad)):
+        out[t, s, j, :2] = dep.bs_xyz[idx[t, : e.m_values[j]], :2].mean(axis=0)
+    return out
