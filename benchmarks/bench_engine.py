@@ -129,7 +129,7 @@ def main(argv=None):
 
     # signals of one Fig. 9 trial at 20 dB: 24 links, engine's own draws
     e = paper.fig9_truth(1)
-    ex = draw.example(e, 0, list(e.snrs_db).index(20.0))
+    ex = trials.example(e, 0, list(e.links.snrs_db).index(20.0))
     g = correlogram.ls_spectrum(jnp.fft.fft(jnp.asarray(ex.y), axis=-1, norm="ortho"), jnp.asarray(ex.prs))
     m = g.shape[0]
     cfg, honest = e.receiver_search(), paper.fig9_honest(1).receiver_search()
@@ -145,7 +145,7 @@ def main(argv=None):
     t_spline = median_time(lambda: spline(g), 50) / m
 
     # the engine's path: one trial's parts, mixed for its 7 SNRs (the grid's in the search's window)
-    e_d = draw.draw_fn(e, e.load_deployment())(draw.trial_key(e.seed, 0))
+    e_d = draw.draw_fn(e, e.load_deployment())(draw.trial_key(e.run.seed, 0))
     n_snr = e.n_snr
 
     @jax.jit
@@ -178,7 +178,7 @@ def main(argv=None):
     # 3. profile of one (trial, SNR) of the Fig. 9 truth-centred experiment, batch of 2 trials as the engine runs
     dep = e.load_deployment()
     draw_one = draw.draw_fn(e, dep)
-    keys = jax.vmap(lambda t: draw.trial_key(e.seed, t))(jnp.arange(20))
+    keys = jax.vmap(lambda t: draw.trial_key(e.run.seed, t))(jnp.arange(20))
     f_draw = jax.jit(lambda k: jax.lax.map(lambda kk: (lambda d: d.y0.sum() + d.noise.sum())(draw_one(kk)), k,
                                            batch_size=2))
 
@@ -189,7 +189,7 @@ def main(argv=None):
 
     f_corr = jax.jit(lambda k: jax.lax.map(corr_all, k, batch_size=2))
     fn = trials.grid_trial_fn(e, dep)
-    ext = jnp.zeros((20, e.n_snr, len(e.m_values), 4))
+    ext = jnp.zeros((20, e.n_snr, len(e.receiver.m_values), 4))
     f_all = jax.jit(lambda k: jax.lax.map(lambda a: fn(*a), (k, ext), batch_size=2))
     n_ts = 20 * e.n_snr
     p_draw = median_time(lambda: f_draw(keys), 3) / n_ts

@@ -192,22 +192,22 @@ def rmse_bound_m(e, n_trials: int, snrs_db=None) -> np.ndarray:
     """The DPE bound on the horizontal error of an urban experiment, as an RMSE over its trials 0 … n_trials−1:
     √(mean_t (CRB_xx + CRB_yy)) per (SNR, M), shape (S, J) in metres, the same (S, J) as ``Results.rmse_m``.
 
-    e : ``experiment.Experiment``.  Each trial's links are the engine's (``draw.example``: positions, channels
+    e : ``experiment.Experiment``.  Each trial's links are the engine's (``trials.example``: positions, channels
     with their tap delays known, per-link SNR); the pilots are the full band (the paper's, the engine's).  The
     Fisher information of a link scales with its linear SNR, so it is computed once per link and scaled.
-    snrs_db : (S,) SNRs in dB, in the experiment's ``snr_convention``, to use instead of ``e.snrs_db`` (snr_mode "fixed" only: every link at
+    snrs_db : (S,) SNRs in dB, in the experiment's ``snr_convention``, to use instead of ``e.links.snrs_db`` (snr_mode "fixed" only: every link at
     each; the trials' links do not depend on the SNR, so one call serves several experiments of the same trials)."""
-    n_trials = _checks.integer("n_trials", n_trials, 1, e.n_trials)
-    if snrs_db is not None and e.snr_mode != "fixed":
+    n_trials = _checks.integer("n_trials", n_trials, 1, e.run.n_trials)
+    if snrs_db is not None and e.links.snr_mode != "fixed":
         raise ValueError("snrs_db replaces the SNRs of a 'fixed' experiment; this one takes them from the path loss")
-    snrs = np.asarray(e.snrs_db if e.snr_mode == "fixed" else (0.0,), dtype=np.float64)
+    snrs = np.asarray(e.links.snrs_db if e.links.snr_mode == "fixed" else (0.0,), dtype=np.float64)
     out = snrs if snrs_db is None else signal.check_snr_db(np.atleast_1d(snrs_db))
     links = link_information(e, n_trials)
-    var = np.zeros((n_trials, out.size, len(e.m_values)))
+    var = np.zeros((n_trials, out.size, len(e.receiver.m_values)))
     for t in range(n_trials):
         for s in range(out.size):
             j = links["info_0db"][t] * 10 ** ((links["link_snr_db"][t] + out[s] - snrs[0]) / 10)
-            for jm, m in enumerate(e.m_values):
+            for jm, m in enumerate(e.receiver.m_values):
                 var[t, s, jm] = np.trace(position_crb(links["ue"][t], links["bs"][t, :m], j[:m])[:2, :2])
     return np.sqrt(np.mean(var, axis=0))
 
@@ -220,10 +220,10 @@ def link_information(e, n_trials: int) -> dict:
     Computing the information costs a projection per link, so the arrays are kept beside the experiment's Monte
     Carlo results (``store.cache_dir``, whose key covers the engine's code and the experiment) in a file keyed
     by this module's code; a later call with at most as many trials reads them."""
-    from . import draw, experiment, store  # the engine's draws; they do not import this module
+    from . import experiment, store, trials  # the engine's draws; they do not import this module
     from ._io import atomic_write
 
-    n_trials = _checks.integer("n_trials", n_trials, 1, e.n_trials)
+    n_trials = _checks.integer("n_trials", n_trials, 1, e.run.n_trials)
     path = store.cache_dir(e) / f"link-information-{experiment.code_digest(Path(__file__)).hex()[:16]}.npz"
     if path.exists():
         with np.load(path) as z:
@@ -232,7 +232,7 @@ def link_information(e, n_trials: int) -> dict:
     f = subcarrier_frequencies_hz("full")
     out = {"ue": [], "bs": [], "info_0db": [], "link_snr_db": []}
     for t in range(n_trials):
-        ex = draw.example(e, t)
+        ex = trials.example(e, t)
         out["ue"].append(ex.ue_xyz)
         out["bs"].append(ex.bs_xyz)
         out["info_0db"].append([toa_fisher(f, 0.0, ex.gains[i], ex.delays_s[i]) for i in range(ex.bs_xyz.shape[0])])

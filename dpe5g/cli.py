@@ -127,13 +127,13 @@ def run_experiment(args):
             kw.update(prior_kind="gaussian", prior_scale_m=args.prior_sigma)
         if args.reuse:  # interference needs each BS's power: --snr is then the nearest link's SNR
             kw.update(prs_reuse=args.reuse, snr_mode="nearest")
-        e = Experiment(name="run", otdoa=args.centring == "otdoa", **kw)
+        e = Experiment.build(name="run", otdoa=args.centring == "otdoa", **kw)
         e.load_deployment()  # the file, and M against its BS count
     except ValueError as err:
         raise _with_option(err, RUN_OPTIONS) from None
     for known in (paper.fig9_honest(args.trials), paper.fig9_truth(args.trials),
                   paper.fig9_power(args.trials, args.reuse)):
-        if replace(e, name=known.name) == known:
+        if e.replace(name=known.run.name) == known:
             return known
     return e
 
@@ -147,7 +147,7 @@ def _run(args) -> int:
     res = engine.run(e, progress=True)
     with atomic_target(out) as tmp:  # an existing file is never left half-overwritten
         (res.write_csv if out.suffix.lower() == ".csv" else res.write_json)(tmp)
-    n_rows = e.n_trials * len(e.snrs_db) * len(e.m_values)
+    n_rows = e.run.n_trials * len(e.links.snrs_db) * len(e.receiver.m_values)
     print(report.run_summary(res))
     print(f"wrote {out} ({n_rows} rows: one per trial, SNR and M)")
     return 0
@@ -205,7 +205,7 @@ def _warm(args) -> int:
     for i, e in enumerate(order, 1):
         t = time.perf_counter()
         engine.run(e, progress=args.progress, reverse=not args.forward)
-        print(f"[{i}/{len(order)}] {e.name}: {e.n_trials} trials ({time.perf_counter() - t:.1f} s)", flush=True)
+        print(f"[{i}/{len(order)}] {e.run.name}: {e.run.n_trials} trials ({time.perf_counter() - t:.1f} s)", flush=True)
     print(f"warm: {len(order)} experiments in the cache ({time.perf_counter() - t0:.1f} s)", flush=True)
     return 0
 
@@ -286,18 +286,18 @@ def _add_run(sub) -> None:
     r.add_argument("--deployment", default="tst", metavar="FILE",
                    help="deployment file, JSON or CSV (see `dpe5g deployment`), or 'tst' for the packaged layout "
                         "(default)")
-    r.add_argument("--snr", type=float, nargs="+", default=list(paper_e.snrs_db), metavar="DB",
+    r.add_argument("--snr", type=float, nargs="+", default=list(paper_e.links.snrs_db), metavar="DB",
                    help=f"per-sample SNRs in dB, in [-50, 100] (default: the paper's "
-                        f"{' '.join(f'{s:g}' for s in paper_e.snrs_db)})")
-    r.add_argument("--m", type=int, nargs="+", default=list(paper_e.m_values), metavar="M",
+                        f"{' '.join(f'{s:g}' for s in paper_e.links.snrs_db)})")
+    r.add_argument("--m", type=int, nargs="+", default=list(paper_e.receiver.m_values), metavar="M",
                    help=f"numbers of nearest BSs used by the DPE, each >= 3 (x, y and the clock bias are unknown) "
-                        f"and <= the deployment's BS count (default: {' '.join(map(str, paper_e.m_values))})")
+                        f"and <= the deployment's BS count (default: {' '.join(map(str, paper_e.receiver.m_values))})")
     r.add_argument("--taps", type=int, default=search_config.DEFAULT_TAPS, metavar="L",
                    help=f"receiver window L in taps, 1 to the FFT size (default: {search_config.DEFAULT_TAPS}, chosen in "
                         f"Chapter 5)")
-    r.add_argument("--delay-spread", type=float, default=paper_e.delay_spread_s, metavar="S",
+    r.add_argument("--delay-spread", type=float, default=paper_e.scenario.delay_spread_s, metavar="S",
                    help=f"RMS delay spread of the TDL channels in SECONDS (default: "
-                        f"{paper_e.delay_spread_s * 1e9:g}e-9, TR 38.901 UMi short)")
+                        f"{paper_e.scenario.delay_spread_s * 1e9:g}e-9, TR 38.901 UMi short)")
     r.add_argument("--centring", default="prior", metavar="{truth,prior,otdoa}",
                    help="where the search window is centred: 'prior' (default; the honest receiver of Fig. 9: "
                         "truth + a Gaussian error of --prior-sigma per axis, certified search), 'otdoa' (on the "

@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _checks, channel, cost, deployment, nr, receiver, scenario, signal
+from . import channel, cost, deployment, nr, scenario, signal
 from .experiment import Experiment
 
 
@@ -97,19 +97,19 @@ def trial_keys(seed: int, start: int, stop: int) -> jax.Array:
 
 def profiles(e: Experiment) -> tuple[channel.TDLProfile, channel.TDLProfile]:
     """The NLoS (TDL-C) and LoS (TDL-D) profiles of the experiment."""
-    return (channel.tdl_profile("C", e.delay_spread_s, definition=e.delay_spread_def),
-            channel.tdl_profile("D", e.delay_spread_s, e.k_factor_db, definition=e.delay_spread_def))
+    return (channel.tdl_profile("C", e.scenario.delay_spread_s, definition=e.scenario.delay_spread_def),
+            channel.tdl_profile("D", e.scenario.delay_spread_s, e.scenario.k_factor_db, definition=e.scenario.delay_spread_def))
 
 
 def link_snr_db(e: Experiment, rx_dbm, rx_nearest_dbm, snrs) -> jax.Array:
     """Per-sample SNR (S, n) of links with received powers ``rx_dbm`` (n,) dBm: from the link budget (snr_mode
     "link_budget", S = 1), or the nearest link's SNR ``snrs`` (S,) plus the power difference (snr_mode "nearest");
     then read in the experiment's ``snr_convention``."""
-    if e.snr_mode == "link_budget":
-        snr = e.link.model_snr_db(rx_dbm - e.link.noise_dbm)[None, :]
+    if e.links.snr_mode == "link_budget":
+        snr = e.links.budget.model_snr_db(rx_dbm - e.links.budget.noise_dbm)[None, :]
     else:
         snr = snrs[:, None] + (rx_dbm - rx_nearest_dbm)[None, :]
-    return signal.per_sample_snr_db(snr, e.snr_convention)
+    return signal.per_sample_snr_db(snr, e.links.snr_convention)
 
 
 def sinr_db(link_snr, reuse: ReuseDraw | None) -> jax.Array:
@@ -129,7 +129,7 @@ def sinr_db(link_snr, reuse: ReuseDraw | None) -> jax.Array:
 
 def draw_fn(e: Experiment, dep: deployment.Deployment):
     """Build the traceable trial key → ``TrialDraw`` of the trial with that key (``trial_key``), shared by the
-    engine, ``example`` and ``draw_links``.  The seed is not read (it enters through the key), so one compiled
+    engine, ``trials.example`` and ``draw_links``.  The seed is not read (it enters through the key), so one compiled
     engine serves every seed.
 
     Each link's channel is TDL-D if LoS and TDL-C if not; its frequency response is ``channel.frequency_response``
@@ -138,39 +138,39 @@ def draw_fn(e: Experiment, dep: deployment.Deployment):
     co-channel BSs' draws come from fold_in(key, 2000), so the links' draws are those of the same experiment
     without reuse."""
     links = _LinkModel(e, dep)
-    m_max = max(e.m_values)
+    m_max = max(e.receiver.m_values)
 
     def draw(key):
         k_ue, k_los, k_c, k_d, k_b, k_sf, k_n = jax.random.split(key, 7)
         ue, d2d, order = links.place_ue(k_ue)
         idx = order[:m_max]  # nearest first
         bs = links.bs_all[idx]
-        if e.los_mode == "pr_los":
+        if e.scenario.los_mode == "pr_los":
             los = jax.random.uniform(k_los, (m_max,)) < scenario.los_probability(d2d[idx])
-        elif e.los_mode == "all_los":
+        elif e.scenario.los_mode == "all_los":
             los = jnp.ones(m_max, dtype=bool)
         else:  # two of the four nearest LoS, which two at random
             los = jax.random.permutation(k_los, jnp.array([True, True, False, False]))
-        bias = scenario.clock_bias(k_b, e.clock_sigma_s, e.clock_bound_sigmas)
+        bias = scenario.clock_bias(k_b, e.scenario.clock_sigma_s, e.scenario.clock_bound_sigmas)
         h, gains = links.channels(los, k_c, k_d, m_max)
         prs = links.prs_all[idx]
         y_clean = signal.received_spectrum(prs, h, cost.toa(ue, bs), bias)
-        if e.snr_mode == "fixed":
+        if e.links.snr_mode == "fixed":
             rx = None
             snr = signal.per_sample_snr_db(jnp.broadcast_to(links.snrs[:, None], (links.snrs.size, m_max)),
-                                           e.snr_convention)
+                                           e.links.snr_convention)
         else:
             rx = links.received_dbm(d2d[idx], bs, los, k_sf, idx)
             snr = link_snr_db(e, rx, rx[0], links.snrs)
         reuse = None
-        if e.prs_reuse:
-            x = links.co_channel(key, ue, d2d, order[m_max:], rx, bias, snr.shape[0]) if e.co_channel else None
-            reuse = ReuseDraw(res=links.res_all[idx], co_channel=x, n_res=e.prs_reuse)
+        if e.scenario.prs_reuse:
+            x = links.co_channel(key, ue, d2d, order[m_max:], rx, bias, snr.shape[0]) if e.scenario.co_channel else None
+            reuse = ReuseDraw(res=links.res_all[idx], co_channel=x, n_res=e.scenario.prs_reuse)
         noise = signal.awgn(k_n, y_clean.shape, 1.0)  # CN(0, 1) per bin, scaled per SNR by ``receiver.spectrum_at``
         return TrialDraw(ue_xyz=ue, clock_bias_s=bias, bs_index=idx, bs_xyz=bs, los=los, prs=prs, gains=gains,
                          delays_s=jnp.where(los[:, None], links.delays_d, links.delays_c), y0=y_clean,
                          link_snr_db=snr, link_sinr_db=sinr_db(snr, reuse), noise=noise, reuse=reuse,
-                         per_link_power=e.snr_mode != "fixed")
+                         per_link_power=e.links.snr_mode != "fixed")
 
     return draw
 
@@ -184,9 +184,9 @@ class _LinkModel:
         self.n_taps = max(self.nlos.n_taps, self.los_prof.n_taps)
         pad = lambda a: np.pad(np.asarray(a), (0, self.n_taps - len(a)))
         self.delays_c, self.delays_d = pad(self.nlos.delays_s), pad(self.los_prof.delays_s)
-        if e.prs_reuse:  # TS 38.211's pattern; each BS on its resource (comb offset) with its PRS ID
-            res_np, ids_np = dep.prs_plan(e.prs_reuse)
-            pattern = nr.PrsPattern(e.prs_reuse)
+        if e.scenario.prs_reuse:  # TS 38.211's pattern; each BS on its resource (comb offset) with its PRS ID
+            res_np, ids_np = dep.prs_plan(e.scenario.prs_reuse)
+            pattern = nr.PrsPattern(e.scenario.prs_reuse)
             self.prs_all = jnp.asarray(np.stack([nr.prs_per_subcarrier(int(i), pattern, int(r))
                                                  for i, r in zip(ids_np, res_np)]))
             self.res_all = jnp.asarray(res_np)
@@ -194,7 +194,7 @@ class _LinkModel:
             self.prs_all = jnp.asarray(nr.prs_matrix(range(dep.n_bs)))  # PRS ID = deployment index
         self.bs_all = jnp.asarray(dep.bs_xyz)
         self.pw_all = jnp.asarray(dep.power_dbm)
-        self.snrs = jnp.asarray(e.snrs_db if e.snr_mode != "link_budget" else (0.0,), dtype=jnp.float64)
+        self.snrs = jnp.asarray(e.links.snrs_db if e.links.snr_mode != "link_budget" else (0.0,), dtype=jnp.float64)
 
     def place_ue(self, k_ue):
         """The UE (3,) m uniform over the region at the UE height, its 2-D distance (B,) m to every BS and the BSs
@@ -220,7 +220,7 @@ class _LinkModel:
         """Received power P_tx - PL - SF (dBm) of the links to the BSs ``sel`` (deployment indices), the in-band
         SNR's numerator."""
         e = self.e
-        pl = scenario.path_loss_umi_db(d2d, bs[:, 2], self.dep.ue_height_m, e.link.fc_hz, los)
+        pl = scenario.path_loss_umi_db(d2d, bs[:, 2], self.dep.ue_height_m, e.links.budget.fc_hz, los)
         sf = jax.random.normal(k_sf, (sel.shape[0],)) * jnp.where(los, scenario.SIGMA_SF_LOS_DB,
                                                                    scenario.SIGMA_SF_NLOS_DB)
         return self.pw_all[sel] - pl - sf
@@ -235,7 +235,7 @@ class _LinkModel:
                                  snr_db=jnp.zeros((n_snr, 0)))
         k_xl, k_xc, k_xd, k_xs = jax.random.split(jax.random.fold_in(key, 2000), 4)
         bs_x = self.bs_all[idx_x]
-        los_x = (jnp.ones(n_x, dtype=bool) if e.los_mode == "all_los"
+        los_x = (jnp.ones(n_x, dtype=bool) if e.scenario.los_mode == "all_los"
                  else jax.random.uniform(k_xl, (n_x,)) < scenario.los_probability(d2d[idx_x]))
         h_x, _ = self.channels(los_x, k_xc, k_xd, n_x)
         y_x = signal.received_spectrum(self.prs_all[idx_x], h_x, cost.toa(ue, bs_x), bias)
@@ -247,60 +247,14 @@ def prior_center(e: Experiment, ue, key) -> jax.Array:
     """Centring "prior": truth + a horizontal error from the stated prior, keyed by fold_in(trial key, 1000) so the
     trial's other draws are unchanged; the height is the known UE height and c δt is 0.  Returns (4,) metres."""
     key = jax.random.fold_in(key, 1000)
-    if e.prior_kind == "gaussian":
-        err = e.prior_scale_m * jax.random.normal(key, (2,))
+    if e.receiver.prior_kind == "gaussian":
+        err = e.receiver.prior_scale_m * jax.random.normal(key, (2,))
     else:
         k_r, k_a = jax.random.split(key)
-        r = e.prior_scale_m * jnp.sqrt(jax.random.uniform(k_r))
+        r = e.receiver.prior_scale_m * jnp.sqrt(jax.random.uniform(k_r))
         a = 2 * jnp.pi * jax.random.uniform(k_a)
         err = r * jnp.stack([jnp.cos(a), jnp.sin(a)])
     return jnp.concatenate([ue[:2] + err, ue[2:3], jnp.zeros(1)])
-
-
-@dataclass(frozen=True)
-class TrialExample:
-    """One trial at one SNR index exactly as the receivers see it, as NumPy arrays (``example``).
-
-    The fields of ``TrialDraw`` (the SNR and SINR at that index only: link_snr_db, link_sinr_db (I,); with PRS
-    reuse, ``reuse.co_channel.snr_db`` (X,)), without the unit noise, and y (I, N) the received samples (the inverse
-    DFT of ``receiver.spectrum_at``; in units of the noise where the links' powers differ), y0 (I, N) the links'
-    noise-free samples at unit power."""
-
-    ue_xyz: np.ndarray
-    clock_bias_s: np.ndarray
-    bs_index: np.ndarray
-    bs_xyz: np.ndarray
-    los: np.ndarray
-    prs: np.ndarray
-    gains: np.ndarray
-    delays_s: np.ndarray
-    y: np.ndarray
-    y0: np.ndarray
-    link_snr_db: np.ndarray
-    link_sinr_db: np.ndarray
-    reuse: ReuseDraw | None
-
-
-def example(e: Experiment, trial: int, snr_index: int = 0) -> TrialExample:
-    """The draws and received samples of trial ``trial`` at SNR index ``snr_index``, from the engine's own key and
-    draw (``trial_key``, ``draw_fn``, ``receiver.spectrum_at``)."""
-    dep = e.load_deployment()
-    _checks.integer("trial", trial, 0, e.n_trials - 1)
-    _checks.integer("snr_index", snr_index, 0, e.n_snr - 1)
-    d = draw_fn(e, dep)(trial_key(e.seed, trial))
-    reuse = None
-    if d.reuse is not None:
-        x = d.reuse.co_channel
-        if x is not None:
-            x = CoChannelDraw(res=np.asarray(x.res), prs=np.asarray(x.prs), y0=np.asarray(x.y0),
-                              snr_db=np.asarray(x.snr_db)[snr_index])
-        reuse = ReuseDraw(res=np.asarray(d.reuse.res), co_channel=x, n_res=d.reuse.n_res)
-    a = lambda v: np.asarray(v)
-    return TrialExample(ue_xyz=a(d.ue_xyz), clock_bias_s=a(d.clock_bias_s), bs_index=a(d.bs_index),
-                        bs_xyz=a(d.bs_xyz), los=a(d.los), prs=a(d.prs), gains=a(d.gains), delays_s=a(d.delays_s),
-                        y=a(signal.ofdm_symbol(receiver.spectrum_at(d, snr_index))), y0=a(signal.ofdm_symbol(d.y0)),
-                        link_snr_db=a(d.link_snr_db)[snr_index], link_sinr_db=a(d.link_sinr_db)[snr_index],
-                        reuse=reuse)
 
 
 def draw_links(e: Experiment, n_trials: int) -> dict:
@@ -313,6 +267,6 @@ def draw_links(e: Experiment, n_trials: int) -> dict:
         d = draw(key)
         return d.los, d.link_snr_db, d.link_sinr_db, jnp.linalg.norm(d.bs_xyz[:, :2] - d.ue_xyz[:2], axis=-1)
 
-    los, snr, sinr, dist = jax.lax.map(one, trial_keys(e.seed, 0, n_trials), batch_size=64)
+    los, snr, sinr, dist = jax.lax.map(one, trial_keys(e.run.seed, 0, n_trials), batch_size=64)
     return {"los": np.asarray(los), "link_snr_db": np.asarray(snr), "link_sinr_db": np.asarray(sinr),
             "d2d_m": np.asarray(dist)}

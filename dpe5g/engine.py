@@ -96,22 +96,22 @@ class ChunkRunner:
     def __init__(self, e: Experiment):
         self.e = e
         self.dep = e.load_deployment()
-        self.bnb = e.search.method == "bnb"
+        self.bnb = e.receiver.search.method == "bnb"
         if self.bnb:  # two programs: the trial's draws and correlogram windows, then a fix per (SNR, M)
             self.prep = compiled_program(e, "bnb_prep")
             self.fix = compiled_program(e, "bnb_fix")
         else:
             self.fn = compiled_program(e, "grid_trial")
-        self.toa_fn = compiled_program(e, "toa") if e.otdoa else None
-        self.prior_fn = compiled_program(e, "prior") if e.centring == "prior" else None
-        self.window = jnp.asarray(receiver.receiver_window(e.receiver_search(), e.prs_reuse)) if self.bnb else None
+        self.toa_fn = compiled_program(e, "toa") if e.receiver.otdoa else None
+        self.prior_fn = compiled_program(e, "prior") if e.receiver.centring == "prior" else None
+        self.window = jnp.asarray(receiver.receiver_window(e.receiver_search(), e.scenario.prs_reuse)) if self.bnb else None
         # one compiled OTDoA problem per M, built once per run (``otdoa.Solver`` reads cvxpy's data map when built)
-        self.solvers = {m: otdoa.Solver(m) for m in e.m_values} if e.otdoa else None
+        self.solvers = {m: otdoa.Solver(m) for m in e.receiver.m_values} if e.receiver.otdoa else None
 
     def __call__(self, start: int, stop: int, batch_size: int, workers: int = 1) -> dict:
         e = self.e
-        keys = np.asarray(trial_keys(e.seed, start, stop))
-        if not e.otdoa:
+        keys = np.asarray(trial_keys(e.run.seed, start, stop))
+        if not e.receiver.otdoa:
             return self._dpe(keys, None, batch_size, workers)
         # step 1 on the same signals (regenerated from the same keys), then the convex fixes, in pieces: the fixes of
         # piece k+1 (Python, one core) are solved while the DPE of piece k runs (XLA, the GIL released)
@@ -123,7 +123,7 @@ class ChunkRunner:
             for a in range(0, n, step):
                 sl = slice(a, min(a + step, n))
                 ot = trials.otdoa_fixes(e, self.dep, toas[sl], ue[sl], idx[sl], self.solvers)
-                ext = trials.otdoa_centers(e, self.dep, ot, idx[sl]) if e.centring == "otdoa" else None
+                ext = trials.otdoa_centers(e, self.dep, ot, idx[sl]) if e.receiver.centring == "otdoa" else None
                 ots.append(ot)
                 dpes.append(background.submit(self._dpe, keys[sl], ext, batch_size, workers))
             dpes = [f.result() for f in dpes]
@@ -137,8 +137,8 @@ class ChunkRunner:
         """The DPE fixes of trials ``keys``; ext (T, S, J, 4) the window centres of centring "otdoa" (else None)."""
         e = self.e
         if ext is None:
-            ext = np.zeros((len(keys), e.n_snr, len(e.m_values), 4))
-        if e.centring == "prior":
+            ext = np.zeros((len(keys), e.n_snr, len(e.receiver.m_values), 4))
+        if e.receiver.centring == "prior":
             ext[:] = run_chunk((keys,), self.prior_fn, batch_size, workers=workers)[:, None, None, :]
         if self.bnb:
             return self.bnb_fixes(keys, ext, workers)
@@ -188,20 +188,20 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
     ``default_workers()``.
     """
     _checks.require_x64()
-    batch_size = BATCH_SIZE[e.search.method] if batch_size is None else batch_size
+    batch_size = BATCH_SIZE[e.receiver.search.method] if batch_size is None else batch_size
     _checks.integer("batch_size", batch_size, 1, 4096)
     workers = default_workers() if workers is None else _checks.integer("workers", workers, 1, 256)
     e.load_deployment()  # validates m_values against the deployment before any work
     store = ChunkCache(e, cache).open()
     if os.environ.get("DPE5G_RUN_LOG"):  # the book build records what its chapters run (tests/test_warm.py)
         with open(os.environ["DPE5G_RUN_LOG"], "a") as f:
-            f.write(json.dumps({"run": store.dir.name, "n_trials": e.n_trials}) + "\n")
+            f.write(json.dumps({"run": store.dir.name, "n_trials": e.run.n_trials}) + "\n")
     todo = store.missing()
     bar = None
     if todo and progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=e.n_trials, initial=e.n_trials - sum(b - a for a, b in todo), desc=f"{e.name} trials",
+        bar = tqdm(total=e.run.n_trials, initial=e.run.n_trials - sum(b - a for a, b in todo), desc=f"{e.run.name} trials",
                    unit="trial", file=sys.stderr, dynamic_ncols=True)
     runner = None
     supersets = snr_superset_runs(e, cache) if todo else []
@@ -219,4 +219,4 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
     finally:
         if bar is not None:
             bar.close()
-    return Results(e, **store.load(Results.FIELDS + (Results.OTDOA_FIELDS if e.otdoa else ())))
+    return Results(e, **store.load(Results.FIELDS + (Results.OTDOA_FIELDS if e.receiver.otdoa else ())))

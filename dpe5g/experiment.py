@@ -1,4 +1,5 @@
-"""The Monte Carlo experiment (Section IV): one frozen config of the scenario, the links, the receiver and the run,
+"""The Monte Carlo experiment (Section IV), in four parts a reader can hold — the scenario (``Scenario``), the links'
+SNR (``Links``), the receiver (``Receiver``) and the run (``Run``), each a frozen config with its own validation —
 and the key of its results (the config, the code it runs, the deployment file, the numerical libraries).
 
 Pipeline: ``experiment`` (what to run) → ``draw`` (one trial's draws) → ``receiver`` (correlograms and fixes) →
@@ -28,10 +29,6 @@ SOURCES = ("channel.py", "correlogram.py", "deployment.py", "cost.py", "grid_sea
            "otdoa.py", "scenario.py", "signal.py")
 
 LOS_MODES = ("pr_los", "two_of_four", "all_los")
-#: OTDoA ToA detector settings used by the engine (``dpe5g.otdoa.toa``'s defaults)
-OTDOA_UPSAMPLE = 8
-OTDOA_THRESHOLD_DB = -10.0
-OTDOA_MAX_LEAD = 64
 SNR_MODES = ("fixed", "link_budget", "nearest")
 #: PRS frequency reuse factors: 0 — the paper's model (full-band PRS on all N bins, one symbol, every link received
 #: alone); R in ``nr.PRS_COMB_SIZES`` — TS 38.211's comb R, fully staggered over R symbols, BSs on R resources
@@ -43,100 +40,78 @@ OTDOA_DETECTORS = ("first_path", "peak")
 
 
 @dataclass(frozen=True)
-class Experiment:
-    """One urban Monte Carlo experiment.
+class Scenario:
+    """Where the UE is and how its links propagate (Section III).
 
-    name : label (cache directory prefix).  n_trials, seed : trials t = 0 … n_trials-1 draw from fold_in(seed, t).
-    snr_mode : "fixed" — every link at each SNR of ``snrs_db`` (per-sample SNR of ``dpe5g.signal``, dB), as Fig. 9;
-        "link_budget" — each link's SNR from the UMi path loss and shadow fading (``link``), ``snrs_db`` must be ();
-        "nearest" — the nearest BS's link at each SNR of ``snrs_db``, every other BS (interferers included) at its
-        received-power difference from it (transmit power, path loss and shadow fading of ``link``'s model): Fig. 9's
-        SNR axis with per-link power from the path loss.
-    m_values : numbers of nearest BSs used by the DPE (each ≤ the deployment's BS count).
+    deployment : "tst" or a path to a JSON/CSV deployment.
     los_mode : "pr_los" — each link LoS with the probability of eq. (11); "two_of_four" — the paper's stated case for
         Fig. 10: of the four nearest links, two (chosen at random) LoS and two NLoS (needs max(m_values) = 4);
         "all_los" — every link LoS (TDL-D; not the paper's: Chapter 8 compares it with the Cramér–Rao bound).
-    centring : where the receiver centres its search window.  "truth" — on the true position and clock bias (the
-        paper's set-up, a labelled comparison only: the window's position and grid phase then carry the truth);
-        "prior" — on truth + an error drawn from the stated prior (``prior_kind``, ``prior_scale_m``), keyed per trial;
-        "otdoa" — on that trial's OTDoA fix (detector ``toa_method``; needs ``otdoa``).  In "prior" and "otdoa" the
-        clock-bias window is centred on 0 and spans the clock model's support, ± clock_bound_sigmas · clock_sigma_s
-        · c (``receiver_search``), so nothing about the truth reaches the search.
-    prior_kind, prior_scale_m : "gaussian" — an isotropic horizontal error with σ = prior_scale_m per axis;
-        "disc" — uniform over a disc of radius prior_scale_m.
-    delay_spread_s, k_factor_db : TDL-C (NLoS) / TDL-D (LoS) at this delay spread; TDL-D's K.
+    delay_spread_s, k_factor_db : TDL-C (NLoS) / TDL-D (LoS) at this delay spread (s); TDL-D's K (dB).
     delay_spread_def : what delay_spread_s means for both profiles (``channel.DELAY_SPREAD_DEFS``): "rms", TR
         38.901's RMS spread (default), or "span", first to last tap (the paper's text; Chapter 7's readings).
-    snr_convention : what the SNRs mean (``signal.SNR_CONVENTIONS``), in both SNR modes: "per_sample" (default) or
-        "total", after correlation over the N samples (the per-sample SNR is then 10 log10 N dB lower).  The results'
-        link_snr_db is always the per-sample SNR the links were simulated at.
-    clock_sigma_s, clock_bound_sigmas : UE clock bias, Gaussian σ truncated at ± bound · σ.
-    search : the DPE search; link : the link budget; deployment : "tst" or a path to a JSON/CSV deployment.
-    otdoa : also run the OTDoA baseline (``dpe5g.otdoa``) on the same received signals, for every SNR and M, with
-        both ToA detectors of ``OTDOA_DETECTORS``;
-    toa_method : the detector whose OTDoA fix centres the search in centring "otdoa".
+    clock_sigma_s, clock_bound_sigmas : UE clock bias, Gaussian σ (s) truncated at ± bound · σ.
     prs_reuse : ``PRS_REUSES``.  0 (default) — the paper's model: every link's PRS on all N bins in one symbol,
         received alone (its own noise, no other BS).  R > 0 — Table I's PRS frequency reuse: the PRS of TS 38.211
         with comb R over R symbols on the 3276 active subcarriers (``nr.PrsPattern(R)``, the pilot energy of the
         paper's symbol), each BS on the comb offset and with the PRS ID of ``deployment.prs_plan`` (R resources).
         Every BS of the deployment transmits; the UE receives on each resource the sum of its BSs' signals through
         their own channels, path loss and ToA, plus one noise (co-channel links share their REs and so their noise).
-        Needs per-BS power: snr_mode "link_budget" or "nearest"; and the certified search, whose window taps are
-        then spaced for the pilots' band (``receiver.receiver_window``).
+        Needs per-BS power (``Links.snr_mode`` "link_budget" or "nearest") and the certified search, whose window
+        taps are then spaced for the pilots' band (``receiver.receiver_window``).
     co_channel : with prs_reuse > 0, whether the co-channel BSs' signals are received (True, default) or left out
         (the pattern and the shared noise alone, for comparison).
-    chunk_trials : trials per cache file (results do not depend on it; resuming needs the same value).
     """
 
-    name: str = "urban"
-    n_trials: int = 5000
-    seed: int = 9
-    snr_mode: str = "fixed"
-    snrs_db: tuple[float, ...] = (10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0)
-    m_values: tuple[int, ...] = (6, 12, 18, 24)
+    deployment: str = "tst"
     los_mode: str = "pr_los"
-    centring: str = "truth"
-    prior_kind: str = "gaussian"
-    prior_scale_m: float = 5.0
     delay_spread_s: float = 65e-9
     delay_spread_def: str = "rms"
-    snr_convention: str = "per_sample"
     k_factor_db: float = 13.3
     clock_sigma_s: float = 5e-9
     clock_bound_sigmas: float = 3.0
-    search: search_config.SearchConfig = field(default_factory=search_config.SearchConfig)
-    link: scenario.LinkBudget = field(default_factory=scenario.LinkBudget)
-    deployment: str = "tst"
-    otdoa: bool = False
-    toa_method: str = "first_path"
     prs_reuse: int = 0
     co_channel: bool = True
-    chunk_trials: int = 100
 
     def __post_init__(self):
-        _checks.integer("n_trials", self.n_trials, 1, 10_000_000)
-        _checks.integer("seed", self.seed, 0, 2**31 - 1)
-        _checks.integer("chunk_trials", self.chunk_trials, 1, 100_000)
-        _checks.one_of("snr_mode", self.snr_mode, SNR_MODES)
         _checks.one_of("los_mode", self.los_mode, LOS_MODES)
-        _checks.one_of("centring", self.centring, CENTRINGS)
-        _checks.one_of("toa_method", self.toa_method, otdoa.TOA_METHODS)
-        _checks.one_of("prior_kind", self.prior_kind, PRIOR_KINDS)
         _checks.one_of("delay_spread_def", self.delay_spread_def, channel.DELAY_SPREAD_DEFS)
-        _checks.one_of("snr_convention", self.snr_convention, signal.SNR_CONVENTIONS)
-        _checks.in_range("prior_scale_m", self.prior_scale_m, 0.0, 1000.0, "m")
-        if self.centring == "otdoa" and not self.otdoa:
-            raise ValueError("centring 'otdoa' centres the search on the OTDoA fix; set otdoa=True")
+        channel.check_delay_spread(self.delay_spread_s)
+        _checks.in_range("k_factor_db", self.k_factor_db, -30.0, 60.0, "dB")
+        _checks.in_range("clock_sigma_s", self.clock_sigma_s, 0.0, 1e-6, "s")
+        _checks.in_range("clock_bound_sigmas", self.clock_bound_sigmas, 0.1, 10.0, "σ")
         _checks.one_of("prs_reuse", self.prs_reuse, PRS_REUSES)
         if not isinstance(self.co_channel, bool):
             raise ValueError(f"co_channel must be True or False, got {self.co_channel!r}")
-        if self.prs_reuse and self.search.method != "bnb":
-            raise ValueError("prs_reuse > 0 needs the certified search (search.method 'bnb'): its receiver window is "
-                             "spaced for the PRS band (correlogram.band_tap_spacing), which the grid search's "
-                             f"sample-shift window cannot be; got {self.search.method!r}")
-        if self.prs_reuse and self.snr_mode == "fixed":
-            raise ValueError("prs_reuse > 0 needs each BS's received power for its interference: snr_mode must be "
-                             "'link_budget' or 'nearest', got 'fixed'")
+
+    def load_deployment(self) -> deployment.Deployment:
+        """The deployment this scenario names."""
+        return deployment.tst() if self.deployment == "tst" else deployment.load_deployment(self.deployment)
+
+
+@dataclass(frozen=True)
+class Links:
+    """The links' SNR.
+
+    snr_mode : "fixed" — every link at each SNR of ``snrs_db`` (per-sample SNR of ``dpe5g.signal``, dB), as Fig. 9;
+        "link_budget" — each link's SNR from the UMi path loss and shadow fading (``budget``), ``snrs_db`` must be ();
+        "nearest" — the nearest BS's link at each SNR of ``snrs_db``, every other BS (interferers included) at its
+        received-power difference from it (transmit power, path loss and shadow fading of ``budget``'s model): Fig.
+        9's SNR axis with per-link power from the path loss.
+    snr_convention : what the SNRs mean (``signal.SNR_CONVENTIONS``), in both SNR modes: "per_sample" (default) or
+        "total", after correlation over the N samples (the per-sample SNR is then 10 log10 N dB lower).  The results'
+        link_snr_db is always the per-sample SNR the links were simulated at.
+    budget : the link budget (``scenario.LinkBudget``).
+    """
+
+    snr_mode: str = "fixed"
+    snrs_db: tuple[float, ...] = (10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0)
+    snr_convention: str = "per_sample"
+    budget: scenario.LinkBudget = field(default_factory=scenario.LinkBudget)
+
+    def __post_init__(self):
+        _checks.one_of("snr_mode", self.snr_mode, SNR_MODES)
+        _checks.one_of("snr_convention", self.snr_convention, signal.SNR_CONVENTIONS)
         if self.snr_mode != "link_budget":
             if len(self.snrs_db) == 0:
                 raise ValueError(f"snrs_db must list at least one SNR (dB) when snr_mode is {self.snr_mode!r}")
@@ -144,38 +119,149 @@ class Experiment:
         elif len(self.snrs_db):
             raise ValueError(f"snrs_db must be empty when snr_mode is 'link_budget' (the SNR comes from the path "
                              f"loss), got {self.snrs_db!r}")
+
+    @property
+    def n_snr(self) -> int:
+        """SNR indices per trial: one per SNR of ``snrs_db``, one for the link budget."""
+        return max(len(self.snrs_db), 1)
+
+
+@dataclass(frozen=True)
+class Receiver:
+    """What the receiver uses and where it looks.
+
+    m_values : numbers of nearest BSs used by the DPE (each ≤ the deployment's BS count).
+    centring : where the receiver centres its search window.  "truth" — on the true position and clock bias (the
+        paper's set-up, a labelled comparison only: the window's position and grid phase then carry the truth);
+        "prior" — on truth + an error drawn from the stated prior (``prior_kind``, ``prior_scale_m``), keyed per trial;
+        "otdoa" — on that trial's OTDoA fix (detector ``toa_method``; needs ``otdoa``).  In "prior" and "otdoa" the
+        clock-bias window is centred on 0 and spans the clock model's support, ± clock_bound_sigmas · clock_sigma_s
+        · c (``Experiment.receiver_search``), so nothing about the truth reaches the search.
+    prior_kind, prior_scale_m : "gaussian" — an isotropic horizontal error with σ = prior_scale_m (m) per axis;
+        "disc" — uniform over a disc of radius prior_scale_m.
+    search : the DPE search (``search_config.SearchConfig``).
+    otdoa : also run the OTDoA baseline (``dpe5g.otdoa``) on the same received signals, for every SNR and M, with
+        both ToA detectors of ``OTDOA_DETECTORS``;
+    toa_method : the detector whose OTDoA fix centres the search in centring "otdoa".
+    """
+
+    m_values: tuple[int, ...] = (6, 12, 18, 24)
+    centring: str = "truth"
+    prior_kind: str = "gaussian"
+    prior_scale_m: float = 5.0
+    search: search_config.SearchConfig = field(default_factory=search_config.SearchConfig)
+    otdoa: bool = False
+    toa_method: str = "first_path"
+
+    def __post_init__(self):
         if len(self.m_values) == 0 or list(self.m_values) != sorted(set(self.m_values)):
             raise ValueError(f"m_values must be a non-empty increasing tuple of BS counts, got {self.m_values!r}")
         for m in self.m_values:
             _checks.integer("m_values entry", m, 3, 1024)
-        if self.los_mode == "two_of_four" and max(self.m_values) != 4:
+        _checks.one_of("centring", self.centring, CENTRINGS)
+        _checks.one_of("prior_kind", self.prior_kind, PRIOR_KINDS)
+        _checks.in_range("prior_scale_m", self.prior_scale_m, 0.0, 1000.0, "m")
+        _checks.one_of("toa_method", self.toa_method, otdoa.TOA_METHODS)
+        if self.centring == "otdoa" and not self.otdoa:
+            raise ValueError("centring 'otdoa' centres the search on the OTDoA fix; set otdoa=True")
+
+
+@dataclass(frozen=True)
+class Run:
+    """How many trials, from which seed.
+
+    name : label (cache directory prefix).  n_trials, seed : trials t = 0 … n_trials-1 draw from fold_in(seed, t).
+    chunk_trials : trials per cache file (results do not depend on it; resuming needs the same value).
+    """
+
+    name: str = "urban"
+    n_trials: int = 5000
+    seed: int = 9
+    chunk_trials: int = 100
+
+    def __post_init__(self):
+        _checks.integer("n_trials", self.n_trials, 1, 10_000_000)
+        _checks.integer("seed", self.seed, 0, 2**31 - 1)
+        _checks.integer("chunk_trials", self.chunk_trials, 1, 100_000)
+
+
+#: the part each setting of ``Experiment.build`` and ``Experiment.replace`` belongs to
+PARTS = {"scenario": Scenario, "links": Links, "receiver": Receiver, "run": Run}
+SETTINGS = {f.name: part for part, cls in PARTS.items() for f in dataclasses.fields(cls)}
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """One urban Monte Carlo experiment: its scenario, links, receiver and run, and the checks that tie them.
+
+    Built from settings by ``Experiment.build(centring="prior", n_trials=400, ...)`` (each setting goes to its part,
+    ``SETTINGS``), or from the parts themselves; ``replace`` changes settings the same way."""
+
+    scenario: Scenario = field(default_factory=Scenario)
+    links: Links = field(default_factory=Links)
+    receiver: Receiver = field(default_factory=Receiver)
+    run: Run = field(default_factory=Run)
+
+    def __post_init__(self):
+        for part, cls in PARTS.items():
+            if not isinstance(getattr(self, part), cls):
+                raise ValueError(f"{part} must be a {cls.__name__}, got {getattr(self, part)!r}")
+        sc, rx = self.scenario, self.receiver
+        if sc.prs_reuse and rx.search.method != "bnb":
+            raise ValueError("prs_reuse > 0 needs the certified search (search.method 'bnb'): its receiver window is "
+                             "spaced for the PRS band (correlogram.band_tap_spacing), which the grid search's "
+                             f"sample-shift window cannot be; got {rx.search.method!r}")
+        if sc.prs_reuse and self.links.snr_mode == "fixed":
+            raise ValueError("prs_reuse > 0 needs each BS's received power for its interference: snr_mode must be "
+                             "'link_budget' or 'nearest', got 'fixed'")
+        if sc.los_mode == "two_of_four" and max(rx.m_values) != 4:
             raise ValueError(f"los_mode 'two_of_four' fixes the LoS state of the four nearest links; m_values must "
-                             f"end in 4, got {self.m_values!r}")
-        channel.check_delay_spread(self.delay_spread_s)
-        _checks.in_range("k_factor_db", self.k_factor_db, -30.0, 60.0, "dB")
-        _checks.in_range("clock_sigma_s", self.clock_sigma_s, 0.0, 1e-6, "s")
-        _checks.in_range("clock_bound_sigmas", self.clock_bound_sigmas, 0.1, 10.0, "σ")
+                             f"end in 4, got {rx.m_values!r}")
+
+    @classmethod
+    def build(cls, **settings) -> "Experiment":
+        """An experiment from settings, each the field of one part (``SETTINGS``); the others at their defaults."""
+        return cls()._with(settings)
+
+    def replace(self, **settings) -> "Experiment":
+        """A copy with ``settings`` changed, each in its part (``SETTINGS``)."""
+        return self._with(settings)
+
+    def _with(self, settings: dict) -> "Experiment":
+        unknown = sorted(set(settings) - set(SETTINGS))
+        if unknown:
+            raise ValueError(f"unknown experiment setting(s) {', '.join(unknown)}; the settings are "
+                             f"{', '.join(SETTINGS)}")
+        parts = {}
+        for part in PARTS:
+            mine = {k: v for k, v in settings.items() if SETTINGS[k] == part}
+            parts[part] = dataclasses.replace(getattr(self, part), **mine) if mine else getattr(self, part)
+        return Experiment(**parts)
 
     def receiver_search(self) -> search_config.SearchConfig:
         """The search the receiver runs: ``search`` as given for centring "truth"; otherwise with the clock-bias
         window set from the clock model (± clock_bound_sigmas · clock_sigma_s · c, centred on 0)."""
-        if self.centring == "truth":
-            return self.search
-        return dataclasses.replace(self.search, bias_half_width_m=self.clock_bound_sigmas * self.clock_sigma_s * C)
+        search = self.receiver.search
+        if self.receiver.centring == "truth":
+            return search
+        sc = self.scenario
+        return dataclasses.replace(search, bias_half_width_m=sc.clock_bound_sigmas * sc.clock_sigma_s * C)
 
     @property
     def n_snr(self) -> int:
-        return max(len(self.snrs_db), 1)
+        return self.links.n_snr
 
     def load_deployment(self) -> deployment.Deployment:
-        dep = deployment.tst() if self.deployment == "tst" else deployment.load_deployment(self.deployment)
-        if max(self.m_values) > dep.n_bs:
+        """The scenario's deployment, checked against the receiver's M values."""
+        dep = self.scenario.load_deployment()
+        if max(self.receiver.m_values) > dep.n_bs:
             raise ValueError(f"m_values must not exceed the deployment's {dep.n_bs} base stations, "
-                             f"got {self.m_values!r}")
+                             f"got {self.receiver.m_values!r}")
         return dep
 
     def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        """The settings, flat ({setting: value}, ``SETTINGS``)."""
+        return {k: v for part in PARTS for k, v in dataclasses.asdict(getattr(self, part)).items()}
 
     def key(self) -> str:
         """Hash of the config, of the code (``code_digest``) and data the results depend on, and of the numerical
@@ -226,5 +312,6 @@ def numerics() -> dict:
 
 def deployment_digest(e: Experiment) -> str:
     """SHA-256 of the experiment's deployment file (the built-in TST file for "tst")."""
-    dep = deployment.TST_FILE if e.deployment == "tst" else Path(e.deployment)
+    name = e.scenario.deployment
+    dep = deployment.TST_FILE if name == "tst" else Path(name)
     return hashlib.sha256(dep.read_bytes()).hexdigest()

@@ -23,8 +23,8 @@ from typing import Any, Callable
 import jax
 import numpy as np
 
-from . import (bounds, channel, cost, dpe, draw, engine, experiment, paper, plots, result_plots, results,
-               search_config, store)
+from . import (bounds, channel, cost, dpe, engine, experiment, paper, plots, result_plots, results, search_config,
+               store, trials)
 from ._io import atomic_target, atomic_write
 from .nr import C, PAPER
 
@@ -253,7 +253,7 @@ FIG8_STEP_M = 0.2
 
 def _example():
     e = paper.fig9_truth(n_trials=EXAMPLE_TRIAL + 1)
-    return e, draw.example(e, EXAMPLE_TRIAL, list(e.snrs_db).index(EXAMPLE_SNR_DB))
+    return e, trials.example(e, EXAMPLE_TRIAL, list(e.links.snrs_db).index(EXAMPLE_SNR_DB))
 
 
 def deployment_payload() -> dict:
@@ -278,17 +278,17 @@ def urban_correlogram_payload() -> dict:
     m = EXAMPLE_M
     y, prs, bs = ex.y[:m], ex.prs[:m], ex.bs_xyz[:m]
     ue, bias = ex.ue_xyz, float(ex.clock_bias_s)
-    est = dpe.fix(y, prs, bs, np.concatenate([ue, [bias * C]]), e.search)
+    est = dpe.fix(y, prs, bs, np.concatenate([ue, [bias * C]]), e.receiver.search)
     axis = np.arange(-FIG8_HALF_WIDTH_M, FIG8_HALF_WIDTH_M + 1e-9, FIG8_STEP_M)
     rows = []
     for yy in axis:
         xyz = np.stack([ue[0] + axis, np.full_like(axis, ue[1] + yy), np.full_like(axis, ue[2])], axis=-1)
-        rows.append(np.asarray(cost.ml_cost(y, prs, cost.toa(xyz, bs, float(est.clock_bias_s)), e.search.n_taps,
+        rows.append(np.asarray(cost.ml_cost(y, prs, cost.toa(xyz, bs, float(est.clock_bias_s)), e.receiver.search.n_taps,
                                            PAPER.scs_hz)))
     surface = np.stack(rows)
     return {
         "seed": paper.URBAN_SEED,
-        "config": {"example_trial": EXAMPLE_TRIAL, "snr_db": EXAMPLE_SNR_DB, "m": m, "n_taps": e.search.n_taps,
+        "config": {"example_trial": EXAMPLE_TRIAL, "snr_db": EXAMPLE_SNR_DB, "m": m, "n_taps": e.receiver.search.n_taps,
                    "grid_step_m": FIG8_STEP_M, "centring": "truth"},
         "data": {"x_m": ue[0] + axis, "y_m": ue[1] + axis, "cost_norm": surface / surface.max(), "ue_xyz": ue,
                  "true_bias_s": bias, "est_xyz": est.xyz, "est_bias_s": est.clock_bias_s,
@@ -298,8 +298,8 @@ def urban_correlogram_payload() -> dict:
 
 def experiment_config(e) -> dict:
     s = e.receiver_search()
-    return {"name": e.name, "n_trials": e.n_trials, "seed": e.seed, "centring": e.centring,
-            "prior": f"{e.prior_kind} {e.prior_scale_m:g} m" if e.centring == "prior" else None,
+    return {"name": e.run.name, "n_trials": e.run.n_trials, "seed": e.run.seed, "centring": e.receiver.centring,
+            "prior": f"{e.receiver.prior_kind} {e.receiver.prior_scale_m:g} m" if e.receiver.centring == "prior" else None,
             "search": s.method, "half_width_m": s.half_width_m, "bias_half_width_m": s.bias_half_width_m,
             "n_taps": s.n_taps}
 
@@ -315,17 +315,17 @@ def rmse_payload(experiments: dict, progress: bool = False) -> dict:
         config[name] = experiment_config(e)
     e = next(iter(experiments.values()))
     bound, bound_cfg = {}, {}
-    if "honest" in experiments and experiments["honest"].snr_mode == "fixed":  # Chapter 8's bound, on the same trials
-        n_b = min(paper.BOUND_TRIALS, experiments["honest"].n_trials)
+    if "honest" in experiments and experiments["honest"].links.snr_mode == "fixed":  # Chapter 8's bound, on the same trials
+        n_b = min(paper.BOUND_TRIALS, experiments["honest"].run.n_trials)
         bound, bound_cfg = {"bound_m": bounds.rmse_bound_m(experiments["honest"], n_b)}, {"bound_trials": n_b}
     return {
-        "seed": e.seed,
-        "config": {"snrs_db": e.snrs_db, "m_values": e.m_values, "los_mode": e.los_mode,
-                   "delay_spread_s": e.delay_spread_s, "k_factor_db": e.k_factor_db, "clock_sigma_s": e.clock_sigma_s,
-                   "clock_bound_sigmas": e.clock_bound_sigmas, "deployment": e.deployment, "receivers": config,
+        "seed": e.run.seed,
+        "config": {"snrs_db": e.links.snrs_db, "m_values": e.receiver.m_values, "los_mode": e.scenario.los_mode,
+                   "delay_spread_s": e.scenario.delay_spread_s, "k_factor_db": e.scenario.k_factor_db, "clock_sigma_s": e.scenario.clock_sigma_s,
+                   "clock_bound_sigmas": e.scenario.clock_bound_sigmas, "deployment": e.scenario.deployment, "receivers": config,
                    **bound_cfg},
         "data": {**data, **bound, "los_share_all": res.los_share(),
-                 "los_share_by_m": [res.los_share(m) for m in e.m_values]},
+                 "los_share_by_m": [res.los_share(m) for m in e.receiver.m_values]},
     }
 
 
@@ -365,7 +365,7 @@ def cdf_payload(experiments: dict, progress: bool = False) -> dict:
         d[f"dpe_{cen}"] = {"cdf": cdf(err), "p50_p90_p99_m": results.quantiles(err),
                            "edge_share": float(np.mean(res.edge[:, 0, 0])),
                            "certified_share": float(np.mean(res.certified[:, 0, 0]))}
-        if e.otdoa:
+        if e.receiver.otdoa:
             for k, det in enumerate(experiment.OTDOA_DETECTORS):
                 ot, ok = res.otdoa_error_m[:, 0, k, 0], res.otdoa_ok[:, 0, k, 0]
                 d[f"otdoa_{det}"] = {"cdf": cdf(ot), "p50_p90_p99_m": results.quantiles(ot),
@@ -373,8 +373,8 @@ def cdf_payload(experiments: dict, progress: bool = False) -> dict:
                                      "flagged_share": float(np.mean(~ok))}
             d["los_share"] = res.los_share(4)
             d["median_link_snr_db"] = float(np.median(res.link_snr_db))
-        config[f"{case}/{cen}"] = {**experiment_config(e), "los_mode": e.los_mode, "m": 4,
-                                   "noise_figure_db": e.link.noise_figure_db}
+        config[f"{case}/{cen}"] = {**experiment_config(e), "los_mode": e.scenario.los_mode, "m": 4,
+                                   "noise_figure_db": e.links.budget.noise_figure_db}
     for d in data.values():
         d["improvement_p90"] = 1.0 - d["dpe_otdoa"]["p50_p90_p99_m"][1] / d["otdoa_first_path"]["p50_p90_p99_m"][1]
     return {"seed": paper.FIG10_SEED, "config": {"experiments": config, "error_grid_m": CDF_GRID_M}, "data": data}
@@ -411,15 +411,15 @@ def readings_payload(progress: bool = False, trials: int | None = None) -> dict:
         ex = paper.reading_experiments(name, trials)
         r9 = engine.run(ex["fig9"], progress=progress)
         e9 = ex["fig9"]
-        si = [list(e9.snrs_db).index(s) for s in paper.READING_SNRS_DB]
+        si = [list(e9.links.snrs_db).index(s) for s in paper.READING_SNRS_DB]
         r10 = engine.run(ex["fig10_dpe"], progress=progress)
         o10 = engine.run(ex["fig10_otdoa"], progress=progress)
         det = experiment.OTDOA_DETECTORS.index(ex["otdoa_detector"])
-        claims = paper.claim_values(r9.rmse_m()[si], paper.READING_SNRS_DB, e9.m_values, r10.error_m[:, 0, 0],
+        claims = paper.claim_values(r9.rmse_m()[si], paper.READING_SNRS_DB, e9.receiver.m_values, r10.error_m[:, 0, 0],
                                     o10.otdoa_error_m[:, 0, det, 0])
         data[name] = {"label": label, "short": READING_SHORT[name], "changes": changes,
-                      "n_trials": {"fig9": e9.n_trials, "fig10_dpe": ex["fig10_dpe"].n_trials,
-                                   "fig10_otdoa": ex["fig10_otdoa"].n_trials},
+                      "n_trials": {"fig9": e9.run.n_trials, "fig10_dpe": ex["fig10_dpe"].run.n_trials,
+                                   "fig10_otdoa": ex["fig10_otdoa"].run.n_trials},
                       "values": {k: v for k, (v, _) in claims.items()},
                       "reproduced": {k: ok for k, (_, ok) in claims.items()}}
     return {"seed": {"fig9": paper.URBAN_SEED, "fig10": paper.FIG10_SEED},

@@ -72,13 +72,13 @@ def honest_search() -> search_config.SearchConfig:
 def fig9_truth(n_trials: int = FIG9_TRUTH_TRIALS) -> Experiment:
     """Fig. 9 in the paper's set-up (labelled comparison): fixed per-link SNR 10…40 dB, M = 6, 12, 18, 24 nearest
     BSs, LoS from eq. (11), grid search centred on the true position and clock bias."""
-    return Experiment(name="fig09", n_trials=n_trials, seed=URBAN_SEED)
+    return Experiment.build(name="fig09", n_trials=n_trials, seed=URBAN_SEED)
 
 
 def fig9_honest(n_trials: int = FIG9_HONEST_TRIALS) -> Experiment:
     """Fig. 9 with the honest receiver (the main curves): as ``fig9_truth`` but the window centred on a prior
     (truth + N(0, 5² m²) per axis) and the certified search."""
-    return Experiment(name="fig09-honest", n_trials=n_trials, seed=URBAN_SEED, centring="prior",
+    return Experiment.build(name="fig09-honest", n_trials=n_trials, seed=URBAN_SEED, centring="prior",
                       prior_kind="gaussian", prior_scale_m=PRIOR_SIGMA_M, search=honest_search())
 
 
@@ -98,7 +98,7 @@ def fig10(n_trials: int = FIG10_TRIALS) -> dict:
         for cen in FIG10_CENTRINGS:
             extra = (dict(search=honest_search(), prior_kind="gaussian", prior_scale_m=PRIOR_SIGMA_M)
                      if cen != "truth" else {})
-            out[(case, cen)] = Experiment(name=f"fig10-{case.replace('_', '-')}-{cen}", los_mode=case, centring=cen,
+            out[(case, cen)] = Experiment.build(name=f"fig10-{case.replace('_', '-')}-{cen}", los_mode=case, centring=cen,
                                           otdoa=cen == "otdoa", **base, **extra)
     return out
 
@@ -107,7 +107,7 @@ def fig9_all_los(n_taps: int, k_factor_db: float = 13.3, box_final_m: float = 0.
                  n_trials: int = ALL_LOS_TRIALS) -> Experiment:
     """Chapter 8: ``fig9_honest`` with every link LoS (los_mode "all_los", TDL-D with K = ``k_factor_db``) at
     ``ALL_LOS_SNRS_DB``, with an ``n_taps``-tap receiver window and certified boxes refined to ``box_final_m``."""
-    return Experiment(name=f"fig09-all-los-L{n_taps}-K{k_factor_db:g}-box{box_final_m:g}", n_trials=n_trials,
+    return Experiment.build(name=f"fig09-all-los-L{n_taps}-K{k_factor_db:g}-box{box_final_m:g}", n_trials=n_trials,
                       seed=URBAN_SEED, los_mode="all_los", k_factor_db=k_factor_db, snrs_db=ALL_LOS_SNRS_DB,
                       centring="prior", prior_kind="gaussian", prior_scale_m=PRIOR_SIGMA_M,
                       search=replace(honest_search(), n_taps=n_taps, box_final_m=box_final_m))
@@ -115,12 +115,12 @@ def fig9_all_los(n_taps: int, k_factor_db: float = 13.3, box_final_m: float = 0.
 
 def fig9_low_snr(n_trials: int = STUDY_TRIALS) -> Experiment:
     """Chapter 5: Fig. 9's truth-centred experiment at per-sample SNRs from −35 to 0 dB (``LOW_SNRS_DB``)."""
-    return Experiment(name="fig09-low-snr", n_trials=n_trials, seed=URBAN_SEED, snrs_db=LOW_SNRS_DB)
+    return Experiment.build(name="fig09-low-snr", n_trials=n_trials, seed=URBAN_SEED, snrs_db=LOW_SNRS_DB)
 
 
 def fig9_link_budget(n_trials: int = STUDY_TRIALS) -> Experiment:
     """Chapter 5: Fig. 9's truth-centred experiment with each link's SNR from the UMi path loss and shadowing."""
-    return Experiment(name="fig09-link-budget", n_trials=n_trials, seed=URBAN_SEED, snr_mode="link_budget",
+    return Experiment.build(name="fig09-link-budget", n_trials=n_trials, seed=URBAN_SEED, snr_mode="link_budget",
                       snrs_db=())
 
 
@@ -136,7 +136,7 @@ def urban_window_experiments(search: search_config.SearchConfig | None = None, t
     setups = {"fig9_20db": dict(snr_mode="fixed", snrs_db=(20.0,), m_values=(6, 24), los_mode="pr_los"),
               "fig10_pr_los": dict(snr_mode="link_budget", snrs_db=(), m_values=(4,), los_mode="pr_los"),
               "fig10_two_of_four": dict(snr_mode="link_budget", snrs_db=(), m_values=(4,), los_mode="two_of_four")}
-    return {(name, int(n)): Experiment(name=f"window-{name.replace('_', '-')}-L{int(n)}", seed=URBAN_WINDOW_SEEDS[name],
+    return {(name, int(n)): Experiment.build(name=f"window-{name.replace('_', '-')}-L{int(n)}", seed=URBAN_WINDOW_SEEDS[name],
                                        search=replace(search, n_taps=int(n)), **base, **kw)
             for name, kw in setups.items() for n in taps}
 
@@ -157,13 +157,13 @@ def first_path_aware(e: Experiment, n_trials: int, snrs_db: tuple[float, ...] | 
     tap l of the L-tap window weighted by exp(−l T_s / delay spread), the experiment's delay spread
     (``correlogram.tap_weights``); ``n_trials`` trials and, if given, the SNRs ``snrs_db`` (the trials' draws and
     noise do not depend on the SNR list, so its trials are ``e``'s)."""
-    if e.centring == "truth" or e.search.method != "bnb":
+    if e.receiver.centring == "truth" or e.receiver.search.method != "bnb":
         raise ValueError(f"first_path_aware compares honest receivers: e must use the certified search ('bnb') "
-                         f"and a window not centred on the truth, got method {e.search.method!r}, centring "
-                         f"{e.centring!r}")
+                         f"and a window not centred on the truth, got method {e.receiver.search.method!r}, centring "
+                         f"{e.receiver.centring!r}")
     kw = {} if snrs_db is None else {"snrs_db": tuple(snrs_db)}
-    return replace(e, name=f"{e.name}-first-path", n_trials=n_trials,
-                   search=replace(e.search, window_decay_s=e.delay_spread_s), **kw)
+    return e.replace(name=f"{e.run.name}-first-path", n_trials=n_trials,
+                   search=replace(e.receiver.search, window_decay_s=e.scenario.delay_spread_s), **kw)
 
 
 def first_path_comparison(fig9_trials: int = FIRST_PATH_FIG9_TRIALS,
@@ -216,7 +216,7 @@ def fig9_honest_readings(n_trials: int = READING_TRIALS) -> Experiment:
     """Fig. 9's honest receiver (``fig9_honest``) at the readings' SNRs (``READING_SNRS_DB``) with
     ``READING_TRIALS`` trials: the honest reading's Fig. 9 cells.  A trial's draws, and its noise (drawn once and
     scaled to each SNR), do not depend on the SNR list, so its first trials are Fig. 9's signals at these SNRs."""
-    return replace(fig9_honest(n_trials), name="fig09-honest-readings", snrs_db=READING_SNRS_DB)
+    return fig9_honest(n_trials).replace(name="fig09-honest-readings", snrs_db=READING_SNRS_DB)
 
 
 def reading_experiments(name: str, n_trials: int | None = None) -> dict:
@@ -248,8 +248,8 @@ def reading_experiments(name: str, n_trials: int | None = None) -> dict:
                 "otdoa_detector": detector}
     n = READING_TRIALS if n_trials is None else n_trials
     tag = "-".join(str(v).replace("_", "-") for v in kw.values())
-    e10 = replace(f10[("two_of_four", "truth")], name=f"fig10-two-of-four-truth-{tag}", n_trials=n, otdoa=True, **kw)
-    return {"fig9": replace(fig9_truth(n), name=f"fig09-{tag}", snrs_db=READING_SNRS_DB, **kw),
+    e10 = f10[("two_of_four", "truth")].replace(name=f"fig10-two-of-four-truth-{tag}", n_trials=n, otdoa=True, **kw)
+    return {"fig9": fig9_truth(n).replace(name=f"fig09-{tag}", snrs_db=READING_SNRS_DB, **kw),
             "fig10_dpe": e10, "fig10_otdoa": e10, "otdoa_detector": detector}
 
 
@@ -259,7 +259,7 @@ def fig9_power(n_trials: int = READING_TRIALS, reuse: int = 0, co_channel: bool 
     link received alone; ``REUSE``: Table I's reuse with (co_channel) or without the co-channel BSs' signals.  The
     same seed for all: trial t is the same UE, links, channels and clock in each."""
     tag = f"-reuse{reuse}{'' if co_channel else '-alone'}" if reuse else ""
-    return replace(fig9_honest(n_trials), name=f"fig09-power{tag}", snr_mode="nearest", snrs_db=READING_SNRS_DB,
+    return fig9_honest(n_trials).replace(name=f"fig09-power{tag}", snr_mode="nearest", snrs_db=READING_SNRS_DB,
                    prs_reuse=reuse, co_channel=co_channel)
 
 
@@ -267,8 +267,8 @@ def fig10_reuse(n_trials: int = REUSE_FIG10_TRIALS, reuse: int = REUSE) -> dict:
     """Fig. 10's OTDoA-centred DPE and its OTDoA fixes (``fig10``, both LoS cases, the same seed and trials) with
     Table I's PRS reuse and co-channel interference: {case: Experiment}."""
     f10 = fig10(n_trials)
-    return {case: replace(f10[(case, "otdoa")], name=f"fig10-{case.replace('_', '-')}-otdoa-reuse{reuse}",
-                          prs_reuse=reuse) for case in FIG10_CASES}
+    return {case: f10[(case, "otdoa")].replace(name=f"fig10-{case.replace('_', '-')}-otdoa-reuse{reuse}",
+                                               prs_reuse=reuse) for case in FIG10_CASES}
 
 
 #: the paper's quantitative claims about Figs. 9 and 10 (Section IV, abstract), tested per reading: id → (claim with
@@ -324,11 +324,11 @@ def book_experiments() -> list[Experiment]:
         out += [flat, fpa]
     longest = {}
     for e in out:  # one entry per cached run (the name and config without the trial count), at its largest count
-        k = (e.name, e.key())
-        longest[k] = e if k not in longest or e.n_trials > longest[k].n_trials else longest[k]
+        k = (e.run.name, e.key())
+        longest[k] = e if k not in longest or e.run.n_trials > longest[k].run.n_trials else longest[k]
     seen, order = set(), []
     for e in out:
-        k = (e.name, e.key())
+        k = (e.run.name, e.key())
         if k not in seen:
             seen.add(k)
             order.append(longest[k])

@@ -11,16 +11,16 @@ def run_summary(res: Results) -> str:
     """The study in one line, then the RMSE (m) per SNR (rows) and M (columns) of the DPE (and of the OTDoA fix
     that centres it, for centring "otdoa"), and for the honest centrings the edge-flag and certified shares."""
     e = res.experiment
-    prior = f" (σ = {e.prior_scale_m:g} m)" if e.centring == "prior" else ""
-    lines = [f"{e.n_trials} trials, seed {e.seed}, deployment {e.deployment}, delay spread "
-             f"{e.delay_spread_s * 1e9:g} ns, L = {e.receiver_search().n_taps}, centring {e.centring}{prior}"]
+    prior = f" (σ = {e.receiver.prior_scale_m:g} m)" if e.receiver.centring == "prior" else ""
+    lines = [f"{e.run.n_trials} trials, seed {e.run.seed}, deployment {e.scenario.deployment}, delay spread "
+             f"{e.scenario.delay_spread_s * 1e9:g} ns, L = {e.receiver_search().n_taps}, centring {e.receiver.centring}{prior}"]
     tables = [("DPE", res.rmse_m())]
     if res.otdoa_error_m is not None:
-        tables.append((f"OTDoA, {e.toa_method} ToA", res.otdoa_rmse_m(e.toa_method)))
+        tables.append((f"OTDoA, {e.receiver.toa_method} ToA", res.otdoa_rmse_m(e.receiver.toa_method)))
     for label, rmse in tables:
-        lines += [f"RMSE (m), {label}:", f"{'SNR (dB)':>9} " + " ".join(f"{f'M = {m}':>9}" for m in e.m_values)]
-        lines += [f"{snr:9g} " + " ".join(f"{v:9.3f}" for v in row) for snr, row in zip(e.snrs_db, rmse)]
-    if e.centring != "truth":
+        lines += [f"RMSE (m), {label}:", f"{'SNR (dB)':>9} " + " ".join(f"{f'M = {m}':>9}" for m in e.receiver.m_values)]
+        lines += [f"{snr:9g} " + " ".join(f"{v:9.3f}" for v in row) for snr, row in zip(e.links.snrs_db, rmse)]
+    if e.receiver.centring != "truth":
         lines.append(f"DPE fixes on the window's edge (flagged): {100 * res.edge.mean():.1f} %; certified: "
                      f"{100 * res.certified.mean():.1f} %")
     return "\n".join(lines)

@@ -56,7 +56,7 @@ class Results:
     def otdoa_rmse_m(self, detector: str) -> np.ndarray:
         """(S, J) RMSE of the OTDoA fixes of ``detector`` (``OTDOA_DETECTORS``) over trials."""
         if self.otdoa_error_m is None:
-            raise ValueError(f"experiment {self.experiment.name!r} ran no OTDoA baseline (otdoa=False)")
+            raise ValueError(f"experiment {self.experiment.run.name!r} ran no OTDoA baseline (otdoa=False)")
         k = OTDOA_DETECTORS.index(detector)
         return np.sqrt(np.mean(self.otdoa_error_m[:, :, k] ** 2, axis=0))
 
@@ -69,12 +69,12 @@ class Results:
         LoS flags nearest first ("L" LoS, "N" NLoS) and their per-sample SNR and SINR in dB, nearest first
         (";"-separated)."""
         e = self.experiment
-        snrs = e.snrs_db if e.snr_mode != "link_budget" else ("link",)
+        snrs = e.links.snrs_db if e.links.snr_mode != "link_budget" else ("link",)
         per_link = lambda a: ";".join(f"{v:.2f}" for v in a)
         rows = []
         for t in range(self.error_m.shape[0]):
             for s, snr in enumerate(snrs):
-                for j, m in enumerate(e.m_values):
+                for j, m in enumerate(e.receiver.m_values):
                     rows.append({"trial": t, "snr_db": snr, "m": m, "error_m": float(self.error_m[t, s, j]),
                                  "est_x_m": float(self.est_xyz[t, s, j, 0]), "est_y_m": float(self.est_xyz[t, s, j, 1]),
                                  "true_x_m": float(self.ue_xyz[t, 0]), "true_y_m": float(self.ue_xyz[t, 1]),

@@ -6,7 +6,6 @@ the figures' payloads (``payload_path``), keyed by the code of the whole package
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import io
 import json
@@ -30,7 +29,7 @@ def cache_root(cache: str | os.PathLike | None = None) -> Path:
 
 def cache_dir(e: Experiment, cache: str | os.PathLike | None = None) -> Path:
     """The experiment's cache directory: ``<cache root>/<name>-<key>`` (``cache_root``)."""
-    return cache_root(cache) / f"{e.name}-{e.key()}"
+    return cache_root(cache) / f"{e.run.name}-{e.key()}"
 
 
 class ChunkCache:
@@ -43,7 +42,7 @@ class ChunkCache:
     def __init__(self, e: Experiment, cache: str | os.PathLike | None = None):
         self.experiment = e
         self.dir = cache_dir(e, cache)
-        self.chunks = [(s, min(s + e.chunk_trials, e.n_trials)) for s in range(0, e.n_trials, e.chunk_trials)]
+        self.chunks = [(s, min(s + e.run.chunk_trials, e.run.n_trials)) for s in range(0, e.run.n_trials, e.run.chunk_trials)]
 
     def path(self, start: int, stop: int) -> Path:
         return self.dir / f"trials-{start:07d}-{stop:07d}.npz"
@@ -85,7 +84,7 @@ def snr_superset_runs(e: Experiment, cache: str | os.PathLike | None = None) -> 
     noise (drawn once, scaled to each SNR) do not depend on the SNR list, so such a run's chunk, sliced to ``e``'s
     SNRs, is ``e``'s chunk (``tests/test_engine.py`` computes both).  Returns [(its cache, index of each of
     ``e``'s SNRs in its list)]."""
-    if e.snr_mode == "link_budget":
+    if e.links.snr_mode == "link_budget":
         return []
     root = cache_root(cache)
     mine = json.loads(json.dumps(e.to_dict(), default=str))
@@ -100,11 +99,11 @@ def snr_superset_runs(e: Experiment, cache: str | os.PathLike | None = None) -> 
         if any(d[k] != mine[k] for k in d if k not in ("name", "snrs_db")):
             continue
         snrs = [float(v) for v in d["snrs_db"]]
-        if tuple(snrs) == tuple(e.snrs_db) or not set(e.snrs_db) <= set(snrs):
+        if tuple(snrs) == tuple(e.links.snrs_db) or not set(e.links.snrs_db) <= set(snrs):
             continue
-        other = dataclasses.replace(e, name=str(d["name"]), snrs_db=tuple(snrs))
+        other = e.replace(name=str(d["name"]), snrs_db=tuple(snrs))
         if cache_dir(other, cache) == meta.parent:  # the same code, data and versions
-            out.append((ChunkCache(other, cache), [snrs.index(v) for v in e.snrs_db]))
+            out.append((ChunkCache(other, cache), [snrs.index(v) for v in e.links.snrs_db]))
     return out
 
 

@@ -146,9 +146,9 @@ def urban_window_table(experiments: dict, progress: bool = False) -> list[dict]:
     rows = []
     for (name, n), e in experiments.items():
         res = engine.run(e, progress=progress)
-        for j, m in enumerate(e.m_values):
+        for j, m in enumerate(e.receiver.m_values):
             err = res.error_m[:, 0, j]
-            rows.append({"setup": name, "m": m, "n_taps": n, "n_trials": e.n_trials, **results.error_summary(err, res.edge[:, 0, j], res.certified[:, 0, j]),
+            rows.append({"setup": name, "m": m, "n_taps": n, "n_trials": e.run.n_trials, **results.error_summary(err, res.edge[:, 0, j], res.certified[:, 0, j]),
                          "gap_median": float(np.median(res.gap[:, 0, j]))})
     for r in rows:
         best = min(o["rmse_m"] for o in rows if (o["setup"], o["m"]) == (r["setup"], r["m"]))
@@ -173,5 +173,5 @@ def range_offsets_m(res) -> np.ndarray:
     est = (np.linalg.norm(res.est_xyz[..., None, :] - bs[:, None, None], axis=-1)
            + C * res.est_bias_s[..., None])  # (T, S, J, I)
     out = est - true[:, None, None, :]
-    used = np.arange(bs.shape[1])[None, :] < np.asarray(res.experiment.m_values)[:, None]  # (J, I)
+    used = np.arange(bs.shape[1])[None, :] < np.asarray(res.experiment.receiver.m_values)[:, None]  # (J, I)
     return np.where(used[None, None], out, np.nan)

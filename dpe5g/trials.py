@@ -1,4 +1,5 @@
-"""The per-trial programs of the engine: trial key → draws (``draw``) → receiver (``receiver``) → scored fixes.
+"""The per-trial programs of the engine: trial key → draws (``draw``) → receiver (``receiver``) → scored fixes; and
+one trial as the receivers see it (``example``).
 
 The grid search runs as one program per trial (``grid_trial_fn``).  The certified search runs as two, the draws and
 the windows of the spline correlograms (``bnb_prep_fn``), then the search per (SNR, M) (``bnb_fix_fn``), so that
@@ -11,15 +12,16 @@ experiments that differ elsewhere share one compiled program.
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import correlogram, deployment, grid_search, otdoa, receiver
+from . import _checks, correlogram, deployment, grid_search, otdoa, receiver, signal
 from .certified_search import spline_window
-from .draw import TrialDraw, draw_fn, prior_center
-from .experiment import OTDOA_DETECTORS, Experiment
+from .draw import CoChannelDraw, ReuseDraw, TrialDraw, draw_fn, prior_center, trial_key
+from .experiment import OTDOA_DETECTORS, Experiment, Receiver
 from .nr import C, PAPER
 from .search_config import SearchConfig, WindowFix
 
@@ -43,18 +45,18 @@ def program_config(e: Experiment, program: str) -> Experiment | tuple[SearchConf
     program (and, through JAX's persistent compilation cache, one compiled executable across processes)."""
     if program not in PROGRAMS:
         raise ValueError(f"program must be one of {PROGRAMS}, got {program!r}")
-    run_free = dataclasses.replace(e, name="", seed=0, n_trials=1, chunk_trials=1)
+    run_free = e.replace(name="", seed=0, n_trials=1, chunk_trials=1)
     if program in ("toa", "prior"):
         return run_free
     if program == "bnb_fix":
-        return dataclasses.replace(e.receiver_search(), n_taps=1, window_decay_s=0.0), tuple(e.m_values)
-    search = (dataclasses.replace(e.search, n_taps=1, window_decay_s=0.0) if e.search.method == "bnb"
-              else e.search)
-    d = Experiment()
-    centre = {} if e.centring == "truth" else dict(centring="prior", prior_kind=d.prior_kind,
+        return dataclasses.replace(e.receiver_search(), n_taps=1, window_decay_s=0.0), tuple(e.receiver.m_values)
+    search = (dataclasses.replace(e.receiver.search, n_taps=1, window_decay_s=0.0) if e.receiver.search.method == "bnb"
+              else e.receiver.search)
+    d = Receiver()
+    centre = {} if e.receiver.centring == "truth" else dict(centring="prior", prior_kind=d.prior_kind,
                                                     prior_scale_m=d.prior_scale_m, otdoa=False,
                                                     toa_method=d.toa_method)
-    return dataclasses.replace(run_free, search=search, **centre)
+    return run_free.replace(search=search, **centre)
 
 
 def truth_center(d: TrialDraw) -> jax.Array:
@@ -77,7 +79,7 @@ def grid_trial_fn(e: Experiment, dep: deployment.Deployment):
     cfg = e.receiver_search()
     # one window centre for every M only when it is the truth: the experiment this function is built from
     # (``program_config``) names both external centrings "prior", and the OTDoA fixes differ between the M values
-    shared_centre = e.centring == "truth"
+    shared_centre = e.receiver.centring == "truth"
 
     def one(key, ext_center):
         d = draw(key)
@@ -87,17 +89,17 @@ def grid_trial_fn(e: Experiment, dep: deployment.Deployment):
         if shared_centre and parts is not None and not cfg.polish:  # every SNR's first level in one lookup
             start = grid_search.grid_window(bs, c0, cfg, PAPER)
             a, b = receiver.noise_scales(d)
-            r = receiver.mixed_grid_fixes(parts(start), start, a, b, bs, c0, cfg, e.m_values, PAPER)
+            r = receiver.mixed_grid_fixes(parts(start), start, a, b, bs, c0, cfg, e.receiver.m_values, PAPER)
             return scored_fields(d, r, jnp.broadcast_to(c0, r.q.shape))
 
         def per_snr(s):
             g = correlogram.ls_spectrum(receiver.spectrum_at(d, s), d.prs)  # read by the polish only
             if shared_centre:  # one window and one first level for every M
                 corr = windows(s, grid_search.grid_window(bs, c0, cfg, PAPER))
-                r = grid_search.nested_grid_fixes(corr, g, bs, c0, cfg, e.m_values, PAPER)
-                return r, jnp.broadcast_to(c0, (len(e.m_values), 4))
+                r = grid_search.nested_grid_fixes(corr, g, bs, c0, cfg, e.receiver.m_values, PAPER)
+                return r, jnp.broadcast_to(c0, (len(e.receiver.m_values), 4))
             fixes = []
-            for j, m in enumerate(e.m_values):
+            for j, m in enumerate(e.receiver.m_values):
                 c = ext_center[s, j]
                 corr = grid_search.first_rows(windows(s, grid_search.grid_window(bs, c, cfg, PAPER)), m)
                 fixes.append(receiver.fix_in_window(g[:m], bs[:m], c, cfg, PAPER, corr=corr))
@@ -129,7 +131,7 @@ def bnb_prep_fn(e: Experiment, dep: deployment.Deployment):
 
     def bnb_prep(key, window, ext):
         d = draw(key)
-        centers = jnp.broadcast_to(truth_center(d), ext.shape) if e.centring == "truth" else ext
+        centers = jnp.broadcast_to(truth_center(d), ext.shape) if e.receiver.centring == "truth" else ext
         correlograms = receiver.spline_correlograms(d, cfg, window)
 
         def per_snr(a):
@@ -199,10 +201,10 @@ def otdoa_fixes(e: Experiment, dep: deployment.Deployment, toas: np.ndarray, ue:
     (T, S, D, I) of every detector, the true UE positions (T, 3) (for the error only) and the nearest BSs' indices
     (T, I); flagged, never dropped.  Returns the OTDoA fields of ``results.Results``."""
     n_t, n_s, n_d = toas.shape[:3]
-    xyz = np.full((n_t, n_s, n_d, len(e.m_values), 3), np.nan)
-    ok = np.zeros((n_t, n_s, n_d, len(e.m_values)), dtype=bool)
+    xyz = np.full((n_t, n_s, n_d, len(e.receiver.m_values), 3), np.nan)
+    ok = np.zeros((n_t, n_s, n_d, len(e.receiver.m_values)), dtype=bool)
     for t in range(n_t):
-        for j, m in enumerate(e.m_values):
+        for j, m in enumerate(e.receiver.m_values):
             bs = dep.bs_xyz[idx[t, :m]]
             for s in range(n_s):
                 for k in range(n_d):
@@ -216,12 +218,58 @@ def otdoa_centers(e: Experiment, dep: deployment.Deployment, ot: dict, idx: np.n
     """Centring "otdoa": the window centre of each (trial, SNR, M) is the OTDoA fix of detector ``toa_method`` at
     the known UE height with c δt = 0; where that fix is not finite (solver failure), the centroid of the M BSs
     used (known to the receiver).  Returns (T, S, J, 4) metres."""
-    k = OTDOA_DETECTORS.index(e.toa_method)
+    k = OTDOA_DETECTORS.index(e.receiver.toa_method)
     xyz = ot["otdoa_xyz"][:, :, k]  # (T, S, J, 3)
     out = np.zeros(xyz.shape[:3] + (4,))
     out[..., :3] = xyz
     out[..., 2] = dep.ue_height_m
     bad = ~np.all(np.isfinite(xyz), axis=-1)
     for t, s, j in zip(*np.nonzero(bad)):
-        out[t, s, j, :2] = dep.bs_xyz[idx[t, : e.m_values[j]], :2].mean(axis=0)
+        out[t, s, j, :2] = dep.bs_xyz[idx[t, : e.receiver.m_values[j]], :2].mean(axis=0)
     return out
+
+
+@dataclass(frozen=True)
+class TrialExample:
+    """One trial at one SNR index exactly as the receivers see it, as NumPy arrays (``example``).
+
+    The fields of ``TrialDraw`` (the SNR and SINR at that index only: link_snr_db, link_sinr_db (I,); with PRS
+    reuse, ``reuse.co_channel.snr_db`` (X,)), without the unit noise, and y (I, N) the received samples (the inverse
+    DFT of ``receiver.spectrum_at``; in units of the noise where the links' powers differ), y0 (I, N) the links'
+    noise-free samples at unit power."""
+
+    ue_xyz: np.ndarray
+    clock_bias_s: np.ndarray
+    bs_index: np.ndarray
+    bs_xyz: np.ndarray
+    los: np.ndarray
+    prs: np.ndarray
+    gains: np.ndarray
+    delays_s: np.ndarray
+    y: np.ndarray
+    y0: np.ndarray
+    link_snr_db: np.ndarray
+    link_sinr_db: np.ndarray
+    reuse: ReuseDraw | None
+
+
+def example(e: Experiment, trial: int, snr_index: int = 0) -> TrialExample:
+    """The draws and received samples of trial ``trial`` at SNR index ``snr_index``, from the engine's own key and
+    draw (``draw.trial_key``, ``draw.draw_fn``, ``receiver.spectrum_at``)."""
+    dep = e.load_deployment()
+    _checks.integer("trial", trial, 0, e.run.n_trials - 1)
+    _checks.integer("snr_index", snr_index, 0, e.n_snr - 1)
+    d = draw_fn(e, dep)(trial_key(e.run.seed, trial))
+    reuse = None
+    if d.reuse is not None:
+        x = d.reuse.co_channel
+        if x is not None:
+            x = CoChannelDraw(res=np.asarray(x.res), prs=np.asarray(x.prs), y0=np.asarray(x.y0),
+                              snr_db=np.asarray(x.snr_db)[snr_index])
+        reuse = ReuseDraw(res=np.asarray(d.reuse.res), co_channel=x, n_res=d.reuse.n_res)
+    a = lambda v: np.asarray(v)
+    return TrialExample(ue_xyz=a(d.ue_xyz), clock_bias_s=a(d.clock_bias_s), bs_index=a(d.bs_index),
+                        bs_xyz=a(d.bs_xyz), los=a(d.los), prs=a(d.prs), gains=a(d.gains), delays_s=a(d.delays_s),
+                        y=a(signal.ofdm_symbol(receiver.spectrum_at(d, snr_index))), y0=a(signal.ofdm_symbol(d.y0)),
+                        link_snr_db=a(d.link_snr_db)[snr_index], link_sinr_db=a(d.link_sinr_db)[snr_index],
+                        reuse=reuse)

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dpe5g import bounds, channel, draw, experiment
+from dpe5g import bounds, channel, experiment, trials
 from dpe5g.nr import C, PAPER
 
 
@@ -115,13 +115,13 @@ def test_bounds_reject_bad_input():
 def test_experiment_bound_is_the_mean_of_its_trials_bounds():
     """``rmse_bound_m`` over an experiment: the RMS over trials of each trial's bound, which scales as 1/√SNR."""
 
-    e = experiment.Experiment(n_trials=2, snrs_db=(10.0, 30.0), m_values=(3, 6), los_mode="all_los")
+    e = experiment.Experiment.build(n_trials=2, snrs_db=(10.0, 30.0), m_values=(3, 6), los_mode="all_los")
     got = bounds.rmse_bound_m(e, 2)
     assert got.shape == (2, 2)
     f = bounds.subcarrier_frequencies_hz("full")
     var = []
     for t in range(2):
-        ex = draw.example(e, t)
+        ex = trials.example(e, t)
         assert ex.los.all()
         j = np.array([bounds.toa_fisher(f, 10.0, ex.gains[i], ex.delays_s[i]) for i in range(6)])
         var.append([np.trace(bounds.position_crb(ex.ue_xyz, ex.bs_xyz[:m], j[:m])[:2, :2]) for m in (3, 6)])
@@ -129,4 +129,4 @@ def test_experiment_bound_is_the_mean_of_its_trials_bounds():
     np.testing.assert_allclose(got[1], got[0] / 10, rtol=1e-9)
     np.testing.assert_allclose(bounds.rmse_bound_m(e, 2, snrs_db=[0.0, 30.0]), [got[0] * 10 ** 0.5, got[1]], rtol=1e-9)
     with pytest.raises(ValueError, match="snrs_db"):
-        bounds.rmse_bound_m(experiment.Experiment(n_trials=2, snr_mode="link_budget", snrs_db=()), 2, snrs_db=[0.0])
+        bounds.rmse_bound_m(experiment.Experiment.build(n_trials=2, snr_mode="link_budget", snrs_db=()), 2, snrs_db=[0.0])

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from dpe5g import certified_search, correlogram, cost, draw, experiment, search_config
+from dpe5g import certified_search, correlogram, cost, experiment, search_config, trials
 from dpe5g.nr import C, PAPER
 
 N_TRIALS = 50
@@ -42,20 +42,20 @@ def _exhaustive_fn(cfg, step):
 
 
 @pytest.fixture(scope="module")
-def trials():
-    e = experiment.Experiment(name="t", n_trials=N_TRIALS, seed=10, snr_mode="link_budget", snrs_db=(), m_values=(4,),
+def urban_trials():
+    e = experiment.Experiment.build(name="t", n_trials=N_TRIALS, seed=10, snr_mode="link_budget", snrs_db=(), m_values=(4,),
                               centring="prior", search=CFG)
     out = []
     for t in range(N_TRIALS):
-        ex = draw.example(e, t)
+        ex = trials.example(e, t)
         rng = np.random.default_rng(t)
         center = np.array([*(ex.ue_xyz[:2] + rng.normal(0, 3.0, 2)), ex.ue_xyz[2], 0.0])
         out.append((ex, center))
     return e, out
 
 
-def test_certified_search_finds_the_exhaustive_maximum(trials):
-    e, items = trials
+def test_certified_search_finds_the_exhaustive_maximum(urban_trials):
+    e, items = urban_trials
     search = jax.jit(lambda coef, bs, c: certified_search.certified_search(coef, bs, c, CFG))
     worst, n_cert = np.inf, 0
     for ex, center in items:
@@ -74,14 +74,14 @@ def test_certified_search_finds_the_exhaustive_maximum(trials):
     assert n_cert >= N_TRIALS // 2
 
 
-def test_certified_search_does_not_depend_on_the_grid_phase(trials):
+def test_certified_search_does_not_depend_on_the_grid_phase(urban_trials):
     """Shifting the window by a fraction of a cell moves the fix by at most the resolution, except between points
     whose costs tie within the certified tolerance (a flat multipath cost: both are maxima).  Fixes on the edge of
     either window are left out: there the two windows hold different points.  Ties are not rare here: with one noise
     floor the nearest link's energy dominates the cost (its SNR is often 20–40 dB above the fourth link's), and its
     L-tap window sum is flat while the window holds its whole channel, so points tens of centimetres apart can tie
     to 1e-7 of the cost; the guard below only asks that the comparison is not vacuous."""
-    e, items = trials
+    e, items = urban_trials
     search = jax.jit(lambda coef, bs, c: certified_search.certified_search(coef, bs, c, CFG))
     moved = compared = 0
     for ex, center in items:
@@ -99,12 +99,12 @@ def test_certified_search_does_not_depend_on_the_grid_phase(trials):
     assert compared >= 0.8 * N_TRIALS and moved <= compared // 2, (compared, moved)
 
 
-def test_chunk_size_and_capacity_do_not_change_an_undropped_fix(trials):
+def test_chunk_size_and_capacity_do_not_change_an_undropped_fix(urban_trials):
     """The boxes of a level are refined a chunk at a time and a box overtaken by an earlier chunk's best cost is
     skipped: that changes which boxes are refined, never the fix, since every box that holds a better point is still
     refined.  So chunk sizes 8 and 64 and a capacity of 256 or 1024 give the same fix wherever no box was dropped;
     a capacity too small for the boxes alive drops boxes and the fix says it is not certified."""
-    e, items = trials
+    e, items = urban_trials
     cfgs = [dataclasses.replace(CFG, chunk_boxes=8), dataclasses.replace(CFG, capacity=256, chunk_boxes=64), CFG]
     tiny = dataclasses.replace(CFG, capacity=8, chunk_boxes=8)
     runs = [jax.jit(lambda coef, bs, c, cfg=cfg: certified_search.certified_search(coef, bs, c, cfg)) for cfg in cfgs + [tiny]]
@@ -124,7 +124,7 @@ def test_chunk_size_and_capacity_do_not_change_an_undropped_fix(trials):
 
 
 def test_spline_correlogram_is_exact_at_the_knots():
-    ex = draw.example(experiment.Experiment(n_trials=1, m_values=(6,), snrs_db=(20.0,)), 0)
+    ex = trials.example(experiment.Experiment.build(n_trials=1, m_values=(6,), snrs_db=(20.0,)), 0)
     coef = correlogram.spline_correlogram(ex.y, ex.prs, 12, 8)
     ref = np.asarray(correlogram.correlogram(ex.y, ex.prs, 12, 8))
     vals = (np.roll(coef, 1, -1) + 4 * np.asarray(coef) + np.roll(coef, -1, -1)) / 6
@@ -145,9 +145,9 @@ def test_bnb_config_rejects_bad_input():
     with pytest.raises(ValueError, match="z_half_width_m"):
         search_config.SearchConfig(method="bnb", z_half_width_m=2.0)
     with pytest.raises(ValueError, match="otdoa"):
-        experiment.Experiment(centring="otdoa")
+        experiment.Experiment.build(centring="otdoa")
     with pytest.raises(ValueError, match="prior_kind"):
-        experiment.Experiment(centring="prior", prior_kind="cauchy")
+        experiment.Experiment.build(centring="prior", prior_kind="cauchy")
 
 
 FIRST_PATH = dataclasses.replace(CFG, window_decay_s=65e-9, box_final_m=0.0125)
@@ -156,7 +156,7 @@ FIRST_PATH = dataclasses.replace(CFG, window_decay_s=65e-9, box_final_m=0.0125)
 def test_first_path_window_is_the_weighted_cost():
     """The first-path-aware window (tap l weighted by exp(−l T_s / decay)): ``ml_cost`` with weights equals the
     weighted sum of one-tap costs at τ + l T_s (an independent evaluation), and its spline equals ``ml_cost``."""
-    ex = draw.example(experiment.Experiment(n_trials=1, m_values=(6,), snrs_db=(20.0,)), 0)
+    ex = trials.example(experiment.Experiment.build(n_trials=1, m_values=(6,), snrs_db=(20.0,)), 0)
     w = FIRST_PATH.tap_weights()
     assert w[0] == 1.0 and np.all(np.diff(w) < 0)
     np.testing.assert_allclose(w[1:] / w[:-1], np.exp(-PAPER.sample_period_s / 65e-9), rtol=1e-12)
@@ -170,11 +170,11 @@ def test_first_path_window_is_the_weighted_cost():
     assert np.max(np.abs(spl - exact)) <= 1e-4 * exact.max()
 
 
-def test_certified_search_finds_the_exhaustive_maximum_of_the_first_path_cost(trials):
+def test_certified_search_finds_the_exhaustive_maximum_of_the_first_path_cost(urban_trials):
     """The weighted cost is steeper than eq. (10)'s along the plateau, so the certificate (gap ≤ 1e-4) needs finer
     final boxes (1.25 cm here; at the figures' 5 cm most fixes are left uncertified, and counted so); the maximum
     must be found either way."""
-    e, items = trials
+    e, items = urban_trials
     search = jax.jit(lambda coef, bs, c: certified_search.certified_search(coef, bs, c, FIRST_PATH))
     w = FIRST_PATH.tap_weights()
     n_cert = 0

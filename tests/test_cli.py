@@ -189,9 +189,10 @@ def test_run_defaults_are_the_papers_experiments():
     assert cli.run_experiment(truth) == paper.fig9_truth(7)
     mine = cli.run_experiment(parse(["run", "--trials", "7", "--out", "x.csv", "--m", "12", "6", "6", "--taps", "4",
                                      "--delay-spread", "1e-7", "--seed", "3"]))
-    assert mine.name == "run" and mine.m_values == (6, 12) and mine.search.n_taps == 4 and mine.seed == 3
-    assert mine.search.method == "bnb" and mine.prior_scale_m == paper.PRIOR_SIGMA_M
-    assert mine.delay_spread_s == 1e-7
+    assert mine.run.name == "run" and mine.receiver.m_values == (6, 12) and mine.receiver.search.n_taps == 4
+    assert mine.run.seed == 3 and mine.receiver.search.method == "bnb"
+    assert mine.receiver.prior_scale_m == paper.PRIOR_SIGMA_M
+    assert mine.scenario.delay_spread_s == 1e-7
 
 
 def read_csv(path):
@@ -268,8 +269,11 @@ def test_the_real_baselines_are_not_touched_by_a_refusal(capsys):
     assert {p: p.stat().st_mtime_ns for p in cli.BASELINE_DIR.rglob("*")} == stamp
 
 
+@pytest.mark.book
 def test_figures_with_a_trial_count(tmp_path):
-    """``dpe5g figures --trials N`` runs the paper's experiment (``dpe5g.paper``) with N trials."""
+    """``dpe5g figures --trials N`` runs the paper's experiment (``dpe5g.paper``) with N trials.  Marked "book": it
+    compiles Fig. 9's three programs, which the book has put in JAX's compilation cache by then (beside the book's own
+    compiles, at low priority, it took 536-600+ s of the 2-core machine; after it, about 20 s)."""
     env = {**os.environ, "DPE5G_CACHE": str(tmp_path / "cache")}
     r = subprocess.run([sys.executable, "-m", "dpe5g", "figures", "--only", "fig09_rmse_vs_snr", "--trials", "3",
                         "--out", str(tmp_path / "out")], capture_output=True, text=True, timeout=600, env=env)
@@ -279,7 +283,7 @@ def test_figures_with_a_trial_count(tmp_path):
 
 
 def test_warm_fills_the_cache_with_the_books_runs(workdir, monkeypatch, capsys):
-    tiny = [experiment.Experiment(name=f"warm{i}", n_trials=4, chunk_trials=2, seed=i, snrs_db=(20.0,), m_values=(4,),
+    tiny = [experiment.Experiment.build(name=f"warm{i}", n_trials=4, chunk_trials=2, seed=i, snrs_db=(20.0,), m_values=(4,),
                                   search=search_config.SearchConfig(half_width_m=2.0, bias_half_width_m=2.0)) for i in (1, 2)]
     monkeypatch.setattr(paper, "book_experiments", lambda: tiny)
     assert cli.main(["warm"]) == 0

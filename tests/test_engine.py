@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from dpe5g import (correlogram, cost, deployment, dpe, draw, engine, experiment, grid_search, receiver, results,
-                   search_config, signal, store)
+                   search_config, signal, store, trials)
 
 SMALL = dict(name="test", n_trials=6, seed=1, snrs_db=(15.0, 30.0), m_values=(4, 6),
              search=search_config.SearchConfig(half_width_m=3.0, bias_half_width_m=3.0))
@@ -18,22 +18,22 @@ SMALL = dict(name="test", n_trials=6, seed=1, snrs_db=(15.0, 30.0), m_values=(4,
 
 def test_results_do_not_depend_on_chunking_or_batching(tmp_path):
     # 6 trials in batches of 4: the last batch is filled up with copies of its last trial, which are dropped
-    a = engine.run(experiment.Experiment(chunk_trials=6, **SMALL), cache=tmp_path / "a", progress=False,
+    a = engine.run(experiment.Experiment.build(chunk_trials=6, **SMALL), cache=tmp_path / "a", progress=False,
                        batch_size=4)
-    b = engine.run(experiment.Experiment(chunk_trials=2, **SMALL), cache=tmp_path / "b", progress=False,
+    b = engine.run(experiment.Experiment.build(chunk_trials=2, **SMALL), cache=tmp_path / "b", progress=False,
                        batch_size=1)
     for f in results.Results.FIELDS:
         np.testing.assert_allclose(getattr(a, f), getattr(b, f), rtol=0, atol=1e-9, err_msg=f)
     assert a.error_m.shape == (6, 2, 2) and a.los.shape == (6, 6)
     # a longer run reuses nothing it should not: its first trials equal the short run's
-    c = engine.run(experiment.Experiment(chunk_trials=2, **{**SMALL, "n_trials": 8}), cache=tmp_path / "b",
+    c = engine.run(experiment.Experiment.build(chunk_trials=2, **{**SMALL, "n_trials": 8}), cache=tmp_path / "b",
                        progress=False, batch_size=1)
     np.testing.assert_allclose(c.error_m[:6], b.error_m, atol=1e-9)
 
 
 def test_results_do_not_depend_on_threads(tmp_path):
     # the certified search (one trial per batch) with several batches of a chunk computed at once, in threads
-    e = experiment.Experiment(**{**SMALL, "centring": "prior", "prior_kind": "gaussian", "prior_scale_m": 1.0,
+    e = experiment.Experiment.build(**{**SMALL, "centring": "prior", "prior_kind": "gaussian", "prior_scale_m": 1.0,
                                  "search": search_config.SearchConfig(method="bnb", half_width_m=3.0), "chunk_trials": 6})
     one = engine.run(e, cache=tmp_path / "one", progress=False, workers=1)
     three = engine.run(e, cache=tmp_path / "three", progress=False, workers=3)
@@ -42,18 +42,18 @@ def test_results_do_not_depend_on_threads(tmp_path):
     with pytest.raises(ValueError, match="workers must be an integer in"):
         engine.run(e, cache=tmp_path / "one", progress=False, workers=0)
     # centred on the OTDoA fixes, which are solved piece by piece beside the DPE of the piece before
-    o = experiment.Experiment(**{**SMALL, "centring": "otdoa", "otdoa": True, "chunk_trials": 6})
+    o = experiment.Experiment.build(**{**SMALL, "centring": "otdoa", "otdoa": True, "chunk_trials": 6})
     whole = engine.run(o, cache=tmp_path / "o6", progress=False, workers=3, batch_size=1)
-    single = engine.run(experiment.Experiment(**{**SMALL, "centring": "otdoa", "otdoa": True, "chunk_trials": 1}),
+    single = engine.run(experiment.Experiment.build(**{**SMALL, "centring": "otdoa", "otdoa": True, "chunk_trials": 1}),
                             cache=tmp_path / "o1", progress=False, workers=1, batch_size=1)
     for f in results.Results.FIELDS + results.Results.OTDOA_FIELDS:
         np.testing.assert_array_equal(getattr(whole, f), getattr(single, f), err_msg=f)
 
 
 def test_run_at_fewer_snrs_reads_a_cached_run_at_more(tmp_path, monkeypatch):
-    sup = experiment.Experiment(**{**SMALL, "snrs_db": (15.0, 30.0, 45.0), "chunk_trials": 2})
-    sub = experiment.Experiment(**{**SMALL, "name": "sub", "snrs_db": (45.0, 15.0), "n_trials": 8, "chunk_trials": 2})
-    other_seed = experiment.Experiment(**{**SMALL, "name": "seed2", "seed": 2, "snrs_db": (15.0, 30.0, 45.0),
+    sup = experiment.Experiment.build(**{**SMALL, "snrs_db": (15.0, 30.0, 45.0), "chunk_trials": 2})
+    sub = experiment.Experiment.build(**{**SMALL, "name": "sub", "snrs_db": (45.0, 15.0), "n_trials": 8, "chunk_trials": 2})
+    other_seed = experiment.Experiment.build(**{**SMALL, "name": "seed2", "seed": 2, "snrs_db": (15.0, 30.0, 45.0),
                                           "n_trials": 8, "chunk_trials": 2})
     alone = engine.run(sub, cache=tmp_path / "alone", progress=False)
     engine.run(sup, cache=tmp_path / "shared", progress=False)
@@ -81,7 +81,7 @@ def test_default_workers_reads_the_environment(monkeypatch):
 def test_reverse_order_and_chunks_written_meanwhile(tmp_path, monkeypatch):
     """``run(reverse=True)`` (``dpe5g warm``) gives the forward run's results to the bit; a chunk another process wrote
     after ``missing`` listed it is read, not computed again."""
-    e = experiment.Experiment(chunk_trials=2, **SMALL)
+    e = experiment.Experiment.build(chunk_trials=2, **SMALL)
     fwd = engine.run(e, cache=tmp_path / "f", progress=False)
     rev = engine.run(e, cache=tmp_path / "r", progress=False, reverse=True)
     for f in results.Results.FIELDS:
@@ -113,10 +113,10 @@ def test_stale_temporaries_only_of_dead_writers_are_removed(tmp_path):
 
 
 def test_cache_is_keyed_by_config(tmp_path):
-    e1 = experiment.Experiment(**SMALL)
-    e2 = experiment.Experiment(**{**SMALL, "seed": 2})
+    e1 = experiment.Experiment.build(**SMALL)
+    e2 = experiment.Experiment.build(**{**SMALL, "seed": 2})
     assert e1.key() != e2.key()
-    assert e1.key() == experiment.Experiment(**{**SMALL, "n_trials": 60, "chunk_trials": 7}).key()
+    assert e1.key() == experiment.Experiment.build(**{**SMALL, "n_trials": 60, "chunk_trials": 7}).key()
 
 
 def test_interrupted_run_resumes_to_identical_results(tmp_path):
@@ -126,14 +126,14 @@ def test_interrupted_run_resumes_to_identical_results(tmp_path):
     plain = {k: v for k, v in cfg.items() if k != "search"}
     script = textwrap.dedent(f"""
         from dpe5g import engine, experiment, search_config
-        e = experiment.Experiment(chunk_trials=1, search=search_config.SearchConfig(half_width_m=3.0, bias_half_width_m=3.0),
+        e = experiment.Experiment.build(chunk_trials=1, search=search_config.SearchConfig(half_width_m=3.0, bias_half_width_m=3.0),
                                   **{plain!r})
         engine.run(e, cache={str(cache)!r}, progress=False, batch_size=1)
     """)
     err = tmp_path / "stderr.txt"
     with open(err, "wb") as f:
         proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.DEVNULL, stderr=f)
-    e = experiment.Experiment(chunk_trials=1, **cfg)
+    e = experiment.Experiment.build(chunk_trials=1, **cfg)
     d = store.cache_dir(e, cache)
     t0 = time.time()
     while time.time() - t0 < 240:
@@ -155,7 +155,7 @@ def test_interrupted_run_resumes_to_identical_results(tmp_path):
 
 
 def test_two_of_four_and_link_budget_modes(tmp_path):
-    e = experiment.Experiment(name="t4", n_trials=4, seed=3, snr_mode="link_budget", snrs_db=(), m_values=(4,),
+    e = experiment.Experiment.build(name="t4", n_trials=4, seed=3, snr_mode="link_budget", snrs_db=(), m_values=(4,),
                               los_mode="two_of_four", search=search_config.SearchConfig(half_width_m=3.0), otdoa=True)
     r = engine.run(e, cache=tmp_path, progress=False)
     assert np.all(r.los.sum(axis=1) == 2)
@@ -199,12 +199,12 @@ def test_two_of_four_and_link_budget_modes(tmp_path):
 ])
 def test_bad_experiments(kwargs, needle):
     with pytest.raises(ValueError, match=needle):
-        experiment.Experiment(**kwargs)
+        experiment.Experiment.build(**kwargs)
 
 
 def test_too_many_bs_for_the_deployment():
     with pytest.raises(ValueError, match="must not exceed"):
-        experiment.Experiment(m_values=(6, 30)).load_deployment()
+        experiment.Experiment.build(m_values=(6, 30)).load_deployment()
 
 
 def test_honest_centrings_see_no_truth(tmp_path):
@@ -212,12 +212,12 @@ def test_honest_centrings_see_no_truth(tmp_path):
     clock-bias window is centred on 0 and sized from the clock model."""
     bnb = search_config.SearchConfig(method="bnb", half_width_m=6.0)
     base = dict(n_trials=4, seed=3, snr_mode="link_budget", snrs_db=(), m_values=(4,), search=bnb, chunk_trials=2)
-    pr = engine.run(experiment.Experiment(name="p", centring="prior", **base), cache=tmp_path, progress=False)
+    pr = engine.run(experiment.Experiment.build(name="p", centring="prior", **base), cache=tmp_path, progress=False)
     off = np.linalg.norm(pr.center_xyz[:, 0, 0, :2] - pr.ue_xyz[:, :2], axis=-1)
     assert np.all(off > 1e-3) and np.all(pr.center_xyz[:, 0, 0, 2] == pr.ue_xyz[:, 2])
-    e = experiment.Experiment(name="p", centring="prior", **base)
+    e = experiment.Experiment.build(name="p", centring="prior", **base)
     assert e.receiver_search().bias_half_width_m == pytest.approx(3 * 5e-9 * 299_792_458.0)
-    ot = engine.run(experiment.Experiment(name="o", centring="otdoa", otdoa=True, **base), cache=tmp_path,
+    ot = engine.run(experiment.Experiment.build(name="o", centring="otdoa", otdoa=True, **base), cache=tmp_path,
                         progress=False)
     k = experiment.OTDOA_DETECTORS.index("first_path")
     np.testing.assert_allclose(ot.center_xyz[:, 0, 0, :2], ot.otdoa_xyz[:, 0, k, 0, :2])
@@ -230,13 +230,13 @@ def test_window_as_input_matches_a_direct_fix_for_every_l(tmp_path):
     import dataclasses
 
     bnb = search_config.SearchConfig(method="bnb", half_width_m=4.0)
-    base = experiment.Experiment(name="w", n_trials=2, seed=5, snr_mode="link_budget", snrs_db=(), m_values=(4,),
+    base = experiment.Experiment.build(name="w", n_trials=2, seed=5, snr_mode="link_budget", snrs_db=(), m_values=(4,),
                                  centring="prior", search=bnb, chunk_trials=2)
     for n_taps in (12, 3):  # the second run reuses the first one's compiled function
-        e = dataclasses.replace(base, search=dataclasses.replace(bnb, n_taps=n_taps))
+        e = base.replace(search=dataclasses.replace(bnb, n_taps=n_taps))
         res = engine.run(e, cache=tmp_path, progress=False)
-        for t in range(e.n_trials):
-            ex = draw.example(e, t)
+        for t in range(e.run.n_trials):
+            ex = trials.example(e, t)
             center = np.concatenate([res.center_xyz[t, 0, 0], [0.0]])
             r = dpe.fix(ex.y, ex.prs, ex.bs_xyz, center, e.receiver_search())
             np.testing.assert_allclose(res.est_xyz[t, 0, 0], r.xyz, atol=1e-9, err_msg=str(n_taps))
@@ -254,10 +254,10 @@ def test_certified_search_is_traced_once_for_experiments_with_its_search_and_m(t
     import jax
 
     bnb = search_config.SearchConfig(method="bnb", half_width_m=2.0, box_m=1.0)
-    first = experiment.Experiment(name="a", n_trials=1, chunk_trials=1, seed=3, snrs_db=(20.0,), m_values=(4,),
+    first = experiment.Experiment.build(name="a", n_trials=1, chunk_trials=1, seed=3, snrs_db=(20.0,), m_values=(4,),
                                   centring="prior", search=bnb)
     engine.run(first, cache=tmp_path, progress=False)
-    other = dataclasses.replace(first, name="b", los_mode="all_los", snrs_db=(10.0,),
+    other = first.replace(name="b", los_mode="all_los", snrs_db=(10.0,),
                                 search=dataclasses.replace(bnb, n_taps=4))
     with jax.log_compiles(True), caplog.at_level(logging.WARNING, logger="jax"):
         engine.run(other, cache=tmp_path, progress=False)
@@ -270,9 +270,9 @@ def test_engine_signal_is_the_public_signal_path():
     """The engine simulates in the frequency domain; its samples must be ``signal.received_noiseless`` of the
     trial's own channel (per-link profile, gains, delays, ToA, clock bias), and its noise AWGN of the SNR's
     variance."""
-    e = experiment.Experiment(name="s", n_trials=3, seed=4, snrs_db=(20.0, 30.0), m_values=(6,))
-    for t in range(e.n_trials):
-        ex = draw.example(e, t)
+    e = experiment.Experiment.build(name="s", n_trials=3, seed=4, snrs_db=(20.0, 30.0), m_values=(6,))
+    for t in range(e.run.n_trials):
+        ex = trials.example(e, t)
         ref = np.asarray(signal.received_noiseless(ex.prs, ex.gains, ex.delays_s, cost.toa(ex.ue_xyz, ex.bs_xyz),
                                                    float(ex.clock_bias_s)))
         np.testing.assert_allclose(ex.y0, ref, atol=1e-12 * np.abs(ref).max())
@@ -299,23 +299,23 @@ def test_nested_grid_fixes_equal_one_fix_per_m():
     import jax
     import jax.numpy as jnp
 
-    e = experiment.Experiment(name="n", n_trials=4, seed=12, snrs_db=(10.0, 40.0), m_values=(3, 6, 12))
+    e = experiment.Experiment.build(name="n", n_trials=4, seed=12, snrs_db=(10.0, 40.0), m_values=(3, 6, 12))
     cfg = e.receiver_search()
-    nested_fn = jax.jit(lambda corr, g, bs, c: grid_search.nested_grid_fixes(corr, g, bs, c, cfg, e.m_values))
+    nested_fn = jax.jit(lambda corr, g, bs, c: grid_search.nested_grid_fixes(corr, g, bs, c, cfg, e.receiver.m_values))
     fix_fn = jax.jit(lambda g, bs, c, corr: receiver.fix_in_window(g, bs, c, cfg, corr=corr))  # traced once per M
-    for t in range(e.n_trials):
+    for t in range(e.run.n_trials):
         for s in range(2):
-            ex = draw.example(e, t, snr_index=s)
+            ex = trials.example(e, t, snr_index=s)
             g = correlogram.ls_spectrum(signal.demodulate(ex.y), jnp.asarray(ex.prs))
             corr = receiver.receiver_correlogram(g, cfg)
             center = jnp.asarray(np.concatenate([ex.ue_xyz + [1.3 * t, -0.7 * s, 0.0], [299_792_458.0 * ex.clock_bias_s]]))
             nested = nested_fn(corr, g, jnp.asarray(ex.bs_xyz), center)
-            for j, m in enumerate(e.m_values):
+            for j, m in enumerate(e.receiver.m_values):
                 one = fix_fn(g[:m], jnp.asarray(ex.bs_xyz[:m]), center, corr[:m])
                 np.testing.assert_array_equal(np.asarray(nested.q[j]), np.asarray(one.q), err_msg=f"{t} {s} {m}")
                 assert bool(nested.edge[j]) == bool(one.edge)
     with pytest.raises(ValueError, match="cfg.method must be 'grid'"):
-        grid_search.nested_grid_fixes(corr, g, jnp.asarray(ex.bs_xyz), center, search_config.SearchConfig(method="bnb"), e.m_values)
+        grid_search.nested_grid_fixes(corr, g, jnp.asarray(ex.bs_xyz), center, search_config.SearchConfig(method="bnb"), e.receiver.m_values)
 
 
 def test_range_offsets_and_error_summary(tmp_path):
@@ -323,7 +323,7 @@ def test_range_offsets_and_error_summary(tmp_path):
     truth; ``results.error_summary`` against NumPy."""
     from dpe5g import studies
 
-    e = experiment.Experiment(name="o", n_trials=3, seed=2, snrs_db=(20.0,), m_values=(3, 5))
+    e = experiment.Experiment.build(name="o", n_trials=3, seed=2, snrs_db=(20.0,), m_values=(3, 5))
     res = engine.run(e, cache=tmp_path, progress=False)
     off = studies.range_offsets_m(res)
     assert off.shape == (3, 1, 2, 5)
@@ -334,7 +334,7 @@ def test_range_offsets_and_error_summary(tmp_path):
         for j in range(2):
             ref = c * (np.asarray(cost.toa(res.est_xyz[t, 0, j], bs[res.bs_index[t]], res.est_bias_s[t, 0, j]))
                        - np.asarray(cost.toa(res.ue_xyz[t], bs[res.bs_index[t]], res.clock_bias_s[t])))
-            m = e.m_values[j]
+            m = e.receiver.m_values[j]
             np.testing.assert_allclose(off[t, 0, j, :m], ref[:m], atol=1e-6)
     err = np.array([0.0, 1.0, 2.0, 10.0])
     s = results.error_summary(err, edge=np.array([0, 0, 1, 1], bool), certified=np.ones(4, bool))
@@ -347,40 +347,38 @@ def test_readings_delay_spread_definition_and_snr_convention():
     """The readings of Chapter 7 as Experiment fields: "span" scales both profiles so their last tap comes
     delay_spread_s after the first; "total" SNRs are 10 log10 N dB above the per-sample SNR they simulate, in both
     SNR modes; bad values name the field."""
-    import dataclasses
-
-    base = experiment.Experiment(name="r", n_trials=2, seed=3, snrs_db=(30.0,), m_values=(6,))
-    span = draw.example(dataclasses.replace(base, delay_spread_def="span"), 0)
-    rms = draw.example(base, 0)
+    base = experiment.Experiment.build(name="r", n_trials=2, seed=3, snrs_db=(30.0,), m_values=(6,))
+    span = trials.example(base.replace(delay_spread_def="span"), 0)
+    rms = trials.example(base, 0)
     assert np.max(span.delays_s) == pytest.approx(65e-9, rel=1e-12)
     assert np.max(rms.delays_s) > 500e-9  # TDL-C's last tap at 8.65 RMS spreads
     np.testing.assert_array_equal(span.los, rms.los)
     gain = 10 * np.log10(4096)
     for kw in (dict(snrs_db=(30.0,)), dict(snr_mode="link_budget", snrs_db=())):
-        per = draw.example(dataclasses.replace(base, **kw), 1)
-        tot = draw.example(dataclasses.replace(base, snr_convention="total", **kw), 1)
+        per = trials.example(base.replace(**kw), 1)
+        tot = trials.example(base.replace(snr_convention="total", **kw), 1)
         np.testing.assert_allclose(tot.link_snr_db, per.link_snr_db - gain, atol=1e-12)
         np.testing.assert_array_equal(tot.y0, per.y0)
-    same = draw.example(dataclasses.replace(base, snrs_db=(30.0 - gain,)), 1)
-    tot = draw.example(dataclasses.replace(base, snr_convention="total"), 1)
+    same = trials.example(base.replace(snrs_db=(30.0 - gain,)), 1)
+    tot = trials.example(base.replace(snr_convention="total"), 1)
     np.testing.assert_allclose(tot.y, same.y, atol=1e-12 * np.abs(same.y).max())
     with pytest.raises(ValueError, match="delay_spread_def"):
-        experiment.Experiment(delay_spread_def="first_to_last")
+        experiment.Experiment.build(delay_spread_def="first_to_last")
     with pytest.raises(ValueError, match="snr_convention"):
-        experiment.Experiment(snr_convention="post_correlation")
+        experiment.Experiment.build(snr_convention="post_correlation")
 
 
 def test_grid_search_centred_on_each_m_otdoa_fix(tmp_path):
     """Centring "otdoa" with the grid search and two M values: each M's window is centred on that M's own OTDoA fix
     (the first level is shared between the M values only around the truth), and its fix is the public ``dpe.fix``
     there."""
-    e = experiment.Experiment(name="g", n_trials=2, seed=6, snr_mode="link_budget", snrs_db=(), m_values=(4, 8),
+    e = experiment.Experiment.build(name="g", n_trials=2, seed=6, snr_mode="link_budget", snrs_db=(), m_values=(4, 8),
                               centring="otdoa", otdoa=True, search=search_config.SearchConfig(half_width_m=4.0))
     res = engine.run(e, cache=tmp_path, progress=False)
-    det = experiment.OTDOA_DETECTORS.index(e.toa_method)
-    for t in range(e.n_trials):
-        ex = draw.example(e, t)
-        for j, m in enumerate(e.m_values):
+    det = experiment.OTDOA_DETECTORS.index(e.receiver.toa_method)
+    for t in range(e.run.n_trials):
+        ex = trials.example(e, t)
+        for j, m in enumerate(e.receiver.m_values):
             np.testing.assert_allclose(res.center_xyz[t, 0, j, :2], res.otdoa_xyz[t, 0, det, j, :2], atol=1e-9)
             center = np.concatenate([res.center_xyz[t, 0, j], [0.0]])
             r = dpe.fix(ex.y[:m], ex.prs[:m], ex.bs_xyz[:m], center, e.receiver_search())
@@ -396,9 +394,9 @@ def test_prs_reuse_receives_the_sum_of_the_co_channel_bss():
     """With reuse, the UE receives on each resource the sum of its BSs' signals (links and the other BSs of the
     deployment) at their relative powers plus one noise: co-channel links read the same received signal, scaled to
     their own power; the links' draws are those of the experiment without reuse; SINR from the powers."""
-    e = experiment.Experiment(prs_reuse=6, **REUSE)
-    plain = draw.example(experiment.Experiment(**REUSE), 0)
-    ex = draw.example(e, 0)
+    e = experiment.Experiment.build(prs_reuse=6, **REUSE)
+    plain = trials.example(experiment.Experiment.build(**REUSE), 0)
+    ex = trials.example(e, 0)
     for k in ("ue_xyz", "clock_bias_s", "bs_index", "los", "gains", "link_snr_db"):
         np.testing.assert_array_equal(getattr(ex, k), getattr(plain, k), err_msg=k)
     res_all, _ = deployment.tst().prs_plan(6)
@@ -425,7 +423,7 @@ def test_prs_reuse_receives_the_sum_of_the_co_channel_bss():
     np.testing.assert_allclose(ex.link_sinr_db, 10 * np.log10(rho / (1 + per_res[ex.reuse.res] - rho)), atol=1e-9)
     assert np.all(ex.link_sinr_db < ex.link_snr_db)
     # without the co-channel signals: the links' own signals and the shared noise of their resource
-    alone = draw.example(experiment.Experiment(prs_reuse=6, co_channel=False, **REUSE), 0)
+    alone = trials.example(experiment.Experiment.build(prs_reuse=6, co_channel=False, **REUSE), 0)
     np.testing.assert_array_equal(alone.link_sinr_db, alone.link_snr_db)
     eta = np.asarray(signal.demodulate(alone.y - alone.y0 / sigma[:, None]))
     for i, j in pairs:
@@ -434,7 +432,7 @@ def test_prs_reuse_receives_the_sum_of_the_co_channel_bss():
 
 
 def test_prs_reuse_runs_and_reports_sinr(tmp_path):
-    e = experiment.Experiment(prs_reuse=6, centring="prior",
+    e = experiment.Experiment.build(prs_reuse=6, centring="prior",
                               **{**REUSE, "m_values": (4, 6), "snr_mode": "link_budget", "snrs_db": ()})
     r = engine.run(e, cache=tmp_path, progress=False)
     assert r.link_sinr_db.shape == (2, 1, 6) and np.all(r.link_sinr_db <= r.link_snr_db)
@@ -445,8 +443,8 @@ def test_prs_reuse_runs_and_reports_sinr(tmp_path):
 def test_links_keep_their_received_power_where_it_differs():
     """snr_mode "link_budget": one receiver, one noise floor — each link's signal at its own received power over unit
     noise, not rescaled to unit power with the truth's SNR."""
-    e = experiment.Experiment(name="p", n_trials=1, seed=2, snr_mode="link_budget", snrs_db=(), m_values=(6,))
-    ex = draw.example(e, 0)
+    e = experiment.Experiment.build(name="p", n_trials=1, seed=2, snr_mode="link_budget", snrs_db=(), m_values=(6,))
+    ex = trials.example(e, 0)
     sigma = 10 ** (-ex.link_snr_db / 20)
     y, y0 = np.asarray(signal.demodulate(ex.y)), np.asarray(signal.demodulate(ex.y0))
     np.testing.assert_allclose(np.mean(np.abs(y0 / sigma[:, None]) ** 2, axis=1) / np.mean(np.abs(y0) ** 2, axis=1),
@@ -462,14 +460,14 @@ def test_engine_grid_fixes_equal_the_search_on_each_snrs_whole_correlogram(tmp_p
     import jax
     import jax.numpy as jnp
 
-    e = experiment.Experiment(name="mix", n_trials=3, seed=5, snrs_db=(0.0, 15.0, 40.0), m_values=(3, 6, 12))
+    e = experiment.Experiment.build(name="mix", n_trials=3, seed=5, snrs_db=(0.0, 15.0, 40.0), m_values=(3, 6, 12))
     cfg = e.receiver_search()
     r = engine.run(e, cache=tmp_path, progress=False)
     whole = jax.jit(lambda g, bs, c: grid_search.nested_grid_fixes(receiver.receiver_correlogram(g, cfg), g, bs, c, cfg,
-                                                                   e.m_values).q)
-    for t in range(e.n_trials):
+                                                                   e.receiver.m_values).q)
+    for t in range(e.run.n_trials):
         for s in range(e.n_snr):
-            ex = draw.example(e, t, snr_index=s)
+            ex = trials.example(e, t, snr_index=s)
             g = correlogram.ls_spectrum(signal.demodulate(ex.y), jnp.asarray(ex.prs))
             q = whole(g, jnp.asarray(ex.bs_xyz), jnp.asarray(np.append(ex.ue_xyz, 299_792_458.0 * ex.clock_bias_s)))
             np.testing.assert_allclose(r.est_xyz[t, s], np.asarray(q)[:, :3], rtol=0, atol=1e-9, err_msg=f"{t} {s}")
@@ -483,8 +481,8 @@ def test_noise_parts_mix_to_each_snrs_correlograms():
     import jax.numpy as jnp
 
     for mode in ("fixed", "nearest"):
-        e = experiment.Experiment(name="parts", seed=3, snrs_db=(5.0, 30.0), m_values=(4, 8), snr_mode=mode)
-        d = draw.draw_fn(e, e.load_deployment())(draw.trial_key(e.seed, 0))
+        e = experiment.Experiment.build(name="parts", seed=3, snrs_db=(5.0, 30.0), m_values=(4, 8), snr_mode=mode)
+        d = draw.draw_fn(e, e.load_deployment())(draw.trial_key(e.run.seed, 0))
         for cfg in (e.receiver_search(), search_config.SearchConfig(method="bnb")):
             window = jnp.asarray(correlogram.window_spectrum(cfg.n_taps, d.prs.shape[1])) if cfg.method == "bnb" \
                 else None

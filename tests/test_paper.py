@@ -1,7 +1,5 @@
 """The paper's experiments and claims (``dpe5g.paper``): the readings and the claim tests of Chapter 7."""
 
-import dataclasses
-
 import numpy as np
 import pytest
 
@@ -35,24 +33,24 @@ def test_readings_are_experiments_that_differ_in_their_reading_only():
     assert paper.reading_experiments("peak_otdoa")["otdoa_detector"] == "peak"
     both = paper.reading_experiments("span_total")
     for k in ("fig9", "fig10_dpe"):
-        assert both[k].delay_spread_def == "span" and both[k].snr_convention == "total"
-        assert both[k].centring == "truth" and both[k].seed == base[k].seed
-    assert both["fig10_dpe"].otdoa and both["fig10_dpe"].los_mode == "two_of_four"
-    assert both["fig9"].snrs_db == paper.READING_SNRS_DB and both["fig9"].n_trials == paper.READING_TRIALS
+        assert both[k].scenario.delay_spread_def == "span" and both[k].links.snr_convention == "total"
+        assert both[k].receiver.centring == "truth" and both[k].run.seed == base[k].run.seed
+    assert both["fig10_dpe"].receiver.otdoa and both["fig10_dpe"].scenario.los_mode == "two_of_four"
+    assert both["fig9"].links.snrs_db == paper.READING_SNRS_DB and both["fig9"].run.n_trials == paper.READING_TRIALS
     honest = paper.reading_experiments("honest")["fig9"]
-    assert honest == paper.fig9_honest_readings() and honest.n_trials == paper.READING_TRIALS
-    assert dataclasses.replace(honest, name="fig09-honest", snrs_db=paper.fig9_honest().snrs_db,
-                               n_trials=paper.FIG9_HONEST_TRIALS) == paper.fig9_honest()
-    assert paper.reading_experiments("span", n_trials=7)["fig10_dpe"].n_trials == 7
+    assert honest == paper.fig9_honest_readings() and honest.run.n_trials == paper.READING_TRIALS
+    assert honest.replace(name="fig09-honest", snrs_db=paper.fig9_honest().links.snrs_db,
+                          n_trials=paper.FIG9_HONEST_TRIALS) == paper.fig9_honest()
+    assert paper.reading_experiments("span", n_trials=7)["fig10_dpe"].run.n_trials == 7
     # the reuse reading: the honest receivers of Fig. 9 (per-link power) and Fig. 10 with Table I's reuse, on the
     # figures' seeds, differing from their reuse-free experiments in the reuse only
     reuse = paper.reading_experiments("reuse")
-    assert reuse["fig9"].prs_reuse == reuse["fig10_dpe"].prs_reuse == paper.REUSE and reuse["fig9"].co_channel
-    assert dataclasses.replace(reuse["fig9"], name="fig09-power", prs_reuse=0) == paper.fig9_power()
-    assert reuse["fig9"].snr_mode == "nearest" and reuse["fig9"].n_trials >= paper.READING_TRIALS
-    f10 = paper.fig10(reuse["fig10_dpe"].n_trials)[("two_of_four", "otdoa")]
-    assert dataclasses.replace(reuse["fig10_dpe"], name=f10.name, prs_reuse=0) == f10
-    assert reuse["fig10_dpe"] is reuse["fig10_otdoa"] and reuse["fig10_dpe"].n_trials >= paper.READING_TRIALS
+    assert reuse["fig9"].scenario.prs_reuse == reuse["fig10_dpe"].scenario.prs_reuse == paper.REUSE and reuse["fig9"].scenario.co_channel
+    assert reuse["fig9"].replace(name="fig09-power", prs_reuse=0) == paper.fig9_power()
+    assert reuse["fig9"].links.snr_mode == "nearest" and reuse["fig9"].run.n_trials >= paper.READING_TRIALS
+    f10 = paper.fig10(reuse["fig10_dpe"].run.n_trials)[("two_of_four", "otdoa")]
+    assert reuse["fig10_dpe"].replace(name=f10.run.name, prs_reuse=0) == f10
+    assert reuse["fig10_dpe"] is reuse["fig10_otdoa"] and reuse["fig10_dpe"].run.n_trials >= paper.READING_TRIALS
     with pytest.raises(ValueError, match="reading must be one of"):
         paper.reading_experiments("literal")
     assert set(channel.DELAY_SPREAD_DEFS) == {"rms", "span"}
@@ -67,7 +65,7 @@ def test_book_experiments_one_entry_per_run_at_its_largest_count():
     assert len(dirs) == len(set(dirs))
     by_dir = dict(zip(dirs, exps))
     # Chapter 5 reads the first REUSE_COMPARE_TRIALS of the reuse reading's run: listed once, at the reading's count
-    assert by_dir[store.cache_dir(paper.fig9_power(reuse=paper.REUSE)).name].n_trials == paper.READING_TRIALS
+    assert by_dir[store.cache_dir(paper.fig9_power(reuse=paper.REUSE)).name].run.n_trials == paper.READING_TRIALS
     for e in (paper.fig9_honest(), paper.fig9_truth(), paper.fig10()[("pr_los", "truth")], paper.fig9_honest_readings(),
               paper.fig9_all_los(*paper.ALL_LOS_CASES[-1])):
-        assert by_dir[store.cache_dir(e).name].n_trials >= e.n_trials
+        assert by_dir[store.cache_dir(e).name].run.n_trials >= e.run.n_trials

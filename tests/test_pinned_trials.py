@@ -31,7 +31,7 @@ def _recorded(field: dict) -> np.ndarray:
 def test_trials_equal_the_recorded_values(name, tmp_path):
     e = _experiments()[name]
     res = engine.run(e, cache=tmp_path, progress=False)
-    fields = results.Results.FIELDS + (results.Results.OTDOA_FIELDS if e.otdoa else ())
+    fields = results.Results.FIELDS + (results.Results.OTDOA_FIELDS if e.receiver.otdoa else ())
     assert set(PINS[name]) == set(fields)
     for k in fields:
         want = _recorded(PINS[name][k])

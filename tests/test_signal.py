@@ -76,7 +76,7 @@ def test_computing_refuses_without_float64():
     prs = np.ones((2, 64), complex)
     calls = [lambda: signal.ofdm_symbol(prs), lambda: signal.demodulate(prs),
              lambda: correlogram.ls_spectrum(prs, prs), lambda: cost.ml_cost(prs, prs, np.zeros(2), 4, 30e3),
-             lambda: otdoa.toa(prs, prs), lambda: engine.run(experiment.Experiment(n_trials=1), progress=False)]
+             lambda: otdoa.toa(prs, prs), lambda: engine.run(experiment.Experiment.build(n_trials=1), progress=False)]
     jax.config.update("jax_enable_x64", False)
     try:
         for call in calls:

@@ -17,7 +17,7 @@ def test_warm_knows_every_run_the_book_asks_for():
     if not RUN_LOG.exists():
         pytest.skip(f"no book build recorded its Monte Carlo runs here ({RUN_LOG}; `make book` writes it)")
     runs = [json.loads(line) for line in RUN_LOG.read_text().splitlines() if line.strip()]
-    known = {store.cache_dir(e).name: e.n_trials for e in paper.book_experiments()}
+    known = {store.cache_dir(e).name: e.run.n_trials for e in paper.book_experiments()}
     unknown = sorted({r["run"] for r in runs if r["run"] not in known})
     longer = sorted({f"{r['run']} ({r['n_trials']} > {known[r['run']]})" for r in runs
                      if r["run"] in known and r["n_trials"] > known[r["run"]]})

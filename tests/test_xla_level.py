@@ -26,7 +26,7 @@ SCRIPT = textwrap.dedent("""
     from tests.test_xla_level import EXPERIMENTS, SMALL, fields
     out = {}
     for k, kw in EXPERIMENTS.items():
-        e = experiment.Experiment(**SMALL, **{**kw, "search": search_config.SearchConfig(**kw["search"])})
+        e = experiment.Experiment.build(**SMALL, **{**kw, "search": search_config.SearchConfig(**kw["search"])})
         r = engine.run(e, cache=sys.argv[1], progress=False)
         out.update({f"{k}/{f}": getattr(r, f) for f in fields(e)})
     np.savez(sys.argv[2], **out)
@@ -34,7 +34,7 @@ SCRIPT = textwrap.dedent("""
 
 
 def fields(e):
-    return results.Results.FIELDS + (results.Results.OTDOA_FIELDS if e.otdoa else ())
+    return results.Results.FIELDS + (results.Results.OTDOA_FIELDS if e.receiver.otdoa else ())
 
 
 def test_the_flag_is_added_unless_set():
@@ -58,7 +58,7 @@ def test_results_are_the_same_bits_at_xlas_default_level(tmp_path):
     assert r.returncode == 0, r.stderr
     theirs = np.load(tmp_path / "default.npz")
     for k, kw in EXPERIMENTS.items():
-        e = experiment.Experiment(**SMALL, **{**kw, "search": search_config.SearchConfig(**kw["search"])})
+        e = experiment.Experiment.build(**SMALL, **{**kw, "search": search_config.SearchConfig(**kw["search"])})
         ours = engine.run(e, cache=tmp_path / "ours", progress=False)
         for f in fields(e):
             np.testing.assert_array_equal(getattr(ours, f), theirs[f"{k}/{f}"], err_msg=f"{k}/{f}")
