@@ -47,7 +47,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 
 RUN_FIG9 = """
 import json, sys, time
-from dpe5g import paper
+from dpe5g import engine, paper
 n, cache = int(sys.argv[1]), sys.argv[2]
 t0 = time.perf_counter()
 engine.run(paper.fig9_truth(100), cache=cache, progress=False)
@@ -59,7 +59,7 @@ print(json.dumps({"first_chunk_s": t1 - t0, "total_s": time.perf_counter() - t0}
 
 RUN_HONEST = """
 import json, sys, time
-from dpe5g import paper
+from dpe5g import engine, paper
 n, cache, workers = int(sys.argv[1]), sys.argv[2], int(sys.argv[3])
 engine.run(paper.fig9_honest(1), cache=cache, progress=False, workers=workers)  # compile
 t0 = time.perf_counter()
@@ -149,22 +149,21 @@ def main(argv=None):
     n_snr = e.n_snr
 
     @jax.jit
-    def grid_engine(arrays):
-        d = arrays | {"per_link_power": False}  # Fig. 9: every link at the SNR (a static flag of the draws)
+    def grid_engine(d):  # the draws, a pytree (Fig. 9: every link at the SNR, per_link_power a static False)
         parts, _ = receiver.grid_windows(d, cfg)
-        p = parts(grid_search.grid_window(d.bs_xyz, jnp.concatenate([d.ue_xyz, d.clock_bias_s[None] * C]), cfg))  # once a trial
+        centre = jnp.concatenate([d.ue_xyz, d.clock_bias_s[None] * C])
+        p = parts(grid_search.grid_window(d.bs_xyz, centre, cfg))  # once a trial
         a, b = receiver.noise_scales(d)
-        return jnp.stack([correlogram.mix_parts(p, a[s], b[s]) for s in range(n_snr)])  # as ``windows`` mixes
+        return jnp.stack([receiver.mix_parts(p, a[s], b[s]) for s in range(n_snr)])  # as ``windows`` mixes
 
     @jax.jit
-    def spline_engine(arrays):
-        f = receiver.spline_correlograms(arrays | {"per_link_power": False}, honest, window)
+    def spline_engine(d):
+        f = receiver.spline_correlograms(d, honest, window)
         return jnp.stack([f(s) for s in range(n_snr)])
 
-    e_arrays = {k: v for k, v in e_d.items() if k != "per_link_power"}
-    assert not e_d["per_link_power"]
-    t_grid_engine = median_time(lambda: grid_engine(e_arrays), 20) / (m * n_snr)
-    t_spline_engine = median_time(lambda: spline_engine(e_arrays), 10) / (m * n_snr)
+    assert not e_d.per_link_power
+    t_grid_engine = median_time(lambda: grid_engine(e_d), 20) / (m * n_snr)
+    t_spline_engine = median_time(lambda: spline_engine(e_d), 10) / (m * n_snr)
 
     # 2. complex64 against complex128, same signals: time, and the ToA error complex64 adds to the detector's peak
     g64 = g.astype(jnp.complex64)
@@ -185,7 +184,8 @@ def main(argv=None):
     def corr_all(kk):  # the correlogram parts in the search's window, once per trial (``receiver.grid_windows``)
         d = draw_one(kk)
         parts, _ = receiver.grid_windows(d, cfg)
-        return parts(grid_search.grid_window(d.bs_xyz, jnp.concatenate([d.ue_xyz, d.clock_bias_s[None] * C]), cfg)).sum()
+        return parts(grid_search.grid_window(d.bs_xyz, jnp.concatenate([d.ue_xyz, d.clock_bias_s[None] * C]),
+                                             cfg)).sum()
 
     f_corr = jax.jit(lambda k: jax.lax.map(corr_all, k, batch_size=2))
     fn = trials.grid_trial_fn(e, dep)

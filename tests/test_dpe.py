@@ -179,12 +179,12 @@ def test_window_taps_on_the_band_spacing_keep_the_first_path(spacing):
     window = jnp.asarray(correlogram.window_spectrum(taps, n, None, s))
     coef = correlogram.spline_coefficients(jnp.asarray(g)[None], window, u)
     t = tau0 + np.arange(-20.0, 3.0, 1 / 64)
-    cost = np.asarray(certified_search.spline_values(coef, jnp.asarray(t * u)[:, None]))
+    values = np.asarray(certified_search.spline_values(coef, jnp.asarray(t * u)[:, None]))
     at_path = float(certified_search.spline_values(coef, jnp.asarray([[tau0 * u]]))[0])
     if spacing == "band":
-        assert at_path >= cost.max() * (1 - 5e-5)  # the spline's own error is ≤ 2e-5 of the peak (Chapter 3)
+        assert at_path >= values.max() * (1 - 5e-5)  # the spline's own error is ≤ 2e-5 of the peak (Chapter 3)
     else:
-        assert at_path < 0.97 * cost.max() and t[np.argmax(cost)] < tau0 - 1
+        assert at_path < 0.97 * values.max() and t[np.argmax(values)] < tau0 - 1
 
 
 def test_cir_grid_is_the_phase_ramped_transforms():
