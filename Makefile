@@ -5,12 +5,12 @@ PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
-SOURCES := $(wildcard dpe5g/*.py dpe5g/data/*)
+SOURCES := $(wildcard dpe5g/*.py dpe5g/data/* figures/trials/*)
 CHAPTERS := $(wildcard chapters/*.md)
 BOOK_SRC := $(wildcard book/*.md book/*.yml book/*.bib book/_static/* book/_ext/*.py) $(CHAPTERS)
 HTML := book/_build/html/index.html
 
-.PHONY: all setup figures book chapter test clean
+.PHONY: all setup reproduce figures book chapter test clean
 all: book
 
 setup: $(STAMP)
@@ -22,11 +22,16 @@ $(STAMP): environment.txt pyproject.toml
 	$(BIN)/python -m pip install --quiet -r environment.txt
 	touch $@
 
-# Regenerate the committed figure baselines (PNG + data JSON) of every registered figure, then README's tables.  Deliberately not a
-# dependency of `book` or `test`: the figure-diff in `make test` compares fresh output against what is committed.
-figures: $(STAMP)
+# Recompute every experiment of the results store (figures/trials) from its seeds, report every stored trial that
+# differs, rewrite the store; then the figure baselines (PNG + data JSON) and README's tables from it.  Run it after a
+# change that the store's verification in `make test` fails on.  SCHEDULER=tcp://host:8786 (or DPE5G_SCHEDULER) runs
+# the chunks on a Dask cluster, WORKERS=N on a LocalCluster of N processes.  `make figures` is the same.
+reproduce: $(STAMP)
+	$(BIN)/python -m dpe5g reproduce $(if $(SCHEDULER),--scheduler $(SCHEDULER)) $(if $(WORKERS),--workers $(WORKERS))
 	$(BIN)/python -m dpe5g figures --update-baselines
 	$(BIN)/python scripts/readme_tables.py
+
+figures: reproduce
 
 # Build the HTML book; a chapter is re-executed when it changed, every chapter when dpe5g/ or environment.txt changed
 # (book/_ext/dpe5g_book.py clears the execution cache then),

@@ -1,6 +1,8 @@
 """Command line: ``dpe5g run`` (a Monte Carlo DPE study on your deployment), ``dpe5g figures`` (the figure build
-script), ``dpe5g warm`` (fill the Monte Carlo cache beside a book build), ``dpe5g profile`` (print a scaled TDL table), ``dpe5g deployment`` (check and summarise a deployment file)
-and ``dpe5g scene`` (export the 3-D scene as HTML).
+script), ``dpe5g warm`` (fill the Monte Carlo cache), ``dpe5g reproduce`` and ``dpe5g verify`` (rewrite the results
+store from today's code, or check a sample of it), ``dpe5g profile`` (print a scaled TDL table), ``dpe5g deployment``
+(check and summarise a deployment file) and ``dpe5g scene`` (export the 3-D scene as HTML).  ``run``, ``warm`` and
+``reproduce`` take ``--scheduler`` / ``--workers`` to run on a Dask cluster (``cluster``).
 
 Bad input, including a file that cannot be read or written, ends with one line on stderr that names the parameter
 and exit code 2, never a traceback.
@@ -9,11 +11,11 @@ and exit code 2, never a traceback.
 from __future__ import annotations
 
 import argparse
-import os
 import re
 import sys
 import tempfile
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 #: the committed figure baselines (``figures/`` of the repository); ``dpe5g figures`` writes here only with
@@ -144,7 +146,8 @@ def _run(args) -> int:
 
     e = run_experiment(args)
     out = _output_file("--out", args.out, (".csv", ".json"), force=args.force)
-    res = engine.run(e, progress=True)
+    with _cluster(args) as client:
+        res = engine.run(e, progress=True, client=client)
     with atomic_target(out) as tmp:  # an existing file is never left half-overwritten
         (res.write_csv if out.suffix.lower() == ".csv" else res.write_json)(tmp)
     n_rows = e.run.n_trials * len(e.links.snrs_db) * len(e.receiver.m_values)
@@ -202,12 +205,68 @@ def _warm(args) -> int:
     exps = paper.book_experiments()
     order = exps if args.forward else exps[::-1]
     t0 = time.perf_counter()
-    for i, e in enumerate(order, 1):
-        t = time.perf_counter()
-        engine.run(e, progress=args.progress, reverse=not args.forward)
-        print(f"[{i}/{len(order)}] {e.run.name}: {e.run.n_trials} trials ({time.perf_counter() - t:.1f} s)", flush=True)
+    with _cluster(args) as client:
+        for i, e in enumerate(order, 1):
+            t = time.perf_counter()
+            engine.run(e, progress=args.progress, reverse=not args.forward, client=client)
+            print(f"[{i}/{len(order)}] {e.run.name}: {e.run.n_trials} trials ({time.perf_counter() - t:.1f} s)",
+                  flush=True)
     print(f"warm: {len(order)} experiments in the cache ({time.perf_counter() - t0:.1f} s)", flush=True)
     return 0
+
+
+# ---- dpe5g reproduce, verify ------------------------------------------------------------------------------------------
+
+def _reproduce(args) -> int:
+    from . import store, verify
+
+    if store.store_root() is None:
+        raise ValueError("DPE5G_STORE is 'off': reproduce rewrites the results store; unset it or name a folder")
+    _writable_dir("DPE5G_STORE", store.store_root())
+    with _cluster(args) as client:
+        found = verify.reproduce(progress=args.progress, client=client)
+    print(f"reproduce: {len(found)} stored (trial, field) values differed from today's code and were rewritten"
+          if found else "reproduce: the store held what today's code computes", flush=True)
+    return 0
+
+
+def _verify(args) -> int:
+    import random
+
+    from . import _checks, verify
+
+    seed = args.seed if args.seed is not None else random.SystemRandom().randrange(2**31)
+    _checks.integer("--seed", seed, 0, 2**31 - 1)
+    n = len(verify.store_experiments()) if args.all else _checks.integer("--families", args.families, 1, 10_000)
+    _checks.integer("--trials", args.trials, 1, 10_000)
+    print(f"verify: seed {seed} (dpe5g verify --seed {seed} repeats this sample)", flush=True)
+    found, done = verify.verify_sample(seed, n, args.trials)
+    for m in found:
+        print(m, file=sys.stderr)
+    n_trials = sum(len(t) for _, t in done)
+    print(f"verify: {n_trials} trials of {len(done)} experiments recomputed, {len(found)} mismatches", flush=True)
+    return 1 if found else 0
+
+
+@contextmanager
+def _cluster(args):
+    """The Dask client of --scheduler / DPE5G_SCHEDULER / --workers (``cluster.connect``), closed on exit; None
+    (this process) without them."""
+    from . import cluster
+
+    client = cluster.connect(args.scheduler, args.workers)
+    try:
+        yield client
+    finally:
+        cluster.close(client)
+
+
+def _add_cluster_options(p) -> None:
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="run the Monte Carlo chunks as tasks on the Dask scheduler at ADDRESS (tcp://host:8786; "
+                        "default: DPE5G_SCHEDULER if set, else this process)")
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="start a Dask LocalCluster of N single-threaded worker processes on this machine")
 
 
 # ---- dpe5g profile, deployment, scene -------------------------------------------------------------------------------
@@ -313,6 +372,7 @@ def _add_run(sub) -> None:
                         "received alone; 2, 4, 6 or 12 (Table I: 6) the TS 38.211 comb R over R symbols with every BS "
                         "of the deployment transmitting and co-channel interference; --snr is then the SNR of the "
                         "nearest link, every other BS at its power from the path loss (Chapter 5)")
+    _add_cluster_options(r)
     r.set_defaults(func=_run)
 
 
@@ -340,7 +400,28 @@ def _add_other_commands(sub) -> None:
                                    "make does not start it: on 2 CPUs it only contends with the book's own runs.")
     w.add_argument("--forward", action="store_true", help="run in the book's order instead")
     w.add_argument("--progress", action="store_true", help="a progress bar per experiment on stderr")
+    _add_cluster_options(w)
     w.set_defaults(func=_warm)
+
+    rp = sub.add_parser("reproduce", help="recompute every experiment of the results store and rewrite it",
+                        description="Recompute every Monte Carlo experiment the results store (figures/trials) holds "
+                                    "from its seeds, report every stored trial that differs from what today's code "
+                                    "computes, and rewrite the store.  `make reproduce` runs it, then regenerates "
+                                    "the figure baselines.  Run it after a change that `make test`'s verification "
+                                    "fails on.")
+    rp.add_argument("--progress", action="store_true", help="a progress bar per experiment on stderr")
+    _add_cluster_options(rp)
+    rp.set_defaults(func=_reproduce)
+
+    v = sub.add_parser("verify", help="recompute a random sample of stored trials and compare them with the store",
+                       description="Recompute --trials random trials of every experiment in --families random "
+                                   "families of the results store (experiments that share their compiled programs) "
+                                   "and compare every stored field; exit 1 naming each mismatch.")
+    v.add_argument("--seed", type=int, default=None, help="the sample's seed (default: a new one, printed)")
+    v.add_argument("--families", type=int, default=3, metavar="N", help="families to sample (default 3)")
+    v.add_argument("--trials", type=int, default=2, metavar="N", help="trials per experiment (default 2)")
+    v.add_argument("--all", action="store_true", help="every family (--trials of each stored experiment)")
+    v.set_defaults(func=_verify)
 
     t = sub.add_parser("profile", help="print a TR 38.901 TDL profile scaled to a delay spread")
     t.add_argument("name", help="A, B, C, D or E")

@@ -22,7 +22,7 @@ from . import _checks, otdoa, receiver, trials
 from .draw import trial_keys
 from .experiment import Experiment, deployment_digest
 from .results import Results
-from .store import ChunkCache, sliced_chunk, snr_superset_runs
+from .store import ChunkCache, sliced_chunk, snr_superset_runs, stored, stored_fields
 
 #: trials vmapped together by ``run``, per search method (speed only; results do not depend on it): the grid search
 #: runs the same steps for every trial and gains from batching; the certified search's loops run as long as the
@@ -162,6 +162,18 @@ class ChunkRunner:
         return {k: np.stack([p[k] for p in parts]) for k in parts[0]}
 
 
+@lru_cache(maxsize=4)
+def _runner(e: Experiment) -> ChunkRunner:
+    return ChunkRunner(e)
+
+
+def chunk_task(e: Experiment, start: int, stop: int, batch_size: int) -> dict:
+    """Trials start … stop-1 of ``e``, computed in this process: the task ``run`` submits to a Dask cluster
+    (``cluster``) for each missing chunk.  A worker builds (compiles) the ``ChunkRunner`` of an experiment once and
+    keeps it for the experiment's other chunks."""
+    return _runner(e)(start, stop, batch_size, workers=1)
+
+
 def default_workers() -> int:
     """Batches ``run`` computes at once by default: DPE5G_WORKERS if set, else the CPUs this process may use."""
     env = os.environ.get("DPE5G_WORKERS")
@@ -174,10 +186,12 @@ def default_workers() -> int:
 
 
 def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = True,
-        batch_size: int | None = None, reverse: bool = False, workers: int | None = None) -> Results:
+        batch_size: int | None = None, reverse: bool = False, workers: int | None = None,
+        use_store: bool = True, client=None) -> Results:
     """Run (or resume, or load) an experiment; returns its ``Results``.
 
-    Chunks already in the cache (``ChunkCache``) are loaded, the others computed and written as they finish; a chunk
+    An experiment the results store holds (``store.stored``; use_store False skips it) is read from it, nothing
+    computed.  Otherwise chunks already in the cache (``ChunkCache``) are loaded, the others computed and written as they finish; a chunk
     that another process wrote meanwhile is read, not computed again, and a chunk that a cached run of the same
     experiment at more SNRs holds is sliced from it (``store.snr_superset_runs``).  progress : a tqdm bar with ETA on stderr.
     batch_size : trials vmapped together (memory/speed only; results do not depend on it; the certified search's
@@ -185,18 +199,23 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
     missing chunks last first (``warm`` does, so that a process filling the cache beside one that runs forward meets
     it in the middle instead of repeating its chunks).
     workers : batches of a chunk computed at once, in threads (speed only; results do not depend on it); None:
-    ``default_workers()``.
+    ``default_workers()``.  client : a ``distributed.Client`` (``cluster.connect``): the missing chunks run as tasks
+    on its workers (``chunk_task``), this process writes them as they arrive.
     """
     _checks.require_x64()
     batch_size = BATCH_SIZE[e.receiver.search.method] if batch_size is None else batch_size
     _checks.integer("batch_size", batch_size, 1, 4096)
     workers = default_workers() if workers is None else _checks.integer("workers", workers, 1, 256)
     e.load_deployment()  # validates m_values against the deployment before any work
-    store = ChunkCache(e, cache).open()
+    hit = stored(e) if use_store else None
+    chunks = None if hit is not None else ChunkCache(e, cache).open()
     if os.environ.get("DPE5G_RUN_LOG"):  # the book build records what its chapters run (tests/test_warm.py)
         with open(os.environ["DPE5G_RUN_LOG"], "a") as f:
-            f.write(json.dumps({"run": store.dir.name, "n_trials": e.run.n_trials}) + "\n")
-    todo = store.missing()
+            f.write(json.dumps({"run": f"{e.run.name}-{e.config_key()}", "n_trials": e.run.n_trials,
+                                "stored": hit is not None if use_store else None}) + "\n")  # None: not asked
+    if hit is not None:
+        return Results(e, **hit.load(e.run.n_trials))
+    todo = chunks.missing()
     bar = None
     if todo and progress:
         from tqdm import tqdm
@@ -205,18 +224,32 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
                    unit="trial", file=sys.stderr, dynamic_ncols=True)
     runner = None
     supersets = snr_superset_runs(e, cache) if todo else []
+    futures = {}
     try:
         for start, stop in (todo[::-1] if reverse else todo):
-            if not store.path(start, stop).exists():  # (another process may have written it since `missing`)
-                src = next(((c, ix) for c, ix in supersets if c.path(start, stop).exists()), None)
-                if src is not None:  # a run at more SNRs holds these trials
-                    store.save(start, stop, sliced_chunk(src[0].path(start, stop), src[1]))
-                else:
-                    runner = runner or ChunkRunner(e)
-                    store.save(start, stop, runner(start, stop, batch_size, workers))
+            if chunks.path(start, stop).exists():  # (another process may have written it since `missing`)
+                pass
+            elif (src := next(((c, ix) for c, ix in supersets if c.path(start, stop).exists()), None)) is not None:
+                chunks.save(start, stop, sliced_chunk(src[0].path(start, stop), src[1]))  # a run at more SNRs
+            elif client is not None:
+                futures[client.submit(chunk_task, e, start, stop, batch_size, pure=False)] = (start, stop)
+                continue
+            else:
+                runner = runner or ChunkRunner(e)
+                chunks.save(start, stop, runner(start, stop, batch_size, workers))
             if bar is not None:
                 bar.update(stop - start)
+        if futures:
+            from distributed import as_completed
+
+            for fut in as_completed(futures):
+                start, stop = futures[fut]
+                chunks.save(start, stop, fut.result())
+                if bar is not None:
+                    bar.update(stop - start)
     finally:
+        for fut in futures:
+            fut.cancel()
         if bar is not None:
             bar.close()
-    return Results(e, **store.load(Results.FIELDS + (Results.OTDOA_FIELDS if e.receiver.otdoa else ())))
+    return Results(e, **chunks.load(stored_fields(e)))

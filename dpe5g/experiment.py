@@ -279,6 +279,27 @@ class Experiment:
         h.update(json.dumps(numerics()).encode())
         return h.hexdigest()[:16]
 
+    def config_key(self) -> str:
+        """Hash of what trial t's result depends on besides the code: the settings without the name and the trial
+        counts, and the deployment file's content.  The results store's key (``store.stored``): its entries
+        record the code that computed them (``code_version``) and ``verify`` checks them against today's code."""
+        d = self.to_dict()
+        for k in ("name", "n_trials", "chunk_trials"):
+            d.pop(k)
+        h = hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode())
+        h.update(deployment_digest(self).encode())
+        return h.hexdigest()[:16]
+
+
+def code_version() -> str:
+    """Hash of the code the Monte Carlo results depend on (``SOURCES``, ``code_digest``) and of the numerical
+    libraries' versions (``numerics``): what ``Experiment.key`` adds to the config."""
+    here = Path(__file__).resolve().parent
+    h = hashlib.sha256(json.dumps(numerics()).encode())
+    for name in SOURCES:
+        h.update(code_digest(here / name))
+    return h.hexdigest()[:16]
+
 
 def code_digest(path: Path) -> bytes:
     """A module's code for the cache key: its syntax tree without docstrings, comments or line numbers, so that

@@ -1,7 +1,12 @@
-"""The results on disk: one folder per experiment (``<cache>/<name>-<key>``), one ``.npz`` per chunk of trials,
-every file written atomically (temporary file + rename), so an interrupted run resumes where it stopped and ends
-with results identical to an uninterrupted one; the chunks of a run at more SNRs, sliced to the SNRs asked for; and
-the figures' payloads (``payload_path``), keyed by the code of the whole package.
+"""The results on disk, in two tiers.
+
+1. The results store (``figures/trials``, committed): per-trial results of every experiment the book and the
+   figures read, keyed by the config (``Experiment.config_key``), each entry recording the code that computed it;
+   ``verify`` recomputes a sample of its trials against today's code, ``dpe5g reproduce`` rewrites it.
+2. The cache (``.cache/montecarlo``): one folder per experiment and code version (``<cache>/<name>-<key>``), one
+   ``.npz`` per chunk of trials, every file written atomically (temporary file + rename), so an interrupted run
+   resumes where it stopped and ends with results identical to an uninterrupted one; the chunks of a run at more
+   SNRs, sliced to the SNRs asked for; and the figures' payloads (``payload_path``), keyed by the whole package.
 """
 
 from __future__ import annotations
@@ -10,13 +15,16 @@ import hashlib
 import io
 import json
 import os
+import subprocess
+from dataclasses import dataclass
 from pathlib import Path
 
 import jax
 import numpy as np
 
 from ._io import atomic_write, remove_stale_temporaries
-from .experiment import Experiment, code_digest, numerics
+from .experiment import Experiment, code_digest, code_version, numerics
+from .results import Results
 
 #: default cache directory: ``.cache/montecarlo`` next to the package (the repository root for an editable install);
 #: the environment variable DPE5G_CACHE overrides it.
@@ -117,14 +125,16 @@ def payload_path(fig_id: str, trials: int | None = None, cache=None) -> Path:
     """Where ``figures.compute`` keeps the payload of ``fig_id`` (with ``trials``):
     ``<cache root>/payloads/<id>-<key>.json`` beside the Monte Carlo results (``cache_root``).  The key hashes the
     figure id, the trial count, the code of every module of the package (``experiment.code_digest``: docstrings and
-    comments left out), its data files and the numerical libraries' versions: everything a payload is computed from,
-    so a stored payload is exactly what computing it again would give, and any change of code computes it anew."""
+    comments left out), its data files, the numerical libraries' versions and the results store's content
+    (``store_digest``): everything a payload is computed from, so a stored payload is exactly what computing it
+    again would give, and any change of code or of the store computes it anew."""
     here = Path(__file__).resolve().parent
     h = hashlib.sha256(json.dumps([fig_id, trials, numerics()], sort_keys=True).encode())
     for path in sorted(here.glob("*.py")):
         h.update(path.name.encode() + code_digest(path))
     for path in sorted(p for p in (here / "data").rglob("*") if p.is_file()):
         h.update(path.name.encode() + path.read_bytes())
+    h.update(store_digest().encode())
     return cache_root(cache) / "payloads" / f"{fig_id}-{h.hexdigest()[:16]}.json"
 
 
@@ -156,3 +166,101 @@ def jsonable(x):
     if isinstance(x, (np.floating, float)):
         return float(x)
     return x
+
+
+# ---- the results store (tier 1) ----------------------------------------------------------------------------------
+
+#: the committed results store; DPE5G_STORE names another folder, or "off" to compute everything (tier 2 only)
+STORE_DIR = Path(__file__).resolve().parent.parent / "figures" / "trials"
+def store_root() -> Path | None:
+    """The results store's folder: DPE5G_STORE if set ("off": None, no store), else ``STORE_DIR``."""
+    env = os.environ.get("DPE5G_STORE")
+    if env == "off":
+        return None
+    return Path(env) if env else STORE_DIR
+
+
+def store_digest() -> str:
+    """SHA-256 of the results store's files (names and bytes; "off" when there is none): what the payloads of
+    ``payload_path`` read besides the code."""
+    root = store_root()
+    if root is None or not root.is_dir():
+        return "off"
+    h = hashlib.sha256()
+    for path in sorted(p for p in root.iterdir() if p.suffix in (".npz", ".json")):
+        h.update(path.name.encode() + b"\0" + path.read_bytes())
+    return h.hexdigest()
+
+
+def stored_fields(e: Experiment) -> tuple[str, ...]:
+    """The fields of ``Results`` an entry of ``e`` holds: all of them (the OTDoA fields where ``e`` runs OTDoA)."""
+    return Results.FIELDS + (Results.OTDOA_FIELDS if e.receiver.otdoa else ())
+
+
+@dataclass(frozen=True)
+class StoredRun:
+    """One entry of the results store: ``<name>-<config key>.npz`` (the arrays as computed, float64 included,
+    trials on the leading axis; compressed) and ``.json`` beside it (``meta``: name, config, n_trials, fields, code
+    version and commit)."""
+
+    npz: Path
+    meta: dict
+
+    @property
+    def n_trials(self) -> int:
+        return int(self.meta["n_trials"])
+
+    def load(self, n_trials: int | None = None, trials=None) -> dict:
+        """The stored arrays of trials 0 … n_trials-1 (or of the trial indices ``trials``)."""
+        idx = slice(0, n_trials) if trials is None else np.asarray(trials)
+        with np.load(self.npz) as z:
+            return {k: z[k][idx] for k in z.files}
+
+
+def stored(e: Experiment, root: Path | None = None) -> StoredRun | None:
+    """The store's entry for ``e`` (same config key, at least ``e.run.n_trials`` trials), None if it holds none
+    or the store is off.  Trial t depends only on the config, the seed and t, so an entry of N trials serves
+    any run of n ≤ N."""
+    root = store_root() if root is None else root
+    if root is None or not root.is_dir():
+        return None
+    for meta_path in sorted(root.glob(f"*-{e.config_key()}.json")):
+        meta = json.loads(meta_path.read_text())
+        npz = meta_path.with_suffix(".npz")
+        if npz.exists() and int(meta["n_trials"]) >= e.run.n_trials:
+            return StoredRun(npz, meta)
+    return None
+
+
+def write_stored(e: Experiment, arrays: dict, root: Path | None = None, code: dict | None = None) -> StoredRun:
+    """Store ``e``'s results (``stored_fields``, as computed, compressed) with its config and the code version that
+    computed them (``code`` overrides ``{"code_version": …, "commit": …}``); the ``.npz`` first, then the ``.json``
+    that makes the entry visible, each atomically."""
+    root = store_root() if root is None else root
+    if root is None:
+        raise ValueError("DPE5G_STORE is 'off': there is no results store to write")
+    data = {k: np.asarray(arrays[k]) for k in stored_fields(e)}
+    config = e.to_dict()
+    for k in ("n_trials", "chunk_trials"):
+        config.pop(k)
+    meta = {"name": e.run.name, "config_key": e.config_key(), "config": jsonable(config), "n_trials": e.run.n_trials,
+            "fields": {k: [str(v.dtype), list(v.shape[1:])] for k, v in data.items()},
+            **(code or {"code_version": code_version(), "commit": git_commit()}), "numerics": numerics()}
+    stem = f"{e.run.name}-{e.config_key()}"  # (names may hold dots: no with_suffix)
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **data)
+    atomic_write(root / f"{stem}.npz", buf.getvalue())
+    atomic_write(root / f"{stem}.json", (json.dumps(meta, indent=1) + "\n").encode())
+    return StoredRun(root / f"{stem}.npz", meta)
+
+
+def git_commit() -> str | None:
+    """The checkout's commit (with "+changes" when its tracked files differ from it), None outside git."""
+    here = Path(__file__).resolve().parent
+    try:
+        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, check=True)
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=here,
+                               capture_output=True, text=True, check=True)
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    return head.stdout.strip() + ("+changes" if dirty.stdout.strip() else "")

@@ -1,4 +1,5 @@
 import os
+import random
 from pathlib import Path
 
 import pytest
@@ -14,3 +15,15 @@ settings.load_profile("dpe5g")
 @pytest.fixture
 def root() -> Path:
     return ROOT
+
+
+def pytest_configure(config):
+    """The results store's verification sample (tests/test_store.py) gets a new seed each run, unless
+    DPE5G_VERIFY_SEED names one; set here, before xdist starts its workers, so they all share it."""
+    if not os.environ.get("DPE5G_VERIFY_SEED"):
+        os.environ["DPE5G_VERIFY_SEED"] = str(random.SystemRandom().randrange(2**31))
+
+
+def pytest_report_header(config):
+    seed = os.environ["DPE5G_VERIFY_SEED"]
+    return f"results store verification seed: {seed} (DPE5G_VERIFY_SEED={seed} repeats this run's sample)"

@@ -89,9 +89,9 @@ def test_changed_module_re_executes_the_page(tmp_path):
     assert any("pic.png" in c.get("attachments", {}) for c in nb.cells)
 
 
-def test_book_config_watches_the_package_and_the_pins():
+def test_book_config_watches_the_package_the_pins_and_the_store():
     cfg = yaml.safe_load((ROOT / "book" / "_config.yml").read_text())
-    assert set(cfg["sphinx"]["config"]["dpe5g_cache_sources"]) == {"dpe5g", "environment.txt"}
+    assert set(cfg["sphinx"]["config"]["dpe5g_cache_sources"]) == {"dpe5g", "environment.txt", "figures/trials"}
     assert cfg["sphinx"]["local_extensions"] == {"dpe5g_book": "_ext"}  # relative to book/_config.yml
 
 

@@ -1,0 +1,197 @@
+"""The results store checked against today's code: recompute a random sample of stored trials and compare every
+stored field (``verify_sample``), or recompute every stored experiment and rewrite the store (``reproduce``).
+
+Trial t of an experiment depends only on its config, its seed and t (``draw.trial_key``), so one trial recomputed
+on its own equals the stored one.  A float agrees within ``VERIFY_RTOL`` of the stored value (this machine gives the
+same bits; another CPU may differ in the last ones: SIMD width, FFT plans), NaN where NaN; integers and booleans
+must be equal.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import sys
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import engine, paper, store, trials
+from .experiment import Experiment
+
+#: a recomputed float agrees with the stored one within this relative difference: about 4.5 million float64 steps,
+#: for CPUs that differ in the last bits, and 1000 times below the figure-diff's tolerance (1e-6)
+VERIFY_RTOL = 1e-9
+
+
+def store_experiments() -> list[Experiment]:
+    """Every experiment the results store holds: those of the book's chapters and of the figures, at the trial
+    counts they read (``paper.book_experiments``)."""
+    return paper.book_experiments()
+
+
+@dataclass(frozen=True)
+class Mismatch:
+    """A stored trial whose field differs from what the code computes today."""
+
+    experiment: str
+    trial: int
+    field: str
+    stored: str
+    computed: str
+
+    def __str__(self) -> str:
+        return (f"results store: {self.experiment}, trial {self.trial}, field {self.field}: stored {self.stored}, "
+                f"computed {self.computed}; run `make reproduce` to recompute the store from today's code")
+
+
+def differences(name: str, rows, stored: dict, computed: dict) -> list[Mismatch]:
+    """The (trial, field) pairs of ``computed`` (trials on the leading axis) that differ from ``stored`` (beyond
+    ``VERIFY_RTOL`` for floats); ``rows`` the trial index of each row."""
+    out = []
+    for k in sorted(stored):
+        s = np.asarray(stored[k])
+        c = np.asarray(computed[k])
+        if s.shape != c.shape or s.dtype != c.dtype:
+            out.append(Mismatch(name, -1, k, f"{s.dtype} {s.shape}", f"{c.dtype} {c.shape}"))
+            continue
+        if np.issubdtype(c.dtype, np.floating):
+            ok = np.isclose(s, c, rtol=VERIFY_RTOL, atol=0.0) | (np.isnan(s) & np.isnan(c))
+        else:
+            ok = s == c
+        for i in np.unique(np.nonzero(~ok.reshape(len(ok), -1))[0]):
+            j = int(np.argmax(~ok[i].reshape(-1)))
+            out.append(Mismatch(name, int(rows[i]), k, repr(s[i].reshape(-1)[j].item()),
+                                repr(c[i].reshape(-1)[j].item())))
+    return out
+
+
+def recompute(e: Experiment, picked) -> dict:
+    """``e``'s trials ``picked`` (indices) computed now, each on its own, full precision; {field: (T, ...)}."""
+    runner = engine.ChunkRunner(e)
+    batch = engine.BATCH_SIZE[e.receiver.search.method]
+    parts = [runner(t, t + 1, batch, workers=1) for t in picked]
+    return {k: np.concatenate([p[k] for p in parts]) for k in store.stored_fields(e)}
+
+
+def family(e: Experiment) -> tuple:
+    """The compiled programs ``e`` runs (``trials.program_config`` of each): experiments of one family share
+    their compiles, so recomputing a trial of each costs little more than one."""
+    progs = ("bnb_prep", "bnb_fix") if e.receiver.search.method == "bnb" else ("grid_trial",)
+    progs += ("toa",) if e.receiver.otdoa else ()
+    progs += ("prior",) if e.receiver.centring == "prior" else ()
+    return tuple(trials.program_config(e, p) for p in progs)
+
+
+def families(experiments) -> list[list[Experiment]]:
+    """The experiments grouped by ``family``, in the order each family first appears."""
+    groups: dict = {}
+    for e in experiments:
+        groups.setdefault(family(e), []).append(e)
+    return list(groups.values())
+
+
+def sample(seed: int, n_families: int, n_trials: int, experiments=None) -> list[tuple[Experiment, list[int]]]:
+    """The sample ``verify_sample`` recomputes: ``n_families`` families (``families``) of the stored experiments
+    drawn without replacement, and ``n_trials`` trials of every experiment in them, all drawn from
+    ``random.Random(seed)``."""
+    rng = random.Random(seed)
+    groups = families(store_experiments() if experiments is None else experiments)
+    picks = rng.sample(range(len(groups)), min(n_families, len(groups)))
+    return [(e, sorted(rng.sample(range(e.run.n_trials), min(n_trials, e.run.n_trials))))
+            for i in picks for e in groups[i]]
+
+
+def verify_sample(seed: int, n_families: int = 3, n_trials: int = 2, experiments=None,
+                  log=sys.stderr) -> tuple[list[Mismatch], list[tuple[str, list[int]]]]:
+    """Recompute ``sample(seed, n_families, n_trials, experiments)`` and compare it with the store.  An experiment the store lacks is itself a
+    mismatch (field "entry").  Returns (mismatches, [(experiment name, trials recomputed)])."""
+    out, done = [], []
+    for e, picked in sample(seed, n_families, n_trials, experiments):
+        t0 = time.perf_counter()
+        hit = store.stored(e)
+        if hit is None:
+            out.append(Mismatch(e.run.name, -1, "entry", "none", f"{e.run.n_trials} trials asked"))
+            continue
+        out += differences(e.run.name, picked, hit.load(trials=picked), recompute(e, picked))
+        done.append((e.run.name, picked))
+        print(f"verify: {e.run.name} trials {picked} recomputed ({time.perf_counter() - t0:.1f} s)", file=log)
+    return out, done
+
+
+def coverage_runs(n_stored: int, n_per_run: int, quantile: float = 0.95) -> tuple[float, int]:
+    """Runs of ``verify_sample`` (``n_per_run`` distinct families of ``n_stored`` each, independent seeds)
+    until every family, so every stored experiment, has been verified at least once: (mean, the ``quantile`` point).  Exact, from the
+    distribution of the runs needed (inclusion–exclusion over the experiments never drawn)."""
+    from math import comb
+
+    def p_all_within(r: int) -> float:  # P(every experiment drawn within r runs)
+        miss = sum((-1) ** (j + 1) * comb(n_stored, j) * (comb(n_stored - j, n_per_run) / comb(n_stored, n_per_run)) ** r
+                   for j in range(1, n_stored - n_per_run + 1))
+        return 1.0 - miss
+
+    mean, r, cdf = 0.0, 0, 0.0
+    q_point = None
+    while cdf < 1 - 1e-12 and r < 100_000:
+        r += 1
+        new = p_all_within(r)
+        mean += r * (new - cdf)
+        cdf = new
+        if q_point is None and cdf >= quantile:
+            q_point = r
+    return mean, q_point
+
+
+def reproduce(experiments=None, progress: bool = True, client=None, log=sys.stdout) -> list[Mismatch]:
+    """Recompute every stored experiment from its seeds (the cache's chunks of today's code are reused: they are
+    what this code computes; client: a Dask client, ``cluster``), report the trials that differ from the store,
+    then rewrite the store.  Returns the mismatches found (before rewriting)."""
+    exps = store_experiments() if experiments is None else list(experiments)
+    found = []
+    t_all = time.perf_counter()
+    for i, e in enumerate(exps, 1):
+        t0 = time.perf_counter()
+        res = engine.run(e, progress=progress, use_store=False, client=client)
+        arrays = {k: getattr(res, k) for k in store.stored_fields(e)}
+        old = store.stored(e)
+        diffs = [] if old is None else differences(e.run.name, range(e.run.n_trials), old.load(e.run.n_trials),
+                                                    arrays)
+        found += diffs
+        store.write_stored(e, arrays)
+        state = "new entry" if old is None else f"{len(diffs)} differences from the store"
+        print(f"[{i}/{len(exps)}] {e.run.name}: {e.run.n_trials} trials, {state} "
+              f"({time.perf_counter() - t0:.1f} s)", file=log, flush=True)
+        for d in diffs[:5]:
+            print(f"    {d.experiment} trial {d.trial} {d.field}: stored {d.stored}, computed {d.computed}", file=log)
+    print(f"reproduce: {len(exps)} experiments recomputed and stored, {len(found)} (trial, field) differences "
+          f"({time.perf_counter() - t_all:.1f} s)", file=log, flush=True)
+    return found
+
+
+@dataclass(frozen=True)
+class Provenance:
+    """Where a chapter's Monte Carlo numbers come from (``provenance``): the sample's seed, the trials recomputed
+    per experiment and the table of entries (Markdown, ``report.provenance_markdown``)."""
+
+    seed: int
+    recomputed: dict
+    table_md: str
+
+    @property
+    def n_recomputed(self) -> int:
+        return sum(len(v) for v in self.recomputed.values())
+
+
+def provenance(experiments, seed: int | None = None, n_families: int = 1, n_trials: int = 1) -> Provenance:
+    """Check a chapter's experiments against the store on a random sample (``verify_sample``: ``n_trials`` trials
+    of every experiment in ``n_families`` of their families) and describe where their numbers come from.  seed:
+    DPE5G_VERIFY_SEED if set, else a new one.  AssertionError naming every mismatch (and ``make reproduce``)."""
+    from . import report
+
+    if seed is None:
+        seed = int(os.environ.get("DPE5G_VERIFY_SEED") or random.SystemRandom().randrange(2**31))
+    exps = [e for e in experiments if store.stored(e) is not None]
+    found, done = verify_sample(seed, n_families, n_trials, experiments=exps, log=sys.stdout)
+    assert not found, "\n".join(map(str, found))
+    return Provenance(seed, dict(done), report.provenance_markdown(experiments, dict(done)))

@@ -1,0 +1,39 @@
+"""The Monte Carlo on a Dask cluster (``cluster``, ``engine.run(client=…)``): the same bits as one process, and
+clear errors for bad cluster options."""
+
+import numpy as np
+import pytest
+
+from dpe5g import cluster, engine, experiment, search_config, store
+
+SMALL = dict(n_trials=6, chunk_trials=2, snrs_db=(10.0, 30.0), m_values=(4, 6), centring="prior",
+             search=search_config.SearchConfig(method="bnb", half_width_m=8.0))
+
+
+def test_a_local_cluster_gives_the_results_of_one_process(tmp_path):
+    e = experiment.Experiment.build(name="dask", **SMALL)
+    one = engine.run(e, cache=tmp_path / "one", progress=False, use_store=False)
+    client = cluster.connect(workers=2)
+    try:
+        assert len(client.scheduler_info()["workers"]) == 2
+        two = engine.run(e, cache=tmp_path / "two", progress=False, use_store=False, client=client)
+    finally:
+        cluster.close(client)
+    assert sorted(p.name for p in store.cache_dir(e, tmp_path / "two").glob("*.npz")) == [
+        "trials-0000000-0000002.npz", "trials-0000002-0000004.npz", "trials-0000004-0000006.npz"]
+    for k in store.stored_fields(e):
+        np.testing.assert_array_equal(getattr(one, k), getattr(two, k), err_msg=k)
+
+
+def test_bad_cluster_options_are_named(monkeypatch):
+    monkeypatch.delenv("DPE5G_SCHEDULER", raising=False)
+    assert cluster.connect() is None
+    with pytest.raises(ValueError, match="--scheduler .* and --workers 2 exclude each other"):
+        cluster.connect("tcp://127.0.0.1:1", 2)
+    with pytest.raises(ValueError, match="--workers must be"):
+        cluster.connect(workers=0)
+    with pytest.raises(ValueError, match="--scheduler must be a scheduler address"):
+        cluster.connect("localhost:8786")
+    monkeypatch.setenv("DPE5G_SCHEDULER", "tcp://127.0.0.1:1")
+    with pytest.raises(ValueError, match="no Dask scheduler answers there"):
+        cluster.connect(timeout_s=1.0)

@@ -1,0 +1,94 @@
+"""The results store (``figures/trials``): it holds every experiment the book and the figures read, within its size
+budget; the engine serves them from it without computing; and a random sample of its trials, recomputed today,
+equals what it holds (a new sample each run: the seed is printed in the test header, DPE5G_VERIFY_SEED repeats it)."""
+
+import os
+
+import numpy as np
+import pytest
+
+from dpe5g import engine, paper, store, verify
+
+#: the store's size budget (issue 31): 25 MB in all
+STORE_BUDGET_BYTES = 25_000_000
+#: the sample ``make test`` recomputes each run: trials of every experiment in this many families of experiments
+#: that share their compiled programs (``verify.families``; the compiles are its cost: README, "The results store")
+VERIFY_FAMILIES, VERIFY_TRIALS = 3, 2
+
+
+def test_store_holds_every_experiment_the_book_and_figures_read():
+    missing = [e.run.name for e in verify.store_experiments() if store.stored(e) is None]
+    assert not missing, f"the results store lacks {missing}; run `make reproduce`"
+    entries = sorted(store.STORE_DIR.glob("*"))
+    size = sum(p.stat().st_size for p in entries)
+    assert size <= STORE_BUDGET_BYTES, f"results store is {size / 1e6:.1f} MB, over its 25 MB budget"
+    for e in verify.store_experiments():
+        meta = store.stored(e).meta
+        assert meta["config_key"] == e.config_key() and meta["code_version"] and meta["commit"]
+
+
+def test_stored_trials_are_what_the_code_computes():
+    seed = int(os.environ["DPE5G_VERIFY_SEED"])  # set once per session by conftest.py, printed in the header
+    found, done = verify.verify_sample(seed, VERIFY_FAMILIES, VERIFY_TRIALS)
+    assert len(done) >= VERIFY_FAMILIES
+    assert not found, "\n".join(map(str, found[:20]))
+
+
+@pytest.fixture
+def small(tmp_path, monkeypatch):
+    """A 6-trial experiment stored in a store of its own (DPE5G_STORE), computed without it."""
+    monkeypatch.setenv("DPE5G_STORE", str(tmp_path / "store"))
+    e = paper.fig9_truth(6).replace(name="small", chunk_trials=3)
+    res = engine.run(e, cache=tmp_path / "cache", progress=False, use_store=False)
+    return e, res, store.write_stored(e, {k: getattr(res, k) for k in store.stored_fields(e)})
+
+
+def test_a_stored_run_is_read_not_computed(small, monkeypatch):
+    e, res, _ = small
+
+    def no_compute(*a, **k):
+        raise AssertionError("the engine computed a trial the store holds")
+
+    monkeypatch.setattr(engine, "ChunkRunner", no_compute)
+    got = engine.run(e.replace(n_trials=4), progress=False)  # a prefix of the stored trials
+    for k in store.stored_fields(e):  # as computed, to the bit
+        np.testing.assert_array_equal(getattr(got, k), np.asarray(getattr(res, k))[:4], err_msg=k)
+    with pytest.raises(AssertionError, match="computed a trial"):
+        engine.run(e.replace(n_trials=7), progress=False)  # more trials than stored: computed
+
+
+def test_a_changed_stored_value_is_named_with_the_remedy(small):
+    e, _, entry = small
+    arrays = dict(np.load(entry.npz))
+    arrays["error_m"] = arrays["error_m"].copy()
+    arrays["error_m"][4, 1, 0] *= 1.0 + 1e-8  # 10 times the verification's tolerance
+    arrays["los"] = arrays["los"].copy()
+    arrays["los"][1, 0] = ~arrays["los"][1, 0]
+    np.savez_compressed(entry.npz, **arrays)
+    found, done = verify.verify_sample(0, 1, 6, experiments=[e])
+    assert done == [("small", [0, 1, 2, 3, 4, 5])]
+    assert [(m.trial, m.field) for m in found] == [(4, "error_m"), (1, "los")]
+    assert "results store: small, trial 4, field error_m" in str(found[0]) and "make reproduce" in str(found[0])
+
+
+def test_reproduce_reports_and_rewrites(small, capsys):
+    e, _, entry = small
+    arrays = dict(np.load(entry.npz))
+    arrays["ue_xyz"] = arrays["ue_xyz"] + 1.0
+    np.savez_compressed(entry.npz, **arrays)
+    found = verify.reproduce([e], progress=False)
+    assert {m.trial for m in found} == set(range(6)) and {m.field for m in found} == {"ue_xyz"}
+    assert verify.reproduce([e], progress=False) == []  # rewritten: now what the code computes
+
+
+def test_coverage_runs_matches_a_simulation():
+    rng = np.random.default_rng(0)
+    runs = []
+    for _ in range(2000):
+        seen, r = set(), 0
+        while len(seen) < 10:
+            seen |= set(rng.choice(10, 3, replace=False).tolist())
+            r += 1
+        runs.append(r)
+    mean, q95 = verify.coverage_runs(10, 3)
+    assert abs(mean - np.mean(runs)) < 0.15 and abs(q95 - np.quantile(runs, 0.95)) <= 1
