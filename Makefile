@@ -57,9 +57,13 @@ chapter: $(STAMP)
 # takes more than `nice` where Linux groups processes by session (autogroup): Jupyter starts each chapter's kernel in a
 # session of its own, and the scheduler shares the CPUs equally between sessions whatever their nice values, so the
 # tests run in a session of their own whose group is niced to 19 (without setsid or autogroup: plain nice).
+# One seed for the whole run's check of the results store (the chapters' samples and tests/test_store.py's), printed
+# first; DPE5G_VERIFY_SEED=N make test repeats a run's samples.
 UNIT_LOG := .cache/pytest-unit.log
+test: export DPE5G_VERIFY_SEED := $(or $(DPE5G_VERIFY_SEED),$(shell od -An -N4 -tu4 /dev/urandom | awk '{print $$1 % 2147483648}'))
 test: $(STAMP)
 	@mkdir -p .cache
+	@echo "results store verification seed: $$DPE5G_VERIFY_SEED (DPE5G_VERIFY_SEED=$$DPE5G_VERIFY_SEED make test repeats its samples)"
 	lowpri() { if command -v setsid > /dev/null; then \
 	    setsid -w sh -c '{ echo 19 > /proc/self/autogroup; } 2> /dev/null; exec nice -n 19 "$$@"' sh "$$@"; \
 	  else nice -n 19 "$$@"; fi; }; \

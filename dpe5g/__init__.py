@@ -22,7 +22,7 @@ DPE5G_XLA_OPT_LEVEL says otherwise ("0"–"3", or "xla" for XLA's own default) o
 measured on the 2-core CI machine, the truth-centred Fig. 9 engine compiles in 5.2 s instead of 9.5 s and runs as
 fast, the book's engines compile in 245 s instead of 301 s, and a cold run of the tests (empty caches) takes 236 s
 instead of 280 s.  The level changes no number: the engines' results are equal to the bit at both levels
-(``tests/test_xla_level.py`` runs them in a process at XLA's default and compares), so it is not part of a cached
+(``benchmarks/bench_xla_level.py`` runs them in a process at XLA's default and compares), so it is not part of a cached
 run's key.  XLA reads the flag when JAX first starts its backend: importing ``dpe5g`` after JAX has computed
 anything leaves the level as it was.
 """

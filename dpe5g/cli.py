@@ -237,14 +237,15 @@ def _verify(args) -> int:
 
     seed = args.seed if args.seed is not None else random.SystemRandom().randrange(2**31)
     _checks.integer("--seed", seed, 0, 2**31 - 1)
-    n = len(verify.store_experiments()) if args.all else _checks.integer("--families", args.families, 1, 10_000)
-    _checks.integer("--trials", args.trials, 1, 10_000)
+    families = verify.SAMPLE_FAMILIES if args.families is None else args.families
+    n_trials = _checks.integer("--trials", verify.SAMPLE_TRIALS if args.trials is None else args.trials, 1, 10_000)
+    n = len(verify.store_experiments()) if args.all else _checks.integer("--families", families, 1, 10_000)
     print(f"verify: seed {seed} (dpe5g verify --seed {seed} repeats this sample)", flush=True)
-    found, done = verify.verify_sample(seed, n, args.trials)
+    found, done = verify.verify_sample(seed, n, n_trials)
     for m in found:
         print(m, file=sys.stderr)
-    n_trials = sum(len(t) for _, t in done)
-    print(f"verify: {n_trials} trials of {len(done)} experiments recomputed, {len(found)} mismatches", flush=True)
+    total = sum(len(t) for _, t in done)
+    print(f"verify: {total} trials of {len(done)} experiments recomputed, {len(found)} mismatches", flush=True)
     return 1 if found else 0
 
 
@@ -418,8 +419,10 @@ def _add_other_commands(sub) -> None:
                                    "families of the results store (experiments that share their compiled programs) "
                                    "and compare every stored field; exit 1 naming each mismatch.")
     v.add_argument("--seed", type=int, default=None, help="the sample's seed (default: a new one, printed)")
-    v.add_argument("--families", type=int, default=3, metavar="N", help="families to sample (default 3)")
-    v.add_argument("--trials", type=int, default=2, metavar="N", help="trials per experiment (default 2)")
+    v.add_argument("--families", type=int, default=None, metavar="N",
+                   help="families to sample (default: make test's sample, dpe5g.verify.SAMPLE_FAMILIES)")
+    v.add_argument("--trials", type=int, default=None, metavar="N",
+                   help="trials per experiment (default: dpe5g.verify.SAMPLE_TRIALS)")
     v.add_argument("--all", action="store_true", help="every family (--trials of each stored experiment)")
     v.set_defaults(func=_verify)
 

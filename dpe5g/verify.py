@@ -23,6 +23,9 @@ from .experiment import Experiment
 #: a recomputed float agrees with the stored one within this relative difference: about 4.5 million float64 steps,
 #: for CPUs that differ in the last bits, and 1000 times below the figure-diff's tolerance (1e-6)
 VERIFY_RTOL = 1e-9
+#: the sample ``make test`` recomputes (``tests/test_store.py``, ``dpe5g verify``): two trials of every experiment in
+#: three random families; the compiles of a family are its cost (README, "The results store")
+SAMPLE_FAMILIES, SAMPLE_TRIALS = 3, 2
 
 
 def store_experiments() -> list[Experiment]:
@@ -76,11 +79,11 @@ def recompute(e: Experiment, picked) -> dict:
 
 
 def family(e: Experiment) -> tuple:
-    """The compiled programs ``e`` runs (``trials.program_config`` of each): experiments of one family share
-    their compiles, so recomputing a trial of each costs little more than one."""
+    """The programs whose compiles dominate ``e``'s cost (``trials.program_config`` of each: the searches and the
+    OTDoA detector; the prior's draw compiles in moments): experiments of one family share their compiles, so
+    recomputing a trial of each costs little more than one."""
     progs = ("bnb_prep", "bnb_fix") if e.receiver.search.method == "bnb" else ("grid_trial",)
     progs += ("toa",) if e.receiver.otdoa else ()
-    progs += ("prior",) if e.receiver.centring == "prior" else ()
     return tuple(trials.program_config(e, p) for p in progs)
 
 
@@ -103,7 +106,7 @@ def sample(seed: int, n_families: int, n_trials: int, experiments=None) -> list[
             for i in picks for e in groups[i]]
 
 
-def verify_sample(seed: int, n_families: int = 3, n_trials: int = 2, experiments=None,
+def verify_sample(seed: int, n_families: int = SAMPLE_FAMILIES, n_trials: int = SAMPLE_TRIALS, experiments=None,
                   log=sys.stderr) -> tuple[list[Mismatch], list[tuple[str, list[int]]]]:
     """Recompute ``sample(seed, n_families, n_trials, experiments)`` and compare it with the store.  An experiment the store lacks is itself a
     mismatch (field "entry").  Returns (mismatches, [(experiment name, trials recomputed)])."""

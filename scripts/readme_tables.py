@@ -197,8 +197,44 @@ def readings_table() -> str:
         f"{s['counts']['as_read']}, the honest receiver {s['counts']['honest']}."])
 
 
+def store_text() -> str:
+    metas = [json.loads(m.read_text()) for m in sorted((ROOT / "figures" / "trials").glob("*.json"))]
+    size = sum(f.stat().st_size for f in (ROOT / "figures" / "trials").iterdir())
+    trials = sum(m["n_trials"] for m in metas)
+    short = lambda c: "outside git" if not c else c[:7] + ("+changes" if c.endswith("+changes") else "")
+    versions = sorted({(m["code_version"], short(m["commit"])) for m in metas})
+    return (f"Now: {len(metas)} entries, {trials} trials, {size / 1e6:.1f} MB in all (the budget is 25 MB), computed by "
+            f"code version{'s' if len(versions) > 1 else ''} "
+            + ", ".join(f"`{v}` (commit {c})" for v, c in versions) + ".")
+
+
+def coverage_text() -> str:
+    from dpe5g import verify
+
+    n = len(verify.families(verify.store_experiments()))
+    mean, q95 = verify.coverage_runs(n, verify.SAMPLE_FAMILIES)
+    return (f"The {len(verify.store_experiments())} stored experiments fall into {n} families.  With "
+            f"{verify.SAMPLE_FAMILIES} of them drawn per `make test`, every stored experiment has been verified at "
+            f"least once after {mean:.1f} runs on average, and after {q95} runs with probability 95 % "
+            f"(`verify.coverage_runs`; the chapters' own draws, one family each, only shorten this).")
+
+
+def cluster_text() -> str:
+    path = ROOT / "benchmarks" / "bench_cluster.json"
+    if not path.exists():
+        return "`benchmarks/bench_cluster.py` has not been run on this machine yet."
+    b = json.loads(path.read_text())
+    lines = [f"`benchmarks/bench_cluster.py` on {b['machine']['cpus']} CPUs: the store's experiments at "
+             f"{b['fraction']:g} of their trial counts, from empty caches (Monte Carlo and compiles):", "",
+             "| set-up | wall (s) | differences from the store | peak memory per process (MB) |", "|---|---|---|---|"]
+    for name, r in b["setups"].items():
+        lines.append(f"| {name} | {r['wall_s']:.0f} | {r['differences']} | "
+                     + ", ".join(f"{m:.0f}" for m in r["peak_rss_mb"]) + " |")
+    return "\n".join(lines)
+
+
 TABLES = {"timing": timing_text, "fig9": fig9_table, "fig10": fig10_table, "bench": bench_table, "engine": engine_table,
-          "readings": readings_table}
+          "readings": readings_table, "store": store_text, "coverage": coverage_text, "cluster": cluster_text}
 
 
 def render(text: str) -> str:

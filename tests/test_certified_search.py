@@ -11,7 +11,7 @@ import pytest
 from dpe5g import certified_search, correlogram, cost, experiment, search_config, trials
 from dpe5g.nr import C, PAPER
 
-N_TRIALS = 50
+N_TRIALS = 24  # each costs an exhaustive evaluation of its window (about 2.5 s)
 CFG = search_config.SearchConfig(method="bnb", half_width_m=8.0, bias_half_width_m=3 * 5e-9 * C)
 
 
@@ -109,7 +109,7 @@ def test_chunk_size_and_capacity_do_not_change_an_undropped_fix(urban_trials):
     tiny = dataclasses.replace(CFG, capacity=8, chunk_boxes=8)
     runs = [jax.jit(lambda coef, bs, c, cfg=cfg: certified_search.certified_search(coef, bs, c, cfg)) for cfg in cfgs + [tiny]]
     n_tiny_uncertified = 0
-    for ex, center in items[:20]:
+    for ex, center in items[:12]:
         coef = correlogram.spline_correlogram(ex.y, ex.prs, CFG.n_taps, CFG.spline_upsample)
         args = (coef, jnp.asarray(ex.bs_xyz), jnp.asarray(center))
         *rs, (small, small_cost) = [run(*args) for run in runs]
@@ -120,7 +120,7 @@ def test_chunk_size_and_capacity_do_not_change_an_undropped_fix(urban_trials):
                 assert float(r_cost) == float(last_cost)
         n_tiny_uncertified += not bool(small.certified)
         assert float(small_cost) <= float(last_cost) * (1 + CFG.gap_tol)
-    assert n_tiny_uncertified >= 10
+    assert n_tiny_uncertified >= 6
 
 
 def test_spline_correlogram_is_exact_at_the_knots():

@@ -1,7 +1,7 @@
 import jax
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from dpe5g import certified_search, correlogram, cost, dpe, grid_search, nr, search_config, signal
@@ -17,6 +17,7 @@ def random_case(seed, n_fft, m, n_tau):
     return y, prs, tau, num
 
 
+@settings(max_examples=10)  # each new (n_fft, m, L) compiles; the full-size case is the test below
 @given(st.integers(0, 2**32 - 1), st.sampled_from([64, 256]), st.integers(1, 4), st.integers(1, 12))
 def test_fast_cost_equals_literal(seed, n_fft, m, n_taps):
     y, prs, tau, num = random_case(seed, n_fft, m, 3)
