@@ -196,5 +196,6 @@ def provenance(experiments, seed: int | None = None, n_families: int = 1, n_tria
         seed = int(os.environ.get("DPE5G_VERIFY_SEED") or random.SystemRandom().randrange(2**31))
     exps = [e for e in experiments if store.stored(e) is not None]
     found, done = verify_sample(seed, n_families, n_trials, experiments=exps, log=sys.stdout)
-    assert not found, "\n".join(map(str, found))
+    if found:
+        raise AssertionError("\n".join(map(str, found)))
     return Provenance(seed, dict(done), report.provenance_markdown(experiments, dict(done)))

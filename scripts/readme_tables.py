@@ -224,8 +224,10 @@ def cluster_text() -> str:
     if not path.exists():
         return "`benchmarks/bench_cluster.py` has not been run on this machine yet."
     b = json.loads(path.read_text())
-    lines = [f"`benchmarks/bench_cluster.py` on {b['machine']['cpus']} CPUs: the store's experiments at "
-             f"{b['fraction']:g} of their trial counts, from empty caches (Monte Carlo and compiles):", "",
+    which = ", ".join(b["only"]) if b["only"] else "every stored experiment"
+    lines = [f"`benchmarks/bench_cluster.py` on {b['machine']['cpus']} CPUs: {which} at {b['fraction']:g} of "
+             f"the stored trial counts, from empty caches (the Monte Carlo and its compiles), every result compared "
+             f"with the store:", "",
              "| set-up | wall (s) | differences from the store | peak memory per process (MB) |", "|---|---|---|---|"]
     for name, r in b["setups"].items():
         lines.append(f"| {name} | {r['wall_s']:.0f} | {r['differences']} | "

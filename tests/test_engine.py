@@ -20,14 +20,14 @@ def test_results_do_not_depend_on_chunking_or_batching(tmp_path):
     # 6 trials in batches of 4: the last batch is filled up with copies of its last trial, which are dropped
     a = engine.run(experiment.Experiment.build(chunk_trials=6, **SMALL), cache=tmp_path / "a", progress=False,
                        batch_size=4)
-    b = engine.run(experiment.Experiment.build(chunk_trials=2, **SMALL), cache=tmp_path / "b", progress=False,
-                       batch_size=1)
+    b = engine.run(experiment.Experiment.build(chunk_trials=2, **SMALL), cache=tmp_path / "b", progress=False)
+    assert engine.BATCH_SIZE["grid"] == 2  # (the default: no filled-up batch, and the program other tests compile)
     for f in results.Results.FIELDS:
         np.testing.assert_allclose(getattr(a, f), getattr(b, f), rtol=0, atol=1e-9, err_msg=f)
     assert a.error_m.shape == (6, 2, 2) and a.los.shape == (6, 6)
     # a longer run reuses nothing it should not: its first trials equal the short run's
     c = engine.run(experiment.Experiment.build(chunk_trials=2, **{**SMALL, "n_trials": 8}), cache=tmp_path / "b",
-                       progress=False, batch_size=1)
+                       progress=False)
     np.testing.assert_allclose(c.error_m[:6], b.error_m, atol=1e-9)
 
 
@@ -210,7 +210,7 @@ def test_too_many_bs_for_the_deployment():
 def test_honest_centrings_see_no_truth(tmp_path):
     """Prior and OTDoA centring: the window's centre is not the truth (prior) or is the OTDoA fix, and the
     clock-bias window is centred on 0 and sized from the clock model."""
-    bnb = search_config.SearchConfig(method="bnb", half_width_m=6.0)
+    bnb = search_config.SearchConfig(method="bnb", half_width_m=4.0)  # (test_window_as_input's search: one compile)
     base = dict(n_trials=4, seed=3, snr_mode="link_budget", snrs_db=(), m_values=(4,), search=bnb, chunk_trials=2)
     pr = engine.run(experiment.Experiment.build(name="p", centring="prior", **base), cache=tmp_path, progress=False)
     off = np.linalg.norm(pr.center_xyz[:, 0, 0, :2] - pr.ue_xyz[:, :2], axis=-1)
