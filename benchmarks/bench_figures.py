@@ -1,11 +1,13 @@
-"""Benchmark of ``make figures`` (a script, not a test): every registered figure from empty caches; prints a table
+"""Benchmark of the figure build (a script, not a test): every registered figure from empty caches; prints a table
 and writes JSON.
 
     .venv/bin/python benchmarks/bench_figures.py [--out benchmarks/bench_figures.json]
 
-Runs ``dpe5g figures --out <temporary folder>`` — the computation ``make figures`` does, without writing the
-committed baselines — in a fresh process with an empty Monte Carlo cache (``DPE5G_CACHE``) and an empty JAX
-compilation cache (``DPE5G_JAX_CACHE``), as on a fresh clone, and records its wall-clock and CPU seconds and each
+Runs ``dpe5g figures --out <temporary folder>`` — what ``make reproduce`` does after recomputing the results store,
+without writing the committed baselines — in a fresh process with an empty Monte Carlo cache (``DPE5G_CACHE``) and
+an empty JAX compilation cache (``DPE5G_JAX_CACHE``), as on a fresh clone, the Monte Carlo read from the committed
+results store (``DPE5G_STORE=off`` in the environment computes it instead, the whole of the old ``make figures``),
+and records its wall-clock and CPU seconds and each
 figure's seconds as the command prints them (figures run in the registry's order, so a figure whose experiments an
 earlier one computed reads them from the cache).  Target (issue 11): ≤ 240 s.  The figures' own numbers are not
 compared here; the figure-diff (``tests/test_figures.py``) does that.

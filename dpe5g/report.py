@@ -65,25 +65,27 @@ def readings_markdown(p: dict, by_claim: bool = False) -> str:
 
 def provenance_markdown(experiments, recomputed: dict | None = None) -> str:
     """Where a chapter's Monte Carlo numbers come from, as a Markdown table: a row per experiment (listed once)
-    with the trials the chapter reads, the results store's entry (file, trials held, the code version and commit
-    that computed it; "computed in this build" when the store lacks it) and the trials recomputed in this build
-    to check the entry (``recomputed``: {experiment name: trial indices}, ``verify.verify_sample``)."""
+    with the trials the chapter reads and the results store's entry that holds them (``figures/trials/<name>-<key>``:
+    its key, trials held, the code version and commit that computed it; "computed in this build" when the store lacks
+    it) and the trials recomputed in this build to check the entry (``recomputed``: {experiment name: trial
+    indices}, ``verify.verify_sample``)."""
     from .store import stored
 
     recomputed = recomputed or {}
-    lines = ["| experiment | trials read | results store entry | stored trials | code version (commit) | "
-             "recomputed in this build |", "|---|---|---|---|---|---|"]
+    lines = ["| experiment | trials read (stored) | entry key | code version | commit | recomputed in this build |",
+             "|---|---|---|---|---|---|"]
     seen = set()
     for e in experiments:
         if e.run.name in seen:
             continue
         seen.add(e.run.name)
         hit = stored(e)
-        again = ", ".join(map(str, recomputed.get(e.run.name, []))) or "none"
         if hit is None:
             lines.append(f"| {e.run.name} | {e.run.n_trials} | none: computed in this build | – | – | all |")
             continue
-        commit = (hit.meta.get("commit") or "outside git")[:12]
-        lines.append(f"| {e.run.name} | {e.run.n_trials} | `figures/trials/{hit.npz.name}` | {hit.n_trials} | "
-                     f"`{hit.meta['code_version']}` ({commit}) | {again} |")
+        c = hit.meta.get("commit") or ""
+        commit = c[:7] + (" + changes" if c.endswith("+changes") else "") if c else "outside git"
+        again = ", ".join(f"trial {t}" for t in recomputed.get(e.run.name, [])) or "–"
+        lines.append(f"| {e.run.name} | {e.run.n_trials} ({hit.n_trials}) | `{hit.meta['config_key']}` | "
+                     f"`{hit.meta['code_version']}` | {commit} | {again} |")
     return "\n".join(lines)

@@ -146,13 +146,13 @@ def engine_table() -> str:
     if (ROOT / "benchmarks/bench_figures.json").exists():
         f = _load("benchmarks/bench_figures.json")
         slow = sorted(f["per_figure_s"].items(), key=lambda kv: -kv[1])[:3]
-        rows.append(("`make figures` from empty caches, every figure (`benchmarks/bench_figures.py`; slowest: "
+        rows.append(("`dpe5g figures` from empty caches and the results store, every figure (`benchmarks/bench_figures.py`; slowest: "
                      + ", ".join(f"{k} {v:.0f} s" for k, v in slow) + ")",
                      f"{f['wall_s']:.0f} s (CPU {f['cpu_s']:.0f} s)", f"≤ {f['target_s']:.0f} s"))
     fc = _load("benchmarks/fresh_check.json")
     rows.append((f"fresh `make test` (`../shared/bin/fresh-check test` at {fc['commit']}, the timing below)",
                  f"{fc['make_test_s']} s", f"≤ {FRESH_TEST_TARGET_S} s"))
-    whole = [("`make figures`", f["wall_s"], f["target_s"])] if (ROOT / "benchmarks/bench_figures.json").exists() else []
+    whole = [("the figure build", f["wall_s"], f["target_s"])] if (ROOT / "benchmarks/bench_figures.json").exists() else []
     whole.append(("a fresh `make test`", fc["make_test_s"], FRESH_TEST_TARGET_S))
     verdict = "; ".join(f"{name} {'meets' if v <= tgt else 'misses'} its target ({v:.0f} s against {tgt:.0f} s)"
                         for name, v, tgt in whole)
@@ -167,9 +167,9 @@ def engine_table() -> str:
 def timing_text() -> str:
     b = _load("benchmarks/fresh_check.json")
     ch = sorted(b["chapters_s"].items(), key=lambda kv: -kv[1])
-    budget = 20 * 60
-    verdict = (f"within the project's {budget // 60}-minute budget" if b["make_test_s"] <= budget
-               else f"above the project's {budget // 60}-minute budget")
+    budget = 10 * 60  # the target since the results store (issue 31)
+    verdict = (f"within the project's {budget // 60}-minute target" if b["make_test_s"] <= budget
+               else f"above the project's {budget // 60}-minute target")
     return (f"Measured with `../shared/bin/fresh-check test` (a clean clone, no `.venv`, no cache) at {b['commit']} on "
             f"{b['machine']['cpus']} CPUs: `make test` {b['make_test_s']} s ({b['make_test_s'] // 60} min "
             f"{b['make_test_s'] % 60} s), {verdict}; {b['tests_passed']} tests passed"

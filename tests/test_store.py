@@ -89,3 +89,19 @@ def test_coverage_runs_matches_a_simulation():
         runs.append(r)
     mean, q95 = verify.coverage_runs(10, 3)
     assert abs(mean - np.mean(runs)) < 0.15 and abs(q95 - np.quantile(runs, 0.95)) <= 1
+
+
+def test_verify_command_prints_its_seed_and_names_mismatches(small, monkeypatch, capsys):
+    from dpe5g import cli
+
+    e, _, entry = small
+    monkeypatch.setattr(verify, "store_experiments", lambda: [e])
+    assert cli.main(["verify", "--seed", "5", "--families", "1", "--trials", "2"]) == 0
+    assert "verify: seed 5 (dpe5g verify --seed 5 repeats this sample)" in capsys.readouterr().out
+    arrays = dict(np.load(entry.npz))
+    arrays["edge"] = ~arrays["edge"]
+    np.savez_compressed(entry.npz, **arrays)
+    assert cli.main(["verify", "--seed", "5", "--families", "1", "--trials", "2"]) == 1
+    assert "field edge" in capsys.readouterr().err
+    assert cli.main(["verify", "--families", "0"]) == 2
+    assert "--families must be an integer in [1, 10000], got 0" in capsys.readouterr().err
