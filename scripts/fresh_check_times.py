@@ -2,6 +2,7 @@
 
     ../shared/bin/fresh-check test 2>&1 | tee /tmp/fresh.log
     python scripts/fresh_check_times.py /tmp/fresh.log      # writes benchmarks/fresh_check.json
+    python scripts/fresh_check_times.py /tmp/fresh.log /tmp/fresh-book.log COMMIT   # and a `fresh-check book` run
 
 Reads from the log: the total (``fresh-check test: passed in N s``), each chapter's execution time as MyST-NB logs
 it (``chapters/05_rmse_vs_snr.md: Executed notebook in N seconds``) and pytest's summaries (``N passed ... in N s``):
@@ -40,11 +41,16 @@ def parse(log: str) -> dict:
 
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    if len(argv) != 1:
-        print("usage: fresh_check_times.py LOG", file=sys.stderr)
+    if len(argv) not in (1, 3):
+        print("usage: fresh_check_times.py LOG [BOOK_LOG BOOK_COMMIT]", file=sys.stderr)
         return 2
     try:
         rec = parse(Path(argv[0]).read_text(errors="replace"))
+        if len(argv) == 3:
+            book = re.findall(r"fresh-check book: passed in (\d+)s", Path(argv[1]).read_text(errors="replace"))
+            if not book:
+                raise ValueError(f"{argv[1]} lacks the line 'fresh-check book: passed in N s'")
+            rec.update(make_book_s=int(book[-1]), make_book_commit=argv[2])
     except (OSError, ValueError) as exc:
         print(f"fresh_check_times: {exc}", file=sys.stderr)
         return 2

@@ -178,7 +178,10 @@ def timing_text() -> str:
                f"; pytest {b['pytest_runs_s'][0]:.0f} s alongside the book build (at low priority) and "
                f"{b['pytest_runs_s'][1]:.0f} s after it (the tests marked `book`); ")
             + "chapter execution: " + ", ".join(f"{k} {v:.0f} s" for k, v in ch) + ".  "
-            "`scripts/fresh_check_times.py` records these from the fresh-check's log.")
+            + (f"`make book` alone (`fresh-check book`, at {b['make_book_commit']}): {b['make_book_s']} s "
+               f"({b['make_book_s'] // 60} min {b['make_book_s'] % 60} s), "
+               f"{'within' if b['make_book_s'] <= 300 else 'above'} the 5-minute target.  " if "make_book_s" in b else "")
+            + "`scripts/fresh_check_times.py` records these from the fresh-check's logs.")
 
 
 def readings_table() -> str:
