@@ -37,10 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-import jax
-import jax.numpy as jnp
-
-from . import _checks, correlogram, nr, otdoa, signal
+from . import _checks, nr, signal
 from .nr import C, PAPER, Numerology
 
 #: the pilot subcarrier sets ``subcarrier_frequencies_hz`` knows: every FFT bin (the paper's full-band PRS), the
@@ -163,29 +160,25 @@ def tdoa_position_crb(ue_xyz, bs_xyz, toa_fisher_s, reference: int = 0) -> np.nd
     return np.linalg.inv(h.T @ np.linalg.solve(cov, h))
 
 
-def ml_toa_errors_s(n_trials: int, snr_db: float, seed: int, upsample: int = 64) -> np.ndarray:
-    """Monte Carlo of the ML ToA of one path (unit power, random phase, ToA uniform within one sample) on the paper's
-    full-band PRS at per-sample SNR ``snr_db``: the peak of |ĥ(τ)|² (eq. (10) with L = 1 for one link) on a
-    T_s/``upsample`` grid, refined by a parabola (``otdoa.toa_from_spectrum`` in complex128).  Trial t draws from
-    fold_in(PRNGKey(seed), t), so a longer run extends a shorter one.  Returns the errors (n_trials,) in seconds, to
-    compare with ``toa_crb_s(subcarrier_frequencies_hz("full"), snr_db)``."""
-    _checks.require_x64()
-    n_trials = _checks.integer("n_trials", n_trials, 2, 1_000_000)
-    snr_db = float(signal.check_snr_db(snr_db))
-    _checks.integer("seed", seed, 0, 2**31 - 1)
-    upsample = _checks.integer("upsample", upsample, 1, 256)
-    prs = jnp.asarray(nr.prs_matrix([0]))
-    ts = PAPER.sample_period_s
+def ml_toa_errors_s(res) -> np.ndarray:
+    """The ToA errors of the ML estimator of one path in an experiment's results: ``paper.ml_toa_experiment``, each
+    link one path (los_mode "free_space": unit power, uniform phase, ToA set by the geometry), whose OTDoA peak
+    detector (``otdoa.toa_from_spectrum`` "peak": the maximum of |ĥ(τ)|², eq. (10) with L = 1 for one link, on a
+    grid of T_s / ``trials.OTDOA_UPSAMPLE``, refined by a parabola) is the ML ToA.
 
-    def one(t):
-        k_tau, k_phi, k_n = jax.random.split(jax.random.fold_in(jax.random.PRNGKey(seed), t), 3)
-        tau = jax.random.uniform(k_tau, maxval=ts)
-        gain = jnp.exp(2j * jnp.pi * jax.random.uniform(k_phi))
-        spec = signal.received_spectrum(prs, gain * jnp.ones((1, PAPER.n_fft)), tau[None])
-        g = correlogram.ls_spectrum(spec + signal.awgn(k_n, spec.shape, signal.noise_variance(snr_db, prs)), prs)
-        return otdoa.toa_from_spectrum(g, "peak", upsample, -10.0, 64, ts, dtype=jnp.complex128)[0] - tau
+    res : ``results.Results`` of a "free_space" experiment with the OTDoA baseline.  Returns the errors (T·S·I,) in
+    seconds, estimated ToA − (‖p − b_i‖ / c + δt) of every trial, SNR index and link, to compare with
+    ``toa_crb_s(subcarrier_frequencies_hz("full"), snr_db)``."""
+    from .experiment import OTDOA_DETECTORS  # the engine's modules do not import this one
 
-    return np.asarray(jax.jit(lambda ts_: jax.lax.map(one, ts_, batch_size=8))(jnp.arange(n_trials)))
+    e = res.experiment
+    if e.scenario.los_mode != "free_space" or res.otdoa_toa_s is None:
+        raise ValueError(f"res must come from a los_mode 'free_space' experiment with otdoa=True, got los_mode "
+                         f"{e.scenario.los_mode!r}, otdoa={e.receiver.otdoa}")
+    bs = e.load_deployment().bs_xyz[res.bs_index]  # (T, I, 3)
+    true = np.linalg.norm(res.ue_xyz[:, None, :] - bs, axis=-1) / C + res.clock_bias_s[:, None]  # (T, I)
+    est = res.otdoa_toa_s[:, :, OTDOA_DETECTORS.index("peak"), :]  # (T, S, I)
+    return (est - true[:, None, :]).reshape(-1)
 
 
 def rmse_bound_m(e, n_trials: int, snrs_db=None) -> np.ndarray:

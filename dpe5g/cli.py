@@ -117,7 +117,9 @@ def run_experiment(args):
     from . import paper, search_config, signal
     from .experiment import Experiment
 
-    dep = args.deployment if args.deployment == "tst" else str(Path(args.deployment).resolve())
+    from .deployment import builtin
+
+    dep = args.deployment if builtin(args.deployment) else str(Path(args.deployment).resolve())
     try:
         for snr in args.snr:
             signal.check_snr_db(snr)  # one by one, so that the message shows the bad value
@@ -292,12 +294,15 @@ def _deployment(args) -> int:
 
     from . import deployment
 
-    dep = deployment.tst() if args.path == "tst" else deployment.load_deployment(args.path)
+    dep = deployment.named(args.path)
     x0, y0, x1, y1 = dep.region
     d = np.linalg.norm(dep.bs_xyz[:, None, :2] - dep.bs_xyz[None, :, :2], axis=-1) + np.eye(dep.n_bs) * 1e9
     print(f"{dep.name}: {dep.n_bs} BSs, region {x1 - x0:.1f} m x {y1 - y0:.1f} m = {dep.area_m2:,.0f} m2, "
           f"{dep.n_bs / dep.area_m2 * 1e6:.1f} BSs per km2, nearest-neighbour spacing {np.median(d.min(1)):.1f} m "
-          f"(median), {len(dep.buildings)} buildings, UE height {dep.ue_height_m:g} m")
+          f"(median), {len(dep.buildings)} buildings, UE height {dep.ue_height_m:g} m"
+          + ("" if dep.ue_region is None else
+             ", UE drawn in {:.1f} m x {:.1f} m".format(dep.ue_region[2] - dep.ue_region[0],
+                                                       dep.ue_region[3] - dep.ue_region[1])))
     return 0
 
 
@@ -344,8 +349,8 @@ def _add_run(sub) -> None:
                         "the experiment's config); an existing file is kept unless --force")
     r.add_argument("--force", action="store_true", help="overwrite --out if it exists")
     r.add_argument("--deployment", default="tst", metavar="FILE",
-                   help="deployment file, JSON or CSV (see `dpe5g deployment`), or 'tst' for the packaged layout "
-                        "(default)")
+                   help="deployment file, JSON or CSV (see `dpe5g deployment`), or a packaged one: 'tst' (the "
+                        "default; our Tsim Sha Tsui-like layout), 'ring' or 'ring-wide' (Chapter 3's rings)")
     r.add_argument("--snr", type=float, nargs="+", default=list(paper_e.links.snrs_db), metavar="DB",
                    help=f"per-sample SNRs in dB, in [-50, 100] (default: the paper's "
                         f"{' '.join(f'{s:g}' for s in paper_e.links.snrs_db)})")
@@ -434,7 +439,7 @@ def _add_other_commands(sub) -> None:
     t.set_defaults(func=_profile)
 
     d = sub.add_parser("deployment", help="check a deployment file (JSON or CSV) and print a summary")
-    d.add_argument("path", nargs="?", default="tst", help="path, or 'tst' for the packaged layout (default)")
+    d.add_argument("path", nargs="?", default="tst", help="path, or a packaged deployment: 'tst' (default), 'ring', 'ring-wide'")
     d.set_defaults(func=_deployment)
 
     s = sub.add_parser("scene", help="export the meshcat 3-D scene of the urban example as a static HTML file")

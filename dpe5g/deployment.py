@@ -23,6 +23,10 @@ from . import _checks
 
 DATA_DIR = Path(__file__).resolve().parent / "data"
 TST_FILE = DATA_DIR / "tst_deployment.json"
+#: the deployments packaged with dpe5g, by name (``builtin``): our Tsim Sha Tsui-like layout, and the rings of
+#: Chapter 3's studies (8 BSs on a 150 m circle, the UE in a 10 m or a 100 m square at its centre), made by
+#: ``scripts/make_ring.py``
+BUILTIN = {"tst": TST_FILE, "ring": DATA_DIR / "ring_deployment.json", "ring-wide": DATA_DIR / "ring_wide_deployment.json"}
 
 #: allowed ranges for a deployment's numbers
 BS_HEIGHT_RANGE_M = (1.5, 150.0)  # TR 38.901 UMi: 10 m; the formulas need h_BS > h_E = 1 m
@@ -41,6 +45,8 @@ class Deployment:
     buildings : (K, 5) rows (x_min, y_min, x_max, y_max, height) in m (may be empty);
     streets : tuple of dicts (name, axis, centre_m, width_m), for drawing only;
     anchor_lat_deg, anchor_lon_deg : WGS-84 position of the local origin, or None.
+    ue_region : (x_min, y_min, x_max, y_max) m, inside ``region``: where the UE is drawn, or None for the whole
+        region (``ue_bounds``).
     """
 
     name: str
@@ -54,6 +60,12 @@ class Deployment:
     anchor_lat_deg: float | None = None
     anchor_lon_deg: float | None = None
     description: str = ""
+    ue_region: tuple[float, float, float, float] | None = None
+
+    @property
+    def ue_bounds(self) -> tuple[float, float, float, float]:
+        """(x_min, y_min, x_max, y_max) m of the area the UE is drawn from: ``ue_region``, else the region."""
+        return self.region if self.ue_region is None else self.ue_region
 
     @property
     def n_bs(self) -> int:
@@ -65,11 +77,11 @@ class Deployment:
         return (x1 - x0) * (y1 - y0)
 
     def check_ue(self, xy) -> np.ndarray:
-        """Validate UE positions (..., 2) in metres: finite and inside the region."""
+        """Validate UE positions (..., 2) in metres: finite and inside the UE's area (``ue_bounds``)."""
         xy = np.asarray(xy, dtype=np.float64)
         if xy.shape[-1:] != (2,) or not np.all(np.isfinite(xy)):
             raise ValueError(f"UE position must be finite (..., 2) metres, got shape {xy.shape}")
-        x0, y0, x1, y1 = self.region
+        x0, y0, x1, y1 = self.ue_bounds
         inside = (xy[..., 0] >= x0) & (xy[..., 0] <= x1) & (xy[..., 1] >= y0) & (xy[..., 1] <= y1)
         if not np.all(inside):
             bad = xy[~inside].reshape(-1, 2)[0]
@@ -188,7 +200,8 @@ def load_deployment(path) -> Deployment:
     CSV: a header row with columns id, x_m, y_m, height_m, power_dbm (id optional), one BS per row; the region is
     then the BSs' bounding box grown by 10 % on each side and the UE height 2 m.
     JSON: {"base_stations": [{id, x_m, y_m, height_m, power_dbm}, ...], "region": {x_min_m, y_min_m, x_max_m,
-    y_max_m}, optional "ue_height_m", "buildings" [{x_min_m, y_min_m, x_max_m, y_max_m, height_m}], "streets",
+    y_max_m}, optional "ue_region" (the same keys, inside the region: where the UE is drawn), "ue_height_m",
+    "buildings" [{x_min_m, y_min_m, x_max_m, y_max_m, height_m}], "streets",
     "anchor" {lat_deg, lon_deg}, "name", "description"}.
     Malformed files raise ``ValueError`` naming the file, the entry and the allowed range.
     """
@@ -227,16 +240,17 @@ def load_deployment(path) -> Deployment:
     if not isinstance(doc, dict):
         _fail(src, "must hold a JSON object with base_stations and region")
     ids, xyz, pw = _base_stations(src, doc.get("base_stations"))
-    reg = doc.get("region")
-    if not isinstance(reg, dict):
+    if not isinstance(doc.get("region"), dict):
         _fail(src, "needs a region {x_min_m, y_min_m, x_max_m, y_max_m}")
-    region = tuple(_number(src, "region", k, reg.get(k), -1e5, 1e5, "m")
-                   for k in ("x_min_m", "y_min_m", "x_max_m", "y_max_m"))
-    if region[2] - region[0] < 1.0 or region[3] - region[1] < 1.0:
-        _fail(src, f"region must have x_max_m > x_min_m and y_max_m > y_min_m (by at least 1 m), got {region}")
+    region = _rectangle(src, "region", doc["region"])
     outside = [b for b, p in zip(ids, xyz) if not (region[0] <= p[0] <= region[2] and region[1] <= p[1] <= region[3])]
     if outside:
         _fail(src, f"base station {outside[0]} lies outside the region {region}")
+    ue_region = None
+    if doc.get("ue_region") is not None:
+        ue_region = _rectangle(src, "ue_region", doc["ue_region"])
+        if any(ue_region[i] < region[i] for i in (0, 1)) or any(ue_region[i] > region[i] for i in (2, 3)):
+            _fail(src, f"ue_region {ue_region} must lie inside the region {region}")
     ue_h = _number(src, "ue_height_m", "ue_height_m", doc.get("ue_height_m", 2.0), 1.0, 22.5, "m")
     blds = []
     for i, b in enumerate(doc.get("buildings", [])):
@@ -255,7 +269,29 @@ def load_deployment(path) -> Deployment:
         lon = _number(src, "anchor", "lon_deg", lon, -180, 180, "deg")
     return Deployment(str(doc.get("name", path.stem)), ids, xyz, pw, region, ue_h,
                       np.array(blds).reshape(-1, 5), tuple(doc.get("streets", [])), lat, lon,
-                      str(doc.get("description", "")))
+                      str(doc.get("description", "")), ue_region)
+
+
+def _rectangle(src, key, reg) -> tuple[float, float, float, float]:
+    """A JSON deployment's rectangle ``key`` ("region", "ue_region"): {x_min_m, y_min_m, x_max_m, y_max_m}, finite,
+    at least 1 m wide and deep.  Returns (x_min, y_min, x_max, y_max) m."""
+    if not isinstance(reg, dict):
+        _fail(src, f"{key} must be an object {{x_min_m, y_min_m, x_max_m, y_max_m}}")
+    box = tuple(_number(src, key, k, reg.get(k), -1e5, 1e5, "m") for k in ("x_min_m", "y_min_m", "x_max_m", "y_max_m"))
+    if box[2] - box[0] < 1.0 or box[3] - box[1] < 1.0:
+        _fail(src, f"{key} must have x_max_m > x_min_m and y_max_m > y_min_m (by at least 1 m), got {box}")
+    return box
+
+
+def builtin(name: str) -> Path | None:
+    """The file of the packaged deployment ``name`` (``BUILTIN``), or None if ``name`` is not one of them."""
+    return BUILTIN.get(name)
+
+
+def named(name: str) -> Deployment:
+    """A packaged deployment by name (``BUILTIN``), or a user's deployment file (``load_deployment``)."""
+    path = builtin(name)
+    return load_deployment(name if path is None else path)
 
 
 def tst() -> Deployment:

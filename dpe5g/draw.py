@@ -147,8 +147,10 @@ def draw_fn(e: Experiment, dep: deployment.Deployment):
         bs = links.bs_all[idx]
         if e.scenario.los_mode == "pr_los":
             los = jax.random.uniform(k_los, (m_max,)) < scenario.los_probability(d2d[idx])
-        elif e.scenario.los_mode == "all_los":
+        elif e.scenario.los_mode in ("all_los", "free_space"):
             los = jnp.ones(m_max, dtype=bool)
+        elif e.scenario.los_mode == "all_nlos":
+            los = jnp.zeros(m_max, dtype=bool)
         else:  # two of the four nearest LoS, which two at random
             los = jax.random.permutation(k_los, jnp.array([True, True, False, False]))
         bias = scenario.clock_bias(k_b, e.scenario.clock_sigma_s, e.scenario.clock_bound_sigmas)
@@ -197,17 +199,22 @@ class _LinkModel:
         self.snrs = jnp.asarray(e.links.snrs_db if e.links.snr_mode != "link_budget" else (0.0,), dtype=jnp.float64)
 
     def place_ue(self, k_ue):
-        """The UE (3,) m uniform over the region at the UE height, its 2-D distance (B,) m to every BS and the BSs
+        """The UE (3,) m uniform over the UE's area (``Deployment.ue_bounds``) at the UE height, its 2-D distance (B,) m to every BS and the BSs
         ordered nearest first (B,)."""
-        x0, y0, x1, y1 = self.dep.region
+        x0, y0, x1, y1 = self.dep.ue_bounds
         xy = jax.random.uniform(k_ue, (2,), minval=jnp.array([x0, y0]), maxval=jnp.array([x1, y1]))
         ue = jnp.concatenate([xy, jnp.array([self.dep.ue_height_m])])
         d2d = jnp.linalg.norm(self.bs_all[:, :2] - xy, axis=-1)
         return ue, d2d, jnp.argsort(d2d)
 
     def channels(self, los, k_c, k_d, n):
-        """(n, N) frequency responses and (n, L) gains of n links with LoS flags ``los``."""
+        """(n, N) frequency responses and (n, L) gains of n links with LoS flags ``los``; los_mode "free_space": one
+        path of unit power and phase uniform on [0, 2π) from k_d, at the first tap (delay 0)."""
         nlos, los_prof, n_taps = self.nlos, self.los_prof, self.n_taps
+        if self.e.scenario.los_mode == "free_space":
+            g = jnp.exp(2j * jnp.pi * jax.random.uniform(k_d, (n,)))
+            h = jnp.broadcast_to(g[:, None], (n, self.prs_all.shape[1]))
+            return h, jnp.pad(g[:, None], ((0, 0), (0, n_taps - 1)))
         g_c = jax.vmap(lambda kk: channel.draw_gains(nlos, kk))(jax.random.split(k_c, n))
         g_d = jax.vmap(lambda kk: channel.draw_gains(los_prof, kk))(jax.random.split(k_d, n))
         h = jnp.where(los[:, None], channel.frequency_response(g_d, los_prof.delays_s),
@@ -235,8 +242,10 @@ class _LinkModel:
                                  snr_db=jnp.zeros((n_snr, 0)))
         k_xl, k_xc, k_xd, k_xs = jax.random.split(jax.random.fold_in(key, 2000), 4)
         bs_x = self.bs_all[idx_x]
-        los_x = (jnp.ones(n_x, dtype=bool) if e.scenario.los_mode == "all_los"
-                 else jax.random.uniform(k_xl, (n_x,)) < scenario.los_probability(d2d[idx_x]))
+        if e.scenario.los_mode in ("all_los", "free_space", "all_nlos"):  # the same state as the links
+            los_x = jnp.full(n_x, e.scenario.los_mode != "all_nlos")
+        else:
+            los_x = jax.random.uniform(k_xl, (n_x,)) < scenario.los_probability(d2d[idx_x])
         h_x, _ = self.channels(los_x, k_xc, k_xd, n_x)
         y_x = signal.received_spectrum(self.prs_all[idx_x], h_x, cost.toa(ue, bs_x), bias)
         snr_x = link_snr_db(e, self.received_dbm(d2d[idx_x], bs_x, los_x, k_xs, idx_x), rx[0], self.snrs)

@@ -28,7 +28,7 @@ SOURCES = ("channel.py", "correlogram.py", "deployment.py", "cost.py", "grid_sea
            "dpe.py", "experiment.py", "draw.py", "receiver.py", "trials.py", "engine.py", "store.py", "nr.py",
            "otdoa.py", "scenario.py", "signal.py")
 
-LOS_MODES = ("pr_los", "two_of_four", "all_los")
+LOS_MODES = ("pr_los", "two_of_four", "all_los", "all_nlos", "free_space")
 SNR_MODES = ("fixed", "link_budget", "nearest")
 #: PRS frequency reuse factors: 0 — the paper's model (full-band PRS on all N bins, one symbol, every link received
 #: alone); R in ``nr.PRS_COMB_SIZES`` — TS 38.211's comb R, fully staggered over R symbols, BSs on R resources
@@ -43,10 +43,14 @@ OTDOA_DETECTORS = ("first_path", "peak")
 class Scenario:
     """Where the UE is and how its links propagate (Section III).
 
-    deployment : "tst" or a path to a JSON/CSV deployment.
+    deployment : a packaged deployment by name (``deployment.BUILTIN``: "tst", "ring", "ring-wide") or a path to a
+        JSON/CSV deployment.
     los_mode : "pr_los" — each link LoS with the probability of eq. (11); "two_of_four" — the paper's stated case for
         Fig. 10: of the four nearest links, two (chosen at random) LoS and two NLoS (needs max(m_values) = 4);
-        "all_los" — every link LoS (TDL-D; not the paper's: Chapter 8 compares it with the Cramér–Rao bound).
+        "all_los" — every link LoS (TDL-D; not the paper's: Chapter 8 compares it with the Cramér–Rao bound);
+        "all_nlos" — every link NLoS (TDL-C; Chapter 3's ring studies); "free_space" — every link LoS with one path
+        of unit power and uniform phase at the geometric delay, no multipath (Chapter 8's check of the ML ToA
+        against its bound).
     delay_spread_s, k_factor_db : TDL-C (NLoS) / TDL-D (LoS) at this delay spread (s); TDL-D's K (dB).
     delay_spread_def : what delay_spread_s means for both profiles (``channel.DELAY_SPREAD_DEFS``): "rms", TR
         38.901's RMS spread (default), or "span", first to last tap (the paper's text; Chapter 7's readings).
@@ -86,7 +90,7 @@ class Scenario:
 
     def load_deployment(self) -> deployment.Deployment:
         """The deployment this scenario names."""
-        return deployment.tst() if self.deployment == "tst" else deployment.load_deployment(self.deployment)
+        return deployment.named(self.deployment)
 
 
 @dataclass(frozen=True)
@@ -322,7 +326,7 @@ def numerics() -> dict:
 
 
 def deployment_digest(e: Experiment) -> str:
-    """SHA-256 of the experiment's deployment file (the built-in TST file for "tst")."""
+    """SHA-256 of the experiment's deployment file (the packaged file for a name of ``deployment.BUILTIN``)."""
     name = e.scenario.deployment
-    dep = deployment.TST_FILE if name == "tst" else Path(name)
+    dep = deployment.builtin(name) or Path(name)
     return hashlib.sha256(dep.read_bytes()).hexdigest()

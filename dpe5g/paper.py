@@ -1,5 +1,6 @@
 """The paper's experiments, defined once: Fig. 9 (the honest receiver and the paper's truth-centred set-up), Fig. 10
-(two LoS cases × three window centrings), the studies of Chapter 5 (low SNR, link budget, the receiver window L).
+(two LoS cases × three window centrings), the studies of Chapter 5 (low SNR, link budget, the receiver window L),
+Chapter 3's ring studies and Chapter 8's check of the ML ToA.
 
 Every function takes the trial count as a parameter (the defaults are what the committed figures use); the seeds,
 names and receivers are fixed here, so a chapter, the figure registry (``dpe5g.figures``), the CLI and the tests that
@@ -61,6 +62,22 @@ ALL_LOS_SNRS_DB = (10.0, 25.0, 40.0)
 ALL_LOS_TRIALS = 100
 #: trials over which Chapter 8 averages the bound (the bound of a trial costs its links' Fisher information)
 BOUND_TRIALS = 200
+#: Chapter 8's check of the ML ToA against its bound: one path per link (los_mode "free_space") at this per-sample
+#: SNR — above the threshold region once the correlation gain is added —, the OTDoA peak detector's ToAs of the
+#: ML_TOA_LINKS nearest links of each trial
+ML_TOA_SNR_DB = -10.0
+ML_TOA_LINKS = 4
+ML_TOA_TRIALS = 1000
+ML_TOA_SEED = 8
+
+#: Chapter 3's studies on a ring (``deployment.BUILTIN`` "ring", "ring-wide"): every link NLoS (TDL-C), every BS used,
+#: one SNR; the receiver windows L compared (truth-centred grid, the paper's set-up), and the trials per study
+RING_SNR_DB = 20.0
+RING_TAPS = (1, 2, 4, 8, 12, 16, 24, 32, 48, 64)
+RING_BIAS_HALF_WIDTH_M = 30.0
+RING_TRIALS = 200
+RING_WINDOW_SEED = 3
+RING_CENTRING_SEED = 4
 
 
 def honest_search() -> search_config.SearchConfig:
@@ -308,18 +325,51 @@ def claim_values(rmse_m, snrs_db, m_values, dpe_err_m, otdoa_err_m) -> dict:
             "fig10_gain": (1 - d90 / o90, abs(1 - d90 / o90 - 0.9524) <= 0.02)}
 
 
+def _ring(name: str, dep: str, seed: int, n_trials: int, **settings) -> Experiment:
+    return Experiment.build(name=name, deployment=dep, los_mode="all_nlos", snr_mode="fixed", snrs_db=(RING_SNR_DB,),
+                            m_values=(8,), seed=seed, n_trials=n_trials, **settings)
+
+
+def ring_window_experiments(n_trials: int = RING_TRIALS, taps=RING_TAPS) -> dict[int, Experiment]:
+    """Chapter 3's receiver-window study: {L: experiment} on the "ring" deployment (UE in a 10 m square), the grid
+    search centred on the truth (the paper's set-up) without polish, c δt searched over ±``RING_BIAS_HALF_WIDTH_M``
+    m, the same trials (seed ``RING_WINDOW_SEED``) for every L."""
+    return {n: _ring(f"ring-window-L{n}", "ring", RING_WINDOW_SEED, n_trials,
+                     search=search_config.SearchConfig(n_taps=n, polish=False, bias_half_width_m=RING_BIAS_HALF_WIDTH_M))
+            for n in taps}
+
+
+def ring_centring_experiments(n_trials: int = RING_TRIALS) -> dict[str, Experiment]:
+    """Chapter 3's window-centring study on the "ring-wide" deployment (UE in a 100 m square): the default grid
+    search centred on the truth (the paper's set-up) and on each trial's OTDoA (first-path) fix, with the OTDoA
+    baseline on the same signals (seed ``RING_CENTRING_SEED``)."""
+    search = search_config.SearchConfig(bias_half_width_m=RING_BIAS_HALF_WIDTH_M)
+    return {c: _ring(f"ring-centring-{c}", "ring-wide", RING_CENTRING_SEED, n_trials, centring=c, otdoa=True,
+                     search=search) for c in ("truth", "otdoa")}
+
+
+def ml_toa_experiment(n_trials: int = ML_TOA_TRIALS) -> Experiment:
+    """Chapter 8's check of the ML ToA: every link one path (los_mode "free_space") at ``ML_TOA_SNR_DB`` per sample,
+    the ``ML_TOA_LINKS`` nearest links of the "tst" deployment, the OTDoA baseline on (its peak detector is the ML
+    ToA of one path).  The experiment's DPE (the default grid, truth-centred) runs too; the check does not read it."""
+    return Experiment.build(name="ml-toa", los_mode="free_space", snr_mode="fixed", snrs_db=(ML_TOA_SNR_DB,),
+                            m_values=(ML_TOA_LINKS,), otdoa=True, seed=ML_TOA_SEED, n_trials=n_trials)
+
+
 def book_experiments() -> list[Experiment]:
     """Every Monte Carlo experiment the book's chapters run, at the trial counts they run, in the order they first
-    need them (Chapters 5–8; ``run`` reuses a longer run's first trials, so an experiment whose first trials a chapter
+    need them (Chapters 3 and 5–8; ``run`` reuses a longer run's first trials, so an experiment whose first trials a chapter
     reads at a smaller count appears once, at its largest).  ``dpe5g warm`` fills the cache with them (a chapter
     computes whatever is missing itself, so this list only saves time); ``tests/test_warm.py`` checks it against the
     runs a book build recorded."""
-    out = [fig9_honest(), fig9_truth(), *urban_window_experiments().values(), fig9_low_snr(), fig9_link_budget(),
+    out = [*ring_window_experiments().values(), *ring_centring_experiments().values(),
+           fig9_honest(), fig9_truth(), *urban_window_experiments().values(), fig9_low_snr(), fig9_link_budget(),
            fig9_power(REUSE_COMPARE_TRIALS), fig9_power(REUSE_COMPARE_TRIALS, REUSE, co_channel=False),
            fig9_power(reuse=REUSE), *fig10().values(), fig10_reuse()["two_of_four"]]
     for name in READINGS:
         out += [v for k, v in reading_experiments(name).items() if k != "otdoa_detector"]
     out += [fig9_all_los(*c) for c in ALL_LOS_CASES]
+    out.append(ml_toa_experiment())
     for flat, fpa in first_path_comparison().values():
         out += [flat, fpa]
     longest = {}

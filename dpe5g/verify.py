@@ -2,8 +2,9 @@
 stored field (``verify_sample``), or recompute every stored experiment and rewrite the store (``reproduce``).
 
 Trial t of an experiment depends only on its config, its seed and t (``draw.trial_key``), so one trial recomputed
-on its own equals the stored one.  A float agrees within ``VERIFY_RTOL`` of the stored value (this machine gives the
-same bits; another CPU may differ in the last ones: SIMD width, FFT plans), NaN where NaN; integers and booleans
+on its own equals the stored one.  A float agrees within ``VERIFY_RTOL`` of the stored value (the machine that
+computed the store gives the same bits; another CPU may differ in the last ones: SIMD width, FFT plans), NaN where
+NaN, and a relative difference of costs (``ABSOLUTE_FIELDS``) within ``VERIFY_RTOL`` absolute; integers and booleans
 must be equal.
 """
 
@@ -23,6 +24,10 @@ from .experiment import Experiment
 #: a recomputed float agrees with the stored one within this relative difference: about 4.5 million float64 steps,
 #: for CPUs that differ in the last bits, and 1000 times below the figure-diff's tolerance (1e-6)
 VERIFY_RTOL = 1e-9
+#: fields that are a relative difference of two costs, (a − b) / b (the certified search's gap): a relative error of
+#: VERIFY_RTOL in a and b moves them by about VERIFY_RTOL absolutely, however small they are, so they are compared
+#: within VERIFY_RTOL absolute (a gap of 1e-7 recomputed on an AVX-512 CPU differs from the store by 1.4e-16)
+ABSOLUTE_FIELDS = ("gap",)
 #: the sample ``make test`` recomputes (``tests/test_store.py``, ``dpe5g verify``): two trials of every experiment in
 #: three random families; the compiles of a family are its cost (README, "The results store")
 SAMPLE_FAMILIES, SAMPLE_TRIALS = 3, 2
@@ -51,7 +56,8 @@ class Mismatch:
 
 def differences(name: str, rows, stored: dict, computed: dict) -> list[Mismatch]:
     """The (trial, field) pairs of ``computed`` (trials on the leading axis) that differ from ``stored`` (beyond
-    ``VERIFY_RTOL`` for floats); ``rows`` the trial index of each row."""
+    ``VERIFY_RTOL`` for floats, relative, and absolute too for ``ABSOLUTE_FIELDS``); ``rows`` the trial index of each
+    row."""
     out = []
     for k in sorted(stored):
         s = np.asarray(stored[k])
@@ -60,7 +66,8 @@ def differences(name: str, rows, stored: dict, computed: dict) -> list[Mismatch]
             out.append(Mismatch(name, -1, k, f"{s.dtype} {s.shape}", f"{c.dtype} {c.shape}"))
             continue
         if np.issubdtype(c.dtype, np.floating):
-            ok = np.isclose(s, c, rtol=VERIFY_RTOL, atol=0.0) | (np.isnan(s) & np.isnan(c))
+            atol = VERIFY_RTOL if k in ABSOLUTE_FIELDS else 0.0
+            ok = np.isclose(s, c, rtol=VERIFY_RTOL, atol=atol) | (np.isnan(s) & np.isnan(c))
         else:
             ok = s == c
         for i in np.unique(np.nonzero(~ok.reshape(len(ok), -1))[0]):

@@ -1,6 +1,9 @@
 """The engine computes today what it computed before its redesign (issue 30): trials 0–2 of Fig. 9 (honest and
 truth-centred) and Fig. 10 (two of four LoS, OTDoA-centred), every stored field equal to the values recorded at
-f2270f3 (``tests/data/pinned_trials.json``, float64 as ``float.hex``), to the bit."""
+f2270f3 (``tests/data/pinned_trials.json``, float64 as ``float.hex``), to the bit — except the certified search's
+relative gap, whose upper bounds go through XLA's vectorised arithmetic, whose last bits depend on the CPU's vector
+units: on an AVX-512 machine the gaps of these trials differ from the record by up to 7e-12 relative while every fix
+is the same bits.  The gap is compared as the results store's check compares it (``verify.ABSOLUTE_FIELDS``)."""
 
 import json
 from pathlib import Path
@@ -8,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dpe5g import engine, paper, results
+from dpe5g import engine, paper, results, verify
 
 PINS = json.loads((Path(__file__).parent / "data" / "pinned_trials.json").read_text())
 N_TRIALS = 3
@@ -37,8 +40,11 @@ def test_trials_equal_the_recorded_values(name, tmp_path):
         want = _recorded(PINS[name][k])
         got = np.asarray(getattr(res, k))
         assert got.dtype == want.dtype and got.shape == want.shape, (name, k)
-        # bit for bit, NaN where NaN (the grid's gap)
-        assert np.array_equal(got, want, equal_nan=want.dtype.kind == "f"), (name, k)
+        if k == "gap":  # NaN where NaN (the grid search has no gap)
+            assert k in verify.ABSOLUTE_FIELDS
+            np.testing.assert_allclose(got, want, rtol=verify.VERIFY_RTOL, atol=verify.VERIFY_RTOL, err_msg=f"{name} {k}")
+            continue
+        assert np.array_equal(got, want, equal_nan=want.dtype.kind == "f"), (name, k)  # bit for bit
         if want.dtype.kind == "f":
             bits = np.dtype(f"u{want.dtype.itemsize}")
             assert np.array_equal(got.view(bits), want.view(bits)), (name, k)

@@ -100,6 +100,15 @@ def _write(tmp_path, name, text):
                            "region": {"x_min_m": 0, "y_min_m": 0, "x_max_m": 60, "y_max_m": 60}}),
      "outside the region"),
     ("d.txt", "x", "must end in .json or .csv"),
+    ("d.json", json.dumps({"base_stations": [{"x_m": i * 50, "y_m": 0, "height_m": 10, "power_dbm": 24}
+                                             for i in range(3)],
+                           "region": {"x_min_m": 0, "y_min_m": -10, "x_max_m": 110, "y_max_m": 10},
+                           "ue_region": {"x_min_m": 100, "y_min_m": -5, "x_max_m": 120, "y_max_m": 5}}),
+     "ue_region .* must lie inside the region"),
+    ("d.json", json.dumps({"base_stations": [{"x_m": i * 50, "y_m": 0, "height_m": 10, "power_dbm": 24}
+                                             for i in range(3)],
+                           "region": {"x_min_m": 0, "y_min_m": -10, "x_max_m": 110, "y_max_m": 10},
+                           "ue_region": [0, 0, 5, 5]}), "ue_region must be an object"),
 ])
 def test_malformed_deployment_files(tmp_path, name, text, needle):
     with pytest.raises(ValueError, match=needle):
@@ -113,6 +122,38 @@ def test_csv_deployment_loads(tmp_path):
     assert dep.bs_xyz[1].tolist() == [100.0, 0.0, 12.0] and dep.power_dbm[1] == 20.0
     assert dep.region == (-10.0, -10.0, 110.0, 110.0)
     assert list(dep.nearest([90.0, 5.0], 2)) == [1, 0]
+
+
+def test_packaged_rings_draw_the_ue_in_their_ue_region():
+    """The rings of Chapter 3 ("ring", "ring-wide"): 8 BSs on a 150 m circle; every UE of the engine's draws lies in
+    the deployment's UE square (10 m and 100 m wide), which check_ue enforces too; the "tst" layout draws over its
+    whole region."""
+    from dpe5g import draw, paper
+
+    for name, half in (("ring", 5.0), ("ring-wide", 50.0)):
+        dep = deployment.named(name)
+        assert dep.n_bs == 8 and np.allclose(np.linalg.norm(dep.bs_xyz[:, :2], axis=1), 150.0)
+        assert dep.ue_bounds == (-half, -half, half, half)
+        with pytest.raises(ValueError, match="inside the region"):
+            dep.check_ue([half + 1.0, 0.0])
+    assert deployment.tst().ue_bounds == deployment.tst().region
+    e = paper.ring_window_experiments(n_trials=40)[1]
+    links = draw.draw_links(e, 40)
+    assert not links["los"].any()  # los_mode "all_nlos"
+    ue = np.stack([draw.draw_fn(e, e.load_deployment())(draw.trial_key(e.run.seed, t)).ue_xyz for t in range(5)])
+    assert np.all(np.abs(ue[:, :2]) <= 5.0) and np.ptp(ue[:, 0]) > 1.0
+
+
+def test_free_space_links_are_one_unit_path():
+    """los_mode "free_space": every link LoS, one path of unit power at the first tap, its phase drawn per link."""
+    from dpe5g import draw, paper
+
+    e = paper.ml_toa_experiment(n_trials=2)
+    d = draw.draw_fn(e, e.load_deployment())(draw.trial_key(e.run.seed, 0))
+    g = np.asarray(d.gains)
+    assert np.asarray(d.los).all()
+    np.testing.assert_allclose(np.abs(g[:, 0]), 1.0, rtol=1e-12)
+    assert np.all(g[:, 1:] == 0) and np.ptp(np.angle(g[:, 0])) > 0.1
 
 
 def test_prs_reuse_plan_on_our_layout():

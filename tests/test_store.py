@@ -68,6 +68,17 @@ def test_a_changed_stored_value_is_named_with_the_remedy(small):
     assert "results store: small, trial 4, field error_m" in str(found[0]) and "make reproduce" in str(found[0])
 
 
+def test_a_gap_is_compared_absolutely_other_floats_relatively():
+    """The certified gap, a relative difference of two costs, may move by VERIFY_RTOL absolutely when its costs move
+    by VERIFY_RTOL relatively (``verify.ABSOLUTE_FIELDS``); every other float must hold VERIFY_RTOL relative."""
+    tol = verify.VERIFY_RTOL
+    stored = {"gap": np.array([1e-7, 1e-7, np.nan]), "error_m": np.array([1e-7, 1e-7, 2.0])}
+    computed = {"gap": np.array([1e-7 + 0.5 * tol, 1e-7 + 2 * tol, np.nan]),
+                "error_m": np.array([1e-7 * (1 + 0.5 * tol), 1e-7 + 0.5 * tol, 2.0])}
+    found = verify.differences("x", [0, 1, 2], stored, computed)
+    assert [(m.trial, m.field) for m in found] == [(1, "error_m"), (1, "gap")]
+
+
 def test_reproduce_reports_and_rewrites(small, capsys):
     e, _, entry = small
     arrays = dict(np.load(entry.npz))
