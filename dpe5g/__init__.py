@@ -28,6 +28,7 @@ anything leaves the level as it was.
 """
 
 import os
+import signal as _signal  # (not ``signal``: that name is the package's module dpe5g.signal)
 import sys
 from pathlib import Path
 
@@ -53,6 +54,16 @@ def _cli_starting() -> bool:
     argv = getattr(sys, "argv", None) or [""]
     return argv[0] == "-m" or Path(argv[0]).name == "dpe5g"
 
+
+def _interrupted_while_starting(signum, frame):
+    """Ctrl-C while the command line starts (importing JAX takes a second or two), before ``cli.main`` installs
+    its own handling: one line and exit code 130, as at any later moment; nothing has been written yet."""
+    sys.stderr.write("dpe5g: interrupted while starting; nothing was written\n")
+    os._exit(130)
+
+
+if _cli_starting():
+    _signal.signal(_signal.SIGINT, _interrupted_while_starting)
 
 try:
     os.environ["XLA_FLAGS"] = xla_flags(os.environ.get("XLA_FLAGS", ""), os.environ.get("DPE5G_XLA_OPT_LEVEL"))

@@ -9,9 +9,13 @@ from __future__ import annotations
 import math
 from typing import Iterable
 
+import numpy as np
+
 
 def finite(name: str, value: float) -> float:
-    """Return ``float(value)`` or raise if it is NaN or infinite."""
+    """Return ``float(value)`` or raise if it is NaN or infinite, or not a number (a text, True/False)."""
+    if isinstance(value, (str, bytes, bool, np.bool_)):
+        raise ValueError(f"{name} must be a real number, got {value!r}")
     try:
         v = float(value)
     except (TypeError, ValueError):
@@ -32,12 +36,40 @@ def in_range(name: str, value: float, lo: float, hi: float, unit: str = "") -> f
 
 def integer(name: str, value: int, lo: int, hi: int) -> int:
     """Return ``int(value)`` if it is an integer in ``[lo, hi]``, else raise."""
-    if isinstance(value, bool) or int(value) != value:
+    try:
+        whole = not isinstance(value, (bool, str, bytes)) and int(value) == value
+    except (TypeError, ValueError, OverflowError):
+        whole = False
+    if not whole:
         raise ValueError(f"{name} must be an integer in [{lo}, {hi}], got {value!r}")
     v = int(value)
     if not lo <= v <= hi:
         raise ValueError(f"{name} must be an integer in [{lo}, {hi}], got {value!r}")
     return v
+
+
+def values_in_range(name: str, value, lo: float, hi: float, unit: str = ""):
+    """Check an array (or scalar) of a physical quantity: real, finite and in [lo, hi] ``unit``; returns it as
+    given.  Inside a traced (jit, vmap) call it is a JAX tracer, whose values are not known: returned unchecked
+    (the engine checks its inputs before tracing)."""
+    import jax
+
+    if isinstance(value, jax.core.Tracer):
+        return value
+    try:
+        a = np.asarray(value)
+        if isinstance(value, (list, tuple)) and any(isinstance(x, (bool, np.bool_, str, bytes))
+                                                    for x in np.asarray(value, dtype=object).ravel()):
+            a = np.asarray(None)  # True/False or a text among numbers, which NumPy would have made 1.0, 0.0
+    except (TypeError, ValueError):  # a ragged nest of lists
+        a = np.asarray(None)
+    if a.dtype.kind not in "iuf":
+        raise ValueError(f"{name} must be real numbers in [{lo:g}, {hi:g}] {unit}, got {value!r:.60}")
+    bad = ~np.isfinite(a) | (a < lo) | (a > hi)
+    if np.any(bad):
+        first = a[bad].ravel()[0] if a.ndim else a
+        raise ValueError(f"{name} must be finite and in [{lo:g}, {hi:g}] {unit}, got {first!r}")
+    return value
 
 
 def one_of(name: str, value: str, allowed: Iterable[str]) -> str:

@@ -1,4 +1,5 @@
-"""Atomic file writes shared by the figure build, the Monte Carlo cache and the CLI."""
+"""Atomic file writes shared by the figure build, the Monte Carlo cache and the CLI, and the CLI's checks of an
+output file or folder before any work."""
 
 from __future__ import annotations
 
@@ -8,27 +9,99 @@ from contextlib import contextmanager
 from pathlib import Path
 
 
+def umask() -> int:
+    """The process's file mode creation mask (read without changing it where Linux shows it)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    old = os.umask(0o022)
+    os.umask(old)
+    return old
+
+
+#: the longest output file name, in bytes: 255 (Linux's NAME_MAX) less what the temporary file it is first
+#: written to adds (``atomic_target``: a dot, the pid, a random part and ".tmp")
+MAX_NAME_BYTES = 200
+
+
+def writable_dir(option: str, folder: Path, given=None) -> None:
+    """Create ``folder`` if needed and check that a file can be written in it; a ValueError names ``option`` and
+    the value ``given`` (default: the folder)."""
+    given = folder if given is None else given
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"{option} {given}: {folder} exists and is not a folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as e:
+        raise ValueError(f"{option} {given}: cannot write in {folder} ({e.strerror or e})") from None
+
+
+def output_file(option: str, path: str, suffixes: tuple[str, ...], force: bool | None = None) -> Path:
+    """Check an output file before any work: its suffix (one of ``suffixes``), that it is not a folder, that it does
+    not exist unless ``force`` (None: overwriting is allowed), and that its folder is writable."""
+    p = Path(path)
+    if p.suffix.lower() not in suffixes:
+        raise ValueError(f"{option} {path}: must end in {' or '.join(suffixes)}")
+    if len(p.name.encode()) > MAX_NAME_BYTES:
+        raise ValueError(f"{option}: the file name is {len(p.name.encode())} bytes long; at most {MAX_NAME_BYTES} "
+                         f"(the filesystem's 255, less the temporary file's additions)")
+    if p.is_dir():
+        raise ValueError(f"{option} {path}: is a folder; give a file name ending in {' or '.join(suffixes)}")
+    if force is False and p.exists():
+        raise ValueError(f"{option} {path}: exists; pass --force to overwrite it")
+    writable_dir(option, p.parent, path)
+    return p
+
+
 @contextmanager
-def atomic_target(path):
+def atomic_target(path, exclusive: bool = False):
     """Yield a temporary path beside ``path`` (``.<name>.<pid>.…tmp``, pid the writing process) to write to; on
-    success rename it to ``path``, so a reader never sees a partial file and an existing file is never left
-    half-overwritten; on failure remove it."""
+    success give it the mode a new file gets (0666 less the umask; ``mkstemp`` makes it 0600) and move it to
+    ``path``, so a reader never sees a partial file and an existing file is never left half-overwritten; on failure
+    (an interrupt included) remove it.
+
+    exclusive : fail with ``FileExistsError`` if ``path`` exists when the file is moved there (a hard link, which
+    the filesystem creates only where no file is: of two writers started at once, the second fails and the first's
+    file stays); otherwise an existing file is replaced."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp")
     os.close(fd)
     try:
         yield Path(tmp)
-        os.replace(tmp, path)
+        os.chmod(tmp, 0o666 & ~umask())
+        if exclusive:
+            _link_new(tmp, path)
+            os.unlink(tmp)
+        else:
+            os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
 
 
-def atomic_write(path, data: bytes) -> None:
+def _link_new(tmp, path: Path) -> None:
+    """Put ``tmp`` at ``path`` only if nothing is there (``FileExistsError`` otherwise): a hard link, or where the
+    filesystem has none, an exclusive create of ``path`` and a copy."""
+    try:
+        os.link(tmp, path)
+    except FileExistsError:
+        raise
+    except OSError:  # no hard links here (some network and FAT filesystems)
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        with os.fdopen(fd, "wb") as f, open(tmp, "rb") as src:
+            f.write(src.read())
+
+
+def atomic_write(path, data: bytes, exclusive: bool = False) -> None:
     """Write ``data`` to ``path`` atomically (``atomic_target``)."""
-    with atomic_target(path) as tmp:
+    with atomic_target(path, exclusive) as tmp:
         tmp.write_bytes(data)
 
 

@@ -93,6 +93,9 @@ TABLES: dict[str, TDLTable] = {t.name[-1]: t for t in (TDL_A, TDL_B, TDL_C, TDL_
 #: Largest delay spread accepted, in seconds.  TR 38.901 Table 7.7.3-1 goes up to 1000 ns ("very long"); anything
 #: above 10 µs is almost certainly a value in nanoseconds passed as seconds.
 MAX_DELAY_SPREAD_S = 10e-6
+#: the smallest delay spread accepted, s: a tenth of TR 38.901's smallest tabulated one (10 ns); below it a TDL
+#: channel is a single path, and a smaller value is most likely a unit mistake
+MIN_DELAY_SPREAD_S = 1e-9
 
 
 @dataclass(frozen=True)
@@ -126,14 +129,18 @@ class TDLProfile:
 
 
 def check_delay_spread(delay_spread_s: float) -> float:
-    """Validate a delay spread in seconds: finite and in (0, ``MAX_DELAY_SPREAD_S``].  The error says what the value
-    looks like: nanoseconds typed as seconds (65 → 65e-9), or seconds far above any TR 38.901 delay spread."""
+    """Validate a delay spread in seconds: a finite number in [``MIN_DELAY_SPREAD_S``, ``MAX_DELAY_SPREAD_S``].  The
+    error says what the value looks like: nanoseconds typed as seconds (65 → 65e-9), or seconds far above any TR
+    38.901 delay spread."""
     ds = _checks.finite("delay_spread_s", delay_spread_s)
-    if 0 < ds <= MAX_DELAY_SPREAD_S:
+    if MIN_DELAY_SPREAD_S <= ds <= MAX_DELAY_SPREAD_S:
         return ds
-    head = f"delay_spread_s={ds:g} s is outside the allowed range (0, {MAX_DELAY_SPREAD_S:g}] s"
+    head = (f"delay_spread_s={ds:g} s is outside the allowed range [{MIN_DELAY_SPREAD_S:g}, {MAX_DELAY_SPREAD_S:g}] "
+            f"s")
     if ds <= 0:
         raise ValueError(f"{head}; a delay spread is positive — pass seconds, e.g. 65e-9")
+    if ds < MIN_DELAY_SPREAD_S:
+        raise ValueError(f"{head}; TR 38.901 delay spreads are 10 ns to a few µs — pass seconds, e.g. 65e-9")
     if 1.0 <= ds <= MAX_DELAY_SPREAD_S * 1e9:  # 1 ns … 10 µs written in nanoseconds
         raise ValueError(f"{head}; {ds:g} looks like nanoseconds — pass seconds: {ds:g} ns is {ds:g}e-9")
     raise ValueError(f"{head}; TR 38.901 delay spreads are 10 ns to a few µs — pass seconds, e.g. 65e-9")
@@ -145,6 +152,8 @@ def rms_delay_spread(delays_s, powers) -> float:
     This is the second central moment used by TR 38.901; the paper's text calls the span between the first and
     the last arrival the "RMS delay spread", which it is not (see the errata in the book).
     """
+    _checks.values_in_range("delays_s", delays_s, 0.0, 1e6, "(the delays' unit)")
+    _checks.values_in_range("powers", powers, 0.0, np.inf, "(linear)")
     d = np.asarray(delays_s, dtype=np.float64)
     p = np.asarray(powers, dtype=np.float64)
     if d.shape != p.shape or d.ndim != 1 or d.size == 0:

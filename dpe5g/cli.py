@@ -11,12 +11,16 @@ and exit code 2, never a traceback.
 from __future__ import annotations
 
 import argparse
+import math
 import re
+import signal as os_signal  # (the name signal is dpe5g.signal)
 import sys
-import tempfile
+import threading
 import time
 from contextlib import contextmanager
 from pathlib import Path
+
+from ._io import output_file, writable_dir
 
 #: the committed figure baselines (``figures/`` of the repository); ``dpe5g figures`` writes here only with
 #: ``--update-baselines``
@@ -45,34 +49,6 @@ class Parser(argparse.ArgumentParser):
 
 
 # ---- shared checks --------------------------------------------------------------------------------------------------
-
-def _writable_dir(option: str, folder: Path, given=None) -> None:
-    """Create ``folder`` if needed and check that a file can be written in it; a ValueError names ``option`` and
-    the value ``given`` (default: the folder)."""
-    given = folder if given is None else given
-    if folder.exists() and not folder.is_dir():
-        raise ValueError(f"{option} {given}: {folder} exists and is not a folder")
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=folder):
-            pass
-    except OSError as e:
-        raise ValueError(f"{option} {given}: cannot write in {folder} ({e.strerror or e})") from None
-
-
-def _output_file(option: str, path: str, suffixes: tuple[str, ...], force: bool | None = None) -> Path:
-    """Check an output file before any work: its suffix (one of ``suffixes``), that it is not a folder, that it does
-    not exist unless ``force`` (None: overwriting is allowed), and that its folder is writable."""
-    p = Path(path)
-    if p.suffix.lower() not in suffixes:
-        raise ValueError(f"{option} {path}: must end in {' or '.join(suffixes)}")
-    if p.is_dir():
-        raise ValueError(f"{option} {path}: is a folder; give a file name ending in {' or '.join(suffixes)}")
-    if force is False and p.exists():
-        raise ValueError(f"{option} {path}: exists; pass --force to overwrite it")
-    _writable_dir(option, p.parent, path)
-    return p
-
 
 def _in_baselines(folder: Path) -> bool:
     """Whether ``folder`` (resolved) is the committed baselines folder or inside it."""
@@ -115,20 +91,28 @@ def run_experiment(args):
     from dataclasses import replace
 
     from . import paper, search_config, signal
+    from .deployment import builtin
     from .experiment import Experiment
 
-    from .deployment import builtin
-
     dep = args.deployment if builtin(args.deployment) else str(Path(args.deployment).resolve())
+    if args.reuse and args.centring == "truth":
+        raise ValueError(f"--reuse {args.reuse} needs the honest receiver's certified search: use --centring prior "
+                         f"or --centring otdoa, not truth")
+    if args.prior_sigma is not None and args.centring != "prior":
+        raise ValueError(f"--prior-sigma applies to --centring prior only (got --centring {args.centring})")
+    prior_sigma = paper.PRIOR_SIGMA_M if args.prior_sigma is None else args.prior_sigma
+    if not (math.isfinite(prior_sigma) and 0 < prior_sigma <= 1000):
+        raise ValueError(f"--prior-sigma must be in (0, 1000] m, got {prior_sigma!r} (for no prior error, use "
+                         f"--centring truth)")
     try:
         for snr in args.snr:
             signal.check_snr_db(snr)  # one by one, so that the message shows the bad value
         search = search_config.SearchConfig(n_taps=args.taps) if args.centring == "truth" else replace(paper.honest_search(),
                                                                                              n_taps=args.taps)
-        kw = dict(n_trials=args.trials, seed=args.seed, snrs_db=tuple(args.snr), m_values=tuple(sorted(set(args.m))),
+        kw = dict(n_trials=args.trials, seed=args.seed, snrs_db=tuple(args.snr), m_values=tuple(args.m),
                   delay_spread_s=args.delay_spread, centring=args.centring, search=search, deployment=dep)
         if args.centring != "truth":
-            kw.update(prior_kind="gaussian", prior_scale_m=args.prior_sigma)
+            kw.update(prior_kind="gaussian", prior_scale_m=prior_sigma)
         if args.reuse:  # interference needs each BS's power: --snr is then the nearest link's SNR
             kw.update(prs_reuse=args.reuse, snr_mode="nearest")
         e = Experiment.build(name="run", otdoa=args.centring == "otdoa", **kw)
@@ -147,11 +131,15 @@ def _run(args) -> int:
     from ._io import atomic_target
 
     e = run_experiment(args)
-    out = _output_file("--out", args.out, (".csv", ".json"), force=args.force)
+    out = output_file("--out", args.out, (".csv", ".json"), force=args.force)
     with _cluster(args) as client:
         res = engine.run(e, progress=True, client=client)
-    with atomic_target(out) as tmp:  # an existing file is never left half-overwritten
-        (res.write_csv if out.suffix.lower() == ".csv" else res.write_json)(tmp)
+    try:  # an existing file is never left half-overwritten; without --force, never replaced
+        with atomic_target(out, exclusive=not args.force) as tmp:
+            (res.write_csv if out.suffix.lower() == ".csv" else res.write_json)(tmp)
+    except FileExistsError:
+        raise ValueError(f"--out {args.out}: another run wrote it meanwhile; the results of this one are in the "
+                         f"cache: rerun with another --out, or --force to overwrite it") from None
     n_rows = e.run.n_trials * len(e.links.snrs_db) * len(e.receiver.m_values)
     print(report.run_summary(res))
     print(f"wrote {out} ({n_rows} rows: one per trial, SNR and M)")
@@ -190,7 +178,7 @@ def _figures(args) -> int:
         if _in_baselines(out):
             raise ValueError(f"--out {args.out} is in the committed baselines folder {BASELINE_DIR}; give another "
                              f"folder, or --update-baselines (without --out) to regenerate the baselines")
-    _writable_dir("--out", out)
+    writable_dir("--out", out)
     for fig_id in ids:
         t0 = time.perf_counter()
         trials = args.trials if args.trials is not None and figures.takes_trials(fig_id) else None
@@ -224,7 +212,7 @@ def _reproduce(args) -> int:
 
     if store.store_root() is None:
         raise ValueError("DPE5G_STORE is 'off': reproduce rewrites the results store; unset it or name a folder")
-    _writable_dir("DPE5G_STORE", store.store_root())
+    writable_dir("DPE5G_STORE", store.store_root())
     with _cluster(args) as client:
         found = verify.reproduce(progress=args.progress, client=client)
     print(f"reproduce: {len(found)} stored (trial, field) values differed from today's code and were rewritten"
@@ -294,11 +282,13 @@ def _deployment(args) -> int:
 
     from . import deployment
 
+    from scipy.spatial import cKDTree
+
     dep = deployment.named(args.path)
     x0, y0, x1, y1 = dep.region
-    d = np.linalg.norm(dep.bs_xyz[:, None, :2] - dep.bs_xyz[None, :, :2], axis=-1) + np.eye(dep.n_bs) * 1e9
+    nearest = cKDTree(dep.bs_xyz[:, :2]).query(dep.bs_xyz[:, :2], k=2)[0][:, 1]  # (not n × n distances)
     print(f"{dep.name}: {dep.n_bs} BSs, region {x1 - x0:.1f} m x {y1 - y0:.1f} m = {dep.area_m2:,.0f} m2, "
-          f"{dep.n_bs / dep.area_m2 * 1e6:.1f} BSs per km2, nearest-neighbour spacing {np.median(d.min(1)):.1f} m "
+          f"{dep.n_bs / dep.area_m2 * 1e6:.1f} BSs per km2, nearest-neighbour spacing {np.median(nearest):.1f} m "
           f"(median), {len(dep.buildings)} buildings, UE height {dep.ue_height_m:g} m"
           + ("" if dep.ue_region is None else
              ", UE drawn in {:.1f} m x {:.1f} m".format(dep.ue_region[2] - dep.ue_region[0],
@@ -309,8 +299,12 @@ def _deployment(args) -> int:
 def _scene(args) -> int:
     from . import figures, scene3d
 
-    out = _output_file("--out", args.out, (".html", ".htm"))
-    path = scene3d.export(figures.compute("fig07_deployment_map"), figures.compute("fig08_urban_correlogram"), out)
+    out = output_file("--out", args.out, (".html", ".htm"), force=args.force)
+    try:
+        path = scene3d.export(figures.compute("fig07_deployment_map"), figures.compute("fig08_urban_correlogram"), out,
+                              exclusive=not args.force)
+    except FileExistsError:
+        raise ValueError(f"--out {args.out}: another process wrote it meanwhile; pass --force to overwrite it") from None
     print(f"wrote {path}")
     return 0
 
@@ -355,8 +349,9 @@ def _add_run(sub) -> None:
                    help=f"per-sample SNRs in dB, in [-50, 100] (default: the paper's "
                         f"{' '.join(f'{s:g}' for s in paper_e.links.snrs_db)})")
     r.add_argument("--m", type=int, nargs="+", default=list(paper_e.receiver.m_values), metavar="M",
-                   help=f"numbers of nearest BSs used by the DPE, each >= 3 (x, y and the clock bias are unknown) "
-                        f"and <= the deployment's BS count (default: {' '.join(map(str, paper_e.receiver.m_values))})")
+                   help=f"numbers of nearest BSs used by the DPE, increasing, each >= 3 (x, y and the clock bias "
+                        f"are unknown) and <= the deployment's BS count (default: "
+                        f"{' '.join(map(str, paper_e.receiver.m_values))})")
     r.add_argument("--taps", type=int, default=search_config.DEFAULT_TAPS, metavar="L",
                    help=f"receiver window L in taps, 1 to the FFT size (default: {search_config.DEFAULT_TAPS}, chosen in "
                         f"Chapter 5)")
@@ -369,8 +364,8 @@ def _add_run(sub) -> None:
                         "trial's OTDoA first-path fix, certified search; the OTDoA errors are written too) or "
                         "'truth' (the paper's own set-up, a labelled comparison: grid centred on the true position "
                         "and clock bias)")
-    r.add_argument("--prior-sigma", type=float, default=paper.PRIOR_SIGMA_M, metavar="M",
-                   help=f"σ per axis of the prior's error in metres, centring 'prior' (default: "
+    r.add_argument("--prior-sigma", type=float, default=None, metavar="M",
+                   help=f"σ per axis of the prior's error in metres, in (0, 1000], centring 'prior' only (default: "
                         f"{paper.PRIOR_SIGMA_M:g})")
     r.add_argument("--seed", type=int, default=paper.URBAN_SEED, help=f"seed (default: {paper.URBAN_SEED}, Fig. 9's)")
     r.add_argument("--reuse", type=int, default=0, metavar="R",
@@ -444,7 +439,8 @@ def _add_other_commands(sub) -> None:
 
     s = sub.add_parser("scene", help="export the meshcat 3-D scene of the urban example as a static HTML file")
     s.add_argument("--out", default="urban_scene.html", metavar="FILE.html",
-                   help="output HTML file, overwritten if it exists (default: urban_scene.html)")
+                   help="output HTML file (default: urban_scene.html); an existing file is kept unless --force")
+    s.add_argument("--force", action="store_true", help="overwrite --out if it exists")
     s.set_defaults(func=_scene)
 
 
@@ -455,6 +451,8 @@ def _one_line(text: str) -> str:
 def main(argv=None) -> int:
     """Run the command line; returns the exit code (0, or 2 after one line on stderr for bad input)."""
     argv = sys.argv[1:] if argv is None else list(argv)
+    if threading.current_thread() is threading.main_thread():  # from here on Ctrl-C is handled below
+        os_signal.signal(os_signal.SIGINT, os_signal.default_int_handler)
     parser = build_parser()
     prog = "dpe5g"
     try:

@@ -12,6 +12,7 @@ that act on a deployment (eq. (11), the path loss, the link budget, the clock bi
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 from dataclasses import dataclass, field
@@ -34,6 +35,13 @@ BS_HEIGHT_RANGE_M = (1.5, 150.0)  # TR 38.901 UMi: 10 m; the formulas need h_BS 
 #: below 10 is most likely in watts (24 dBm is 0.25 W)
 POWER_RANGE_DBM = (10.0, 60.0)
 MIN_BS = 3  # (x, y, c δt) has three unknowns
+#: the largest deployment file read (bytes) and the most base stations and buildings it may hold: a city's
+#: deployment is far below these; a larger file is most likely not a deployment
+MAX_FILE_BYTES = 20_000_000
+MAX_BS = 5_000
+MAX_BUILDINGS = 100_000
+#: base stations must stand at least this far apart (m), and off one line by at least this much (RMS, m)
+MIN_SPACING_M = 0.5
 
 
 @dataclass(frozen=True, eq=False)
@@ -94,8 +102,12 @@ class Deployment:
         return prs_plan(self.bs_xyz, reuse)
 
     def nearest(self, ue_xy, m: int) -> np.ndarray:
-        """Indices (..., m) of the m BSs nearest to the UE in 2-D distance, nearest first."""
+        """Indices (..., m) of the m BSs nearest to the UE in 2-D distance, nearest first.  ue_xy (..., 2) metres,
+        finite (anywhere: a UE outside the region has nearest BSs too)."""
         _checks.integer("m", m, 1, self.n_bs)
+        _checks.values_in_range("ue_xy", ue_xy, -1e6, 1e6, "m")
+        if np.shape(ue_xy)[-1:] != (2,):
+            raise ValueError(f"ue_xy must have shape (..., 2), got {np.shape(ue_xy)}")
         d = np.linalg.norm(np.asarray(ue_xy)[..., None, :] - self.bs_xyz[:, :2], axis=-1)
         return np.argsort(d, axis=-1, kind="stable")[..., :m]
 
@@ -139,7 +151,10 @@ def _fail(source, msg):
     raise ValueError(f"deployment file {source}: {msg}")
 
 
-def _number(source, where, key, value, lo, hi, unit):
+def _number(source, where, key, value, lo, hi, unit, text: bool = False):
+    """A finite number in [lo, hi]: a JSON number (not true/false), or with ``text`` (a CSV cell) its text."""
+    if isinstance(value, bool) or (isinstance(value, str) and not text):
+        _fail(source, f"{where}: {key} must be a number in [{lo:g}, {hi:g}] {unit}, got {value!r}")
     try:
         v = float(value)
     except (TypeError, ValueError):
@@ -149,11 +164,11 @@ def _number(source, where, key, value, lo, hi, unit):
     return v
 
 
-def _power(source, where, value):
+def _power(source, where, value, text: bool = False):
     """A BS transmit power in dBm within ``POWER_RANGE_DBM``; the error suggests watts for small positive values."""
     lo, hi = POWER_RANGE_DBM
     try:
-        v = float(value)
+        v = math.nan if isinstance(value, bool) or (isinstance(value, str) and not text) else float(value)
     except (TypeError, ValueError):
         v = math.nan
     if math.isfinite(v) and lo <= v <= hi:
@@ -165,12 +180,14 @@ def _power(source, where, value):
     _fail(source, f"{where}: power_dbm must be in [{lo:g}, {hi:g}] dBm (a BS transmit power), got {value!r}{hint}")
 
 
-def _base_stations(source, rows):
-    """Validate BS rows (dicts with id, x_m, y_m, height_m, power_dbm) → ids, xyz, power."""
+def _base_stations(source, rows, text: bool = False):
+    """Validate BS rows (dicts with id, x_m, y_m, height_m, power_dbm; ``text``: CSV cells) → ids, xyz, power."""
     if not isinstance(rows, list) or len(rows) < MIN_BS:
         n = len(rows) if isinstance(rows, list) else 0
         _fail(source, f"needs at least {MIN_BS} base stations (x, y and the clock bias are unknown), got {n}")
-    ids, xyz, pw = [], [], []
+    if len(rows) > MAX_BS:
+        _fail(source, f"holds {len(rows)} base stations; at most {MAX_BS} are read")
+    ids, seen, xyz, pw = [], set(), [], []
     for i, r in enumerate(rows):
         where = f"base station {i + 1}"
         if not isinstance(r, dict):
@@ -179,19 +196,33 @@ def _base_stations(source, rows):
         if missing:
             _fail(source, f"{where}: missing {', '.join(missing)}")
         bid = str(r.get("id") or f"BS{i + 1:02d}")
-        if bid in ids:
+        if bid in seen:
             _fail(source, f"{where}: duplicate id {bid!r}")
         ids.append(bid)
-        xyz.append([_number(source, where, "x_m", r["x_m"], -1e5, 1e5, "m"),
-                    _number(source, where, "y_m", r["y_m"], -1e5, 1e5, "m"),
-                    _number(source, where, "height_m", r["height_m"], *BS_HEIGHT_RANGE_M, "m")])
-        pw.append(_power(source, f"{where} ({bid})", r["power_dbm"]))
+        seen.add(bid)
+        xyz.append([_number(source, where, "x_m", r["x_m"], -1e5, 1e5, "m", text),
+                    _number(source, where, "y_m", r["y_m"], -1e5, 1e5, "m", text),
+                    _number(source, where, "height_m", r["height_m"], *BS_HEIGHT_RANGE_M, "m", text)])
+        pw.append(_power(source, f"{where} ({bid})", r["power_dbm"], text))
     xyz = np.array(xyz)
-    d = np.linalg.norm(xyz[:, None, :2] - xyz[None, :, :2], axis=-1) + np.eye(len(ids)) * 1e9
-    if d.min() < 0.5:
-        i, j = np.unravel_index(np.argmin(d), d.shape)
-        _fail(source, f"base stations {ids[i]} and {ids[j]} are less than 0.5 m apart")
+    _check_geometry(source, tuple(ids), xyz[:, :2])
     return tuple(ids), xyz, np.array(pw)
+
+
+def _check_geometry(source, ids, xy) -> None:
+    """The BSs stand at least ``MIN_SPACING_M`` apart (nearest neighbours by a k-d tree: n log n, not n²) and not
+    all on one line (their RMS distance from the best line at least ``MIN_SPACING_M``)."""
+    from scipy.spatial import cKDTree
+
+    d, j = cKDTree(xy).query(xy, k=2)
+    i = int(np.argmin(d[:, 1]))
+    if d[i, 1] < MIN_SPACING_M:
+        _fail(source, f"base stations {ids[i]} and {ids[j[i, 1]]} are less than {MIN_SPACING_M:g} m apart")
+    spread = np.linalg.svd(xy - xy.mean(axis=0), compute_uv=False)[-1] / np.sqrt(len(xy))
+    if spread < MIN_SPACING_M:
+        _fail(source, f"the {len(ids)} base stations lie on one line (their RMS distance from it is {spread:.2g} m, "
+                      f"under {MIN_SPACING_M:g} m): a position on either side of it gives the same ranges, so x, y "
+                      f"cannot be resolved")
 
 
 def load_deployment(path) -> Deployment:
@@ -201,9 +232,11 @@ def load_deployment(path) -> Deployment:
     then the BSs' bounding box grown by 10 % on each side and the UE height 2 m.
     JSON: {"base_stations": [{id, x_m, y_m, height_m, power_dbm}, ...], "region": {x_min_m, y_min_m, x_max_m,
     y_max_m}, optional "ue_region" (the same keys, inside the region: where the UE is drawn), "ue_height_m",
-    "buildings" [{x_min_m, y_min_m, x_max_m, y_max_m, height_m}], "streets",
-    "anchor" {lat_deg, lon_deg}, "name", "description"}.
-    Malformed files raise ``ValueError`` naming the file, the entry and the allowed range.
+    "buildings" [{x_min_m, y_min_m, x_max_m, y_max_m, height_m}], "streets" [{name, axis, centre_m, width_m}],
+    "anchor" {lat_deg, lon_deg}, "name", "description"}; numbers must be JSON numbers.
+    At most ``MAX_FILE_BYTES`` bytes, ``MAX_BS`` base stations and ``MAX_BUILDINGS`` buildings; the BSs at least
+    ``MIN_SPACING_M`` apart and not all on one line.  Malformed files raise ``ValueError`` naming the file, the entry
+    and the allowed range, before any computation.
     """
     path = Path(path)
     src = str(path)
@@ -212,34 +245,47 @@ def load_deployment(path) -> Deployment:
     if not path.is_file():
         raise ValueError(f"deployment file {src} is not a file")
     suffix = path.suffix.lower()
-    if suffix == ".csv":
-        try:
-            with path.open(newline="") as f:
-                rows = list(csv.DictReader(f))
-        except OSError as e:
-            _fail(src, f"cannot be read ({e.strerror or e})")
-        except (UnicodeDecodeError, csv.Error) as e:
-            _fail(src, f"cannot be read as CSV ({e})")
-        if rows and None in rows[0]:
-            _fail(src, "a row has more fields than the header")
-        ids, xyz, pw = _base_stations(src, rows)
-        lo, hi = xyz[:, :2].min(0), xyz[:, :2].max(0)
-        pad = 0.1 * max(float(np.max(hi - lo)), 1.0)
-        region = (lo[0] - pad, lo[1] - pad, hi[0] + pad, hi[1] + pad)
-        return Deployment(path.stem, ids, xyz, pw, tuple(float(v) for v in region))
-    if suffix != ".json":
+    if suffix not in (".csv", ".json"):
         _fail(src, f"must end in .json or .csv, got {path.suffix!r}")
     try:
-        text = path.read_bytes()  # json.loads detects the UTF encoding; a bad one is a decode error below
+        size = path.stat().st_size
+        if size > MAX_FILE_BYTES:
+            _fail(src, f"is {size:,} bytes; a deployment file may hold at most {MAX_FILE_BYTES:,}")
+        data = path.read_bytes()
     except OSError as e:
         _fail(src, f"cannot be read ({e.strerror or e})")
+    return _from_csv(src, path.stem, data) if suffix == ".csv" else _from_json(src, path.stem, data)
+
+
+def _from_csv(src: str, stem: str, data: bytes) -> Deployment:
+    """A CSV deployment's rows (``load_deployment``)."""
     try:
-        doc = json.loads(text)
+        rows = list(csv.DictReader(io.StringIO(data.decode("utf-8-sig"), newline="")))
+    except (UnicodeDecodeError, csv.Error) as e:
+        _fail(src, f"cannot be read as CSV ({e})")
+    for i, r in enumerate(rows):
+        if None in r:
+            _fail(src, f"row {i + 2} has more fields than the header")
+    ids, xyz, pw = _base_stations(src, rows, text=True)
+    lo, hi = xyz[:, :2].min(0), xyz[:, :2].max(0)
+    pad = 0.1 * max(float(np.max(hi - lo)), 1.0)
+    region = (lo[0] - pad, lo[1] - pad, hi[0] + pad, hi[1] + pad)
+    return Deployment(stem, ids, xyz, pw, tuple(float(v) for v in region))
+
+
+def _from_json(src: str, stem: str, data: bytes) -> Deployment:
+    """A JSON deployment's document (``load_deployment``)."""
+    try:
+        doc = json.loads(data)  # json.loads detects the UTF encoding; a bad one is a decode error
     except (UnicodeDecodeError, json.JSONDecodeError) as e:
         _fail(src, f"is not valid JSON ({e})")
+    except RecursionError:
+        _fail(src, "is nested too deeply to be a deployment")
     if not isinstance(doc, dict):
         _fail(src, "must hold a JSON object with base_stations and region")
-    ids, xyz, pw = _base_stations(src, doc.get("base_stations"))
+    if "base_stations" not in doc:
+        _fail(src, "missing base_stations" + (f" (it has {', '.join(map(repr, list(doc)[:8]))})" if doc else ""))
+    ids, xyz, pw = _base_stations(src, doc["base_stations"])
     if not isinstance(doc.get("region"), dict):
         _fail(src, "needs a region {x_min_m, y_min_m, x_max_m, y_max_m}")
     region = _rectangle(src, "region", doc["region"])
@@ -252,24 +298,67 @@ def load_deployment(path) -> Deployment:
         if any(ue_region[i] < region[i] for i in (0, 1)) or any(ue_region[i] > region[i] for i in (2, 3)):
             _fail(src, f"ue_region {ue_region} must lie inside the region {region}")
     ue_h = _number(src, "ue_height_m", "ue_height_m", doc.get("ue_height_m", 2.0), 1.0, 22.5, "m")
+    lat, lon = _anchor(src, doc.get("anchor"))
+    return Deployment(_text(src, "name", doc.get("name", stem)), ids, xyz, pw, region, ue_h,
+                      _buildings(src, doc.get("buildings")), _streets(src, doc.get("streets")), lat, lon,
+                      _text(src, "description", doc.get("description", "")), ue_region)
+
+
+def _text(src, key, value) -> str:
+    if not isinstance(value, str) or len(value) > 10_000:
+        _fail(src, f"{key} must be a text of at most 10,000 characters, got {type(value).__name__}")
+    return value
+
+
+def _buildings(src, rows) -> np.ndarray:
+    """The optional "buildings": a list of {x_min_m, y_min_m, x_max_m, y_max_m, height_m} → (K, 5) m."""
+    if rows is None:
+        return np.zeros((0, 5))
+    if not isinstance(rows, list):
+        _fail(src, f"buildings must be a list of objects, got {type(rows).__name__}")
+    if len(rows) > MAX_BUILDINGS:
+        _fail(src, f"holds {len(rows)} buildings; at most {MAX_BUILDINGS} are read")
     blds = []
-    for i, b in enumerate(doc.get("buildings", [])):
-        keys = ("x_min_m", "y_min_m", "x_max_m", "y_max_m", "height_m")
+    keys = ("x_min_m", "y_min_m", "x_max_m", "y_max_m", "height_m")
+    for i, b in enumerate(rows):
         if not isinstance(b, dict) or any(k not in b for k in keys):
             _fail(src, f"building {i + 1} needs {', '.join(keys)}")
         row = [_number(src, f"building {i + 1}", k, b[k], -1e5, 1e5, "m") for k in keys]
         if row[2] <= row[0] or row[3] <= row[1] or row[4] <= 0:
             _fail(src, f"building {i + 1} must have x_max_m > x_min_m, y_max_m > y_min_m and height_m > 0")
         blds.append(row)
-    anchor = doc.get("anchor") or {}
-    lat = anchor.get("lat_deg")
-    lon = anchor.get("lon_deg")
-    if lat is not None:
-        lat = _number(src, "anchor", "lat_deg", lat, -90, 90, "deg")
-        lon = _number(src, "anchor", "lon_deg", lon, -180, 180, "deg")
-    return Deployment(str(doc.get("name", path.stem)), ids, xyz, pw, region, ue_h,
-                      np.array(blds).reshape(-1, 5), tuple(doc.get("streets", [])), lat, lon,
-                      str(doc.get("description", "")), ue_region)
+    return np.array(blds).reshape(-1, 5)
+
+
+def _streets(src, rows) -> tuple:
+    """The optional "streets" (for drawing): a list of {name, axis, centre_m, width_m}."""
+    if rows is None:
+        return ()
+    if not isinstance(rows, list) or len(rows) > 10_000:
+        _fail(src, "streets must be a list of at most 10,000 objects {name, axis, centre_m, width_m}")
+    out = []
+    for i, r in enumerate(rows):
+        where = f"street {i + 1}"
+        if not isinstance(r, dict) or any(k not in r for k in ("name", "axis", "centre_m", "width_m")):
+            _fail(src, f"{where} needs name, axis, centre_m, width_m")
+        if r["axis"] not in ("north-south", "east-west"):
+            _fail(src, f"{where}: axis must be 'north-south' or 'east-west', got {r['axis']!r}")
+        out.append({"name": _text(src, f"{where} name", r["name"]), "axis": r["axis"],
+                    "centre_m": _number(src, where, "centre_m", r["centre_m"], -1e5, 1e5, "m"),
+                    "width_m": _number(src, where, "width_m", r["width_m"], 0.1, 1000.0, "m")})
+    return tuple(out)
+
+
+def _anchor(src, anchor) -> tuple[float | None, float | None]:
+    """The optional "anchor" {lat_deg, lon_deg}: the WGS-84 position of the local origin."""
+    if anchor is None:
+        return None, None
+    if not isinstance(anchor, dict):
+        _fail(src, f"anchor must be an object {{lat_deg, lon_deg}}, got {anchor!r:.40}")
+    if anchor.get("lat_deg") is None and anchor.get("lon_deg") is None:
+        return None, None
+    return (_number(src, "anchor", "lat_deg", anchor.get("lat_deg"), -90, 90, "deg"),
+            _number(src, "anchor", "lon_deg", anchor.get("lon_deg"), -180, 180, "deg"))
 
 
 def _rectangle(src, key, reg) -> tuple[float, float, float, float]:

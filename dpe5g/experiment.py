@@ -120,6 +120,9 @@ class Links:
             if len(self.snrs_db) == 0:
                 raise ValueError(f"snrs_db must list at least one SNR (dB) when snr_mode is {self.snr_mode!r}")
             signal.check_snr_db(np.asarray(self.snrs_db))
+            if len(set(self.snrs_db)) != len(self.snrs_db):
+                raise ValueError(f"snrs_db must not repeat an SNR (each would give the same rows twice), got "
+                                 f"{self.snrs_db!r}")
         elif len(self.snrs_db):
             raise ValueError(f"snrs_db must be empty when snr_mode is 'link_budget' (the SNR comes from the path "
                              f"loss), got {self.snrs_db!r}")
@@ -212,9 +215,10 @@ class Experiment:
                 raise ValueError(f"{part} must be a {cls.__name__}, got {getattr(self, part)!r}")
         sc, rx = self.scenario, self.receiver
         if sc.prs_reuse and rx.search.method != "bnb":
-            raise ValueError("prs_reuse > 0 needs the certified search (search.method 'bnb'): its receiver window is "
-                             "spaced for the PRS band (correlogram.band_tap_spacing), which the grid search's "
-                             f"sample-shift window cannot be; got {rx.search.method!r}")
+            raise ValueError("prs_reuse > 0 needs the certified search (search.method 'bnb', the receiver of centring "
+                             "'prior' and 'otdoa'): its receiver window is spaced for the PRS band "
+                             "(correlogram.band_tap_spacing), which the grid search's sample-shift window cannot be; "
+                             f"got {rx.search.method!r}")
         if sc.prs_reuse and self.links.snr_mode == "fixed":
             raise ValueError("prs_reuse > 0 needs each BS's received power for its interference: snr_mode must be "
                              "'link_budget' or 'nearest', got 'fixed'")

@@ -89,19 +89,26 @@ class Results:
                                              f"otdoa_{name}_ok": bool(self.otdoa_ok[t, s, d, j])})
         return rows
 
+    def config(self) -> dict:
+        """The experiment's settings as JSON values (``Experiment.to_dict``: the seed, trials, scenario, links and
+        receiver), which every results file records."""
+        return json.loads(json.dumps(self.experiment.to_dict(), default=str))
+
     def write_csv(self, path) -> None:
-        """The tidy table as CSV."""
+        """The tidy table as CSV, after one comment line ``# dpe5g experiment: {config JSON}`` (``config``) that
+        says what produced it (``pandas.read_csv(path, comment="#")`` skips it)."""
         import csv
 
         rows = self.table()
         with open(path, "w", newline="") as f:
+            f.write(f"# dpe5g experiment: {json.dumps(self.config(), sort_keys=True)}\n")
             w = csv.DictWriter(f, fieldnames=list(rows[0]))
             w.writeheader()
             w.writerows(rows)
 
     def write_json(self, path) -> None:
         """The tidy table as JSON, with the experiment's config beside it."""
-        doc = {"experiment": json.loads(json.dumps(self.experiment.to_dict(), default=str)), "rows": self.table()}
+        doc = {"experiment": self.config(), "rows": self.table()}
         Path(path).write_text(json.dumps(doc, indent=1) + "\n")
 
 

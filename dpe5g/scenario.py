@@ -21,11 +21,15 @@ SIGMA_SF_LOS_DB = 4.0
 SIGMA_SF_NLOS_DB = 7.82
 #: effective environment height h_E for the UMi breakpoint distance, m
 H_E_M = 1.0
+#: the largest 2-D distance the models accept, m (TR 38.901 states UMi for d2D up to 5 km)
+MAX_D2D_M = 1e5
 
 
 def los_probability(d2d_m) -> jax.Array:
     """Eq. (11) (TR 38.901 Table 7.4.2-1, UMi street canyon): Pr_LoS = 1 for D ≤ 18 m, else
-    18/D + (1 - 18/D) e^{-D/36}.  d2d_m : (...) 2-D BS–UE distance in metres → (...) probability."""
+    18/D + (1 - 18/D) e^{-D/36}.  d2d_m : (...) 2-D BS–UE distance in metres, finite, in [0, ``MAX_D2D_M``]
+    → (...) probability."""
+    _checks.values_in_range("d2d_m", d2d_m, 0.0, MAX_D2D_M, "m")
     d = jnp.asarray(d2d_m, dtype=jnp.float64)
     safe = jnp.maximum(d, 18.0)
     return jnp.where(d <= 18.0, 1.0, 18.0 / safe + (1.0 - 18.0 / safe) * jnp.exp(-safe / 36.0))
@@ -40,7 +44,13 @@ def path_loss_umi_db(d2d_m, h_bs_m, h_ut_m, fc_hz, los) -> jax.Array:
     The table states the formulas for 10 m ≤ d2D ≤ 5 km; below 10 m we evaluate them at d2D = 10 m (stated in the
     book, not silent), so a UE at the foot of a mast does not get an unbounded SNR.
     d2d_m, los : (...) arrays; h_bs_m, h_ut_m : metres (broadcast); fc_hz : Hz.  Returns (...).
+    Ranges (``ValueError`` outside them): d2d_m in [0, ``MAX_D2D_M``] m, h_bs_m in [1.5, 150] m, h_ut_m in [1, 22.5]
+    m (the table's UT heights), fc_hz in [0.5e9, 100e9] Hz (the table's validity).
     """
+    _checks.values_in_range("d2d_m", d2d_m, 0.0, MAX_D2D_M, "m")
+    _checks.values_in_range("h_bs_m", h_bs_m, 1.5, 150.0, "m")
+    _checks.values_in_range("h_ut_m", h_ut_m, 1.0, 22.5, "m")
+    _checks.values_in_range("fc_hz", fc_hz, 0.5e9, 100e9, "Hz")
     d2d = jnp.maximum(jnp.asarray(d2d_m, dtype=jnp.float64), 10.0)
     h_bs, h_ut = jnp.asarray(h_bs_m), jnp.asarray(h_ut_m)
     fc = fc_hz / 1e9
@@ -90,5 +100,10 @@ class LinkBudget:
 
 def clock_bias(key, sigma_s: float, bound_sigmas: float, shape=()) -> jax.Array:
     """UE clock bias δt in seconds: Gaussian of standard deviation ``sigma_s`` truncated at ± bound_sigmas · sigma_s
-    (the paper: σ = 5 ns after the coarse random-access synchronization; the bound is ours, 3 σ by default)."""
+    (the paper: σ = 5 ns after the coarse random-access synchronization; the bound is ours, 3 σ by default).
+    sigma_s in [0, 1e-6] s (a σ above 1 µs is most likely nanoseconds typed as seconds); bound_sigmas in [0.1, 10]."""
+    if not isinstance(sigma_s, jax.core.Tracer):
+        _checks.in_range("sigma_s", sigma_s, 0.0, 1e-6, "s (5 ns is 5e-9)")
+    if not isinstance(bound_sigmas, jax.core.Tracer):
+        _checks.in_range("bound_sigmas", bound_sigmas, 0.1, 10.0, "σ")
     return sigma_s * jax.random.truncated_normal(key, -bound_sigmas, bound_sigmas, shape, dtype=jnp.float64)

@@ -128,9 +128,11 @@ def iframe(payload7: dict, payload8: dict, height_px: int = 520) -> str:
             f'style="width:100%;height:{height_px}px;border:1px solid #ccc"></iframe>')
 
 
-def export(payload7: dict, payload8: dict, path) -> Path:
-    """Write the scene's static HTML to ``path``; returns the path."""
+def export(payload7: dict, payload8: dict, path, exclusive: bool = False) -> Path:
+    """Write the scene's static HTML to ``path`` atomically (``_io.atomic_write``; exclusive: ``FileExistsError``
+    rather than replace an existing file); returns the path."""
+    from ._io import atomic_write
+
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(html(build(payload7, payload8)))
+    atomic_write(path, html(build(payload7, payload8)).encode(), exclusive)
     return path

@@ -71,7 +71,10 @@ def per_sample_snr_db(snr_db, convention: str, num: Numerology = PAPER):
 
 
 def check_snr_db(snr_db) -> np.ndarray:
-    """Validate an SNR in dB (scalar or array): finite and within [-50, 100] dB."""
+    """Validate an SNR in dB (scalar or array): real numbers (not text or True/False), finite and within
+    [-50, 100] dB."""
+    if isinstance(snr_db, (str, bytes)) or np.asarray(snr_db).dtype.kind not in "iuf":
+        raise ValueError(f"snr_db must be real numbers (dB, in [-50, 100]), got {snr_db!r}")
     s = np.asarray(snr_db, dtype=np.float64)
     if not np.all(np.isfinite(s)):
         raise ValueError(f"snr_db must be finite (dB, in [-50, 100]), got {snr_db!r}")

@@ -57,16 +57,24 @@ class ChunkCache:
 
     def open(self) -> "ChunkCache":
         """Create the directory and its metadata; remove temporary files a killed run left (their chunks are
-        recomputed)."""
-        self.dir.mkdir(parents=True, exist_ok=True)
-        remove_stale_temporaries(self.dir)
-        meta = self.dir / "experiment.json"
-        if not meta.exists():
-            d = self.experiment.to_dict()
-            d.pop("n_trials")
-            d.pop("chunk_trials")
-            atomic_write(meta, json.dumps({"key": self.dir.name.rsplit("-", 1)[1], "experiment": d}, indent=1,
-                                          default=str).encode())
+        recomputed).  A root that is not a writable folder is a ``ValueError`` naming where it came from (the
+        argument, DPE5G_CACHE or the default)."""
+        try:
+            self.dir.mkdir(parents=True, exist_ok=True)
+            remove_stale_temporaries(self.dir)
+            meta = self.dir / "experiment.json"
+            if not meta.exists():
+                d = self.experiment.to_dict()
+                d.pop("n_trials")
+                d.pop("chunk_trials")
+                atomic_write(meta, json.dumps({"key": self.dir.name.rsplit("-", 1)[1], "experiment": d}, indent=1,
+                                              default=str).encode())
+        except OSError as err:
+            root = self.dir.parent
+            source = (f"DPE5G_CACHE={os.environ['DPE5G_CACHE']}" if os.environ.get("DPE5G_CACHE")
+                      and root == Path(os.environ["DPE5G_CACHE"]) else f"the Monte Carlo cache {root}")
+            raise ValueError(f"{source}: cannot write there ({err.strerror or err}); it must be a writable "
+                             f"folder") from None
         return self
 
     def missing(self) -> list[tuple[int, int]]:

@@ -6,6 +6,7 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -23,6 +24,20 @@ FILES = {
     "layout.txt": "x y\n",
     "existing.csv": "keep me\n",
     "afile": "not a folder\n",
+    "existing.html": "keep me too\n",
+}
+_BS4 = [{"x_m": 50.0 * i, "y_m": 40.0 * (i % 2), "height_m": 10, "power_dbm": 24} for i in range(4)]
+_REGION = {"x_min_m": -10, "y_min_m": -10, "x_max_m": 200, "y_max_m": 100}
+#: JSON deployments with a wrong type, key or geometry (issue 33), each written as <name>.json
+BAD_JSON = {
+    "bld5": {"base_stations": _BS4, "region": _REGION, "buildings": 5},
+    "anchorhere": {"base_stations": _BS4, "region": _REGION, "anchor": "here"},
+    "streets7": {"base_stations": _BS4, "region": _REGION, "streets": 7},
+    "stations": {"stations": _BS4, "region": _REGION},
+    "boolx": {"base_stations": [{**_BS4[0], "x_m": True}] + _BS4[1:], "region": _REGION},
+    "textx": {"base_stations": [{**_BS4[0], "x_m": "0"}] + _BS4[1:], "region": _REGION},
+    "line": {"base_stations": [{**b, "y_m": 0.0} for b in _BS4], "region": _REGION},
+    "region5": {"base_stations": _BS4, "region": 5},
 }
 TABLE_COLUMNS = ["trial", "snr_db", "m", "error_m", "est_x_m", "est_y_m", "true_x_m", "true_y_m", "n_los",
                  "los_flags", "link_snr_db", "link_sinr_db", "edge", "certified"]
@@ -39,6 +54,12 @@ def workdir(tmp_path, monkeypatch):
     (tmp_path / "adir").mkdir()
     (tmp_path / "folder.json").mkdir()
     (tmp_path / "folder.html").mkdir()
+    for name, doc in BAD_JSON.items():
+        (tmp_path / f"{name}.json").write_text(json.dumps(doc))
+    (tmp_path / "deep.json").write_text("[" * 200_000)
+    (tmp_path / "extra.csv").write_text(FILES["four.csv"].replace("B,100,0,10,24", "B,100,0,10,24,9"))
+    (tmp_path / "many.csv").write_text("id,x_m,y_m,height_m,power_dbm\n" + "".join(
+        f"B{i},{i % 200 * 7.0},{i // 200 * 7.0},10,24\n" for i in range(40_000)))
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("DPE5G_CACHE", str(tmp_path / "cache"))
     return tmp_path
@@ -83,6 +104,31 @@ BAD = [
     (("deployment", "layout.txt"), "must end in .json or .csv"),
     (("deployment", "watts.csv"), "base station 2 (B): power_dbm must be in [10, 60] dBm"),
     (("deployment", "tall.csv"), "height_m must be in [1.5, 150] m"),
+    (("deployment", "bld5.json"), "bld5.json: buildings must be a list of objects, got int"),
+    (("deployment", "anchorhere.json"), "anchorhere.json: anchor must be an object {lat_deg, lon_deg}"),
+    (("deployment", "streets7.json"), "streets7.json: streets must be a list"),
+    (("deployment", "stations.json"), "stations.json: missing base_stations (it has 'stations', 'region')"),
+    (("deployment", "boolx.json"), "base station 1: x_m must be a number in [-100000, 100000] m, got True"),
+    (("deployment", "textx.json"), "base station 1: x_m must be a number in [-100000, 100000] m, got '0'"),
+    (("deployment", "line.json"), "the 4 base stations lie on one line"),
+    (("deployment", "region5.json"), "region5.json: needs a region {x_min_m, y_min_m, x_max_m, y_max_m}"),
+    (("deployment", "deep.json"), "deep.json: is nested too deeply to be a deployment"),
+    (("deployment", "extra.csv"), "extra.csv: row 3 has more fields than the header"),
+    (("deployment", "many.csv"), "many.csv: holds 40000 base stations; at most 5000 are read"),
+    (RUN + ("--deployment", "bld5.json"), "bld5.json: buildings must be a list of objects, got int"),
+    (("profile", "C", "--delay-spread", "1e-300"), "delay_spread_s=1e-300 s is outside the allowed range [1e-09"),
+    (("scene", "--out", "existing.html"), "--out existing.html: exists; pass --force"),
+    (("scene", "--out", "s" * 300 + ".html"), "--out: the file name is 305 bytes long; at most 200"),
+    (RUN[:-1] + ("r" * 300 + ".csv",), "--out: the file name is 304 bytes long; at most 200"),
+    (RUN + ("--centring", "truth", "--prior-sigma", "-5"), "--prior-sigma applies to --centring prior only"),
+    (RUN + ("--centring", "otdoa", "--prior-sigma", "5"), "--prior-sigma applies to --centring prior only"),
+    (RUN + ("--prior-sigma", "0"), "--prior-sigma must be in (0, 1000] m, got 0.0"),
+    (RUN + ("--prior-sigma", "-5"), "--prior-sigma must be in (0, 1000] m, got -5.0"),
+    (RUN + ("--snr", "10", "10"), "--snr: snrs_db must not repeat an SNR"),
+    (RUN + ("--m", "6", "6"), "--m: m_values must be a non-empty increasing tuple"),
+    (RUN + ("--m", "12", "6"), "--m: m_values must be a non-empty increasing tuple"),
+    (RUN + ("--reuse", "6", "--centring", "truth"), "--reuse 6 needs the honest receiver's certified search: use "
+                                                    "--centring prior or --centring otdoa"),
     # run: every parameter
     (("run",), "required: --trials, --out"),
     (("run", "--trials", "x", "--out", "r.csv"), "argument --trials: invalid int value"),
@@ -103,7 +149,7 @@ BAD = [
     (RUN + ("--centring", "oracle"), "--centring: centring must be one of truth, prior, otdoa"),
     (RUN + ("--delay-spread", "65"), "--delay-spread: delay_spread_s=65 s is outside"),
     (RUN + ("--delay-spread", "-65e-9"), "--delay-spread: delay_spread_s=-6.5e-08 s is outside"),
-    (RUN + ("--prior-sigma", "nan"), "--prior-sigma: prior_scale_m must be finite"),
+    (RUN + ("--prior-sigma", "nan"), "--prior-sigma must be in (0, 1000] m, got nan"),
     (RUN + ("--seed", "-1"), "--seed: seed must be an integer"),
     (RUN + ("--reuse", "5"), "--reuse: prs_reuse must be one of 0, 2, 4, 6, 12"),
     (RUN + ("--deployment", "watts.csv"), "--deployment: deployment file"),
@@ -122,10 +168,11 @@ def test_bad_input_is_one_line_naming_the_parameter_exit_2(args, needle, workdir
     assert lines[0].startswith("dpe5g"), err
     assert sorted(p.name for p in workdir.iterdir()) == before  # nothing written
     assert (workdir / "existing.csv").read_text() == FILES["existing.csv"]
+    assert (workdir / "existing.html").read_text() == FILES["existing.html"]
 
 
 def test_enough_distinct_bad_inputs():
-    assert len({a for a, _ in BAD}) >= 25
+    assert len({a for a, _ in BAD}) >= 75
 
 
 def sub(*args, cwd=None):
@@ -187,7 +234,7 @@ def test_run_defaults_are_the_papers_experiments():
     assert cli.run_experiment(parse(["run", "--trials", "400", "--out", "x.csv"])) == paper.fig9_honest(400)
     truth = parse(["run", "--trials", "7", "--out", "x.csv", "--centring", "truth"])
     assert cli.run_experiment(truth) == paper.fig9_truth(7)
-    mine = cli.run_experiment(parse(["run", "--trials", "7", "--out", "x.csv", "--m", "12", "6", "6", "--taps", "4",
+    mine = cli.run_experiment(parse(["run", "--trials", "7", "--out", "x.csv", "--m", "6", "12", "--taps", "4",
                                      "--delay-spread", "1e-7", "--seed", "3"]))
     assert mine.run.name == "run" and mine.receiver.m_values == (6, 12) and mine.receiver.search.n_taps == 4
     assert mine.run.seed == 3 and mine.receiver.search.method == "bnb"
@@ -196,8 +243,16 @@ def test_run_defaults_are_the_papers_experiments():
 
 
 def read_csv(path):
+    """The rows of a results CSV, after its comment line (``Results.write_csv``), and that line's config."""
     with open(path, newline="") as f:
+        head = f.readline()
+        assert head.startswith("# dpe5g experiment: ")
         return list(csv.DictReader(f))
+
+
+def csv_config(path) -> dict:
+    with open(path) as f:
+        return json.loads(f.readline().removeprefix("# dpe5g experiment: "))
 
 
 def test_run_writes_csv_and_json_and_refuses_to_overwrite(workdir, capsys):
@@ -209,6 +264,9 @@ def test_run_writes_csv_and_json_and_refuses_to_overwrite(workdir, capsys):
     assert list(rows[0]) == TABLE_COLUMNS
     assert len(rows) == 2 * 2 * 1
     assert {(r["trial"], r["snr_db"], r["m"]) for r in rows} == {(t, s, "6") for t in "01" for s in ("10.0", "30.0")}
+    cfg = csv_config(workdir / "r.csv")  # the file says what produced it
+    assert cfg["seed"] == paper.URBAN_SEED and cfg["n_trials"] == 2 and cfg["snrs_db"] == [10.0, 30.0]
+    assert cfg["centring"] == "truth" and cfg["m_values"] == [6]
 
     assert cli.main(args + ["--out", "r.json"]) == 0  # from the cache
     doc = json.loads((workdir / "r.json").read_text())
@@ -291,3 +349,73 @@ def test_warm_fills_the_cache_with_the_books_runs(workdir, monkeypatch, capsys):
     assert out.index("warm2") < out.index("warm1") and "warm: 2 experiments" in out  # the last one first
     for e in tiny:
         assert len(list(store.cache_dir(e).glob("trials-*.npz"))) == 2
+
+
+def test_a_concurrent_writer_of_the_same_out_is_refused_never_replaced(workdir, monkeypatch, capsys):
+    """Two runs with one --out: both pass the "exists" check before computing; the one that finishes second fails
+    with one line (exit 2) and the first one's file stays, byte for byte, with no temporary file left."""
+    from dpe5g import engine
+
+    real = engine.run
+
+    def first_run_finishes_meanwhile(e, **kw):
+        res = real(e, **kw)
+        (workdir / "r.csv").write_text("the other run's results\n")
+        return res
+
+    monkeypatch.setattr(engine, "run", first_run_finishes_meanwhile)
+    assert cli.main(["run", "--trials", "1", "--snr", "20", "--m", "6", "--centring", "truth", "--out", "r.csv"]) == 2
+    err = [ln for ln in capsys.readouterr().err.strip().splitlines() if not ln.startswith("run trials")]  # (tqdm)
+    assert len(err) == 1 and "--out r.csv: another run wrote it meanwhile" in err[0], err
+    assert (workdir / "r.csv").read_text() == "the other run's results\n"
+    assert not list(workdir.glob(".r.csv.*"))
+
+
+def test_output_files_get_the_mode_the_umask_gives(workdir, capsys):
+    """Not mkstemp's 0600: a new --out gets 0666 less the umask, and --force on an existing file too."""
+    args = ["run", "--trials", "1", "--snr", "20", "--m", "6", "--centring", "truth", "--out", "r.json"]
+    old = os.umask(0o027)
+    try:
+        assert cli.main(args) == 0
+        assert (workdir / "r.json").stat().st_mode & 0o777 == 0o640
+        os.umask(0o022)
+        assert cli.main(args + ["--force"]) == 0
+        assert (workdir / "r.json").stat().st_mode & 0o777 == 0o644
+    finally:
+        os.umask(old)
+
+
+def test_ctrl_c_is_one_line_and_exit_130_at_any_moment(workdir):
+    """SIGINT while the command line starts (importing JAX, a second or two) and in the middle of a run (once its
+    first chunk of trials is cached): one line on stderr, exit 130, no traceback, no --out file; the same command
+    then resumes from the cache (the chunks written before the interrupt are not computed again) and writes it.
+    (The interpreter's own start-up, before dpe5g's first line runs, is Python's: a few tens of ms.)"""
+    import signal
+    import time
+
+    args = [sys.executable, "-m", "dpe5g", "run", "--trials", "400", "--snr", "20", "--m", "6", "--centring",
+            "truth", "--out", "r.csv"]
+    chunks = lambda: sorted((workdir / "cache").glob("run-*/trials-*.npz"))
+
+    def importing_jax(p):  # its shared libraries are mapped: dpe5g's own code is running (its handler is set)
+        try:
+            return "jaxlib" in Path(f"/proc/{p.pid}/maps").read_text()
+        except OSError:
+            return False
+
+    for started in (importing_jax, lambda p: bool(chunks())):  # while starting; after the first chunk
+        p = subprocess.Popen(args, cwd=workdir, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        t0 = time.monotonic()
+        while not started(p) and p.poll() is None and time.monotonic() - t0 < 300:
+            time.sleep(0.005)
+        p.send_signal(signal.SIGINT)
+        _, err = p.communicate(timeout=300)
+        lines = [ln for ln in err.splitlines() if ln.strip() and ("trials" not in ln or "interrupted" in ln)]
+        assert p.returncode == 130 and "Traceback" not in err, err  # (not tqdm's bar)
+        assert len(lines) == 1 and "interrupted" in lines[0], err
+        assert not (workdir / "r.csv").exists() and not list(workdir.glob(".r.csv.*"))
+    done = {c.name: c.stat().st_mtime_ns for c in chunks()}
+    assert 0 < len(done) < 4
+    r = subprocess.run(args, cwd=workdir, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0 and (workdir / "r.csv").exists(), r.stderr
+    assert all(c.stat().st_mtime_ns == done[c.name] for c in chunks() if c.name in done)  # resumed, not redone

@@ -171,7 +171,7 @@ def test_two_of_four_and_link_budget_modes(tmp_path):
     assert len(rows) == 4 and {"trial", "snr_db", "m", "error_m", "n_los", "edge", "otdoa_first_path_error_m",
                               "otdoa_peak_ok"} <= set(rows[0])
     r.write_csv(tmp_path / "t.csv")
-    assert (tmp_path / "t.csv").read_text().count("\n") == 5
+    assert (tmp_path / "t.csv").read_text().count("\n") == 6  # the config line, the header, 4 rows
     assert sorted(rows[0]["los_flags"]) == ["L", "L", "N", "N"]
     r.write_json(tmp_path / "t.json")
     doc = json.loads((tmp_path / "t.json").read_text())

@@ -93,21 +93,25 @@ def _write(tmp_path, name, text):
     ("d.json", "{not json", "not valid JSON"),
     ("d.json", json.dumps({"base_stations": [{"x_m": 0, "y_m": 0, "height_m": 10, "power_dbm": 24}] * 3}),
      "less than 0.5 m apart"),
-    ("d.json", json.dumps({"base_stations": [{"x_m": i * 50, "y_m": 0, "height_m": 10, "power_dbm": 24}
+    ("d.json", json.dumps({"base_stations": [{"x_m": i * 50, "y_m": i * i * 10, "height_m": 10, "power_dbm": 24}
                                              for i in range(3)]}), "needs a region"),
-    ("d.json", json.dumps({"base_stations": [{"x_m": i * 50, "y_m": 0, "height_m": 10, "power_dbm": 24}
+    ("d.json", json.dumps({"base_stations": [{"x_m": i * 50, "y_m": i * i * 10, "height_m": 10, "power_dbm": 24}
                                              for i in range(3)],
                            "region": {"x_min_m": 0, "y_min_m": 0, "x_max_m": 60, "y_max_m": 60}}),
      "outside the region"),
     ("d.txt", "x", "must end in .json or .csv"),
     ("d.json", json.dumps({"base_stations": [{"x_m": i * 50, "y_m": 0, "height_m": 10, "power_dbm": 24}
+                                             for i in range(4)],
+                           "region": {"x_min_m": 0, "y_min_m": -10, "x_max_m": 200, "y_max_m": 10}}),
+     "lie on one line"),
+    ("d.json", json.dumps({"base_stations": [{"x_m": i * 50, "y_m": i * i * 10, "height_m": 10, "power_dbm": 24}
                                              for i in range(3)],
-                           "region": {"x_min_m": 0, "y_min_m": -10, "x_max_m": 110, "y_max_m": 10},
+                           "region": {"x_min_m": 0, "y_min_m": -10, "x_max_m": 110, "y_max_m": 50},
                            "ue_region": {"x_min_m": 100, "y_min_m": -5, "x_max_m": 120, "y_max_m": 5}}),
      "ue_region .* must lie inside the region"),
-    ("d.json", json.dumps({"base_stations": [{"x_m": i * 50, "y_m": 0, "height_m": 10, "power_dbm": 24}
+    ("d.json", json.dumps({"base_stations": [{"x_m": i * 50, "y_m": i * i * 10, "height_m": 10, "power_dbm": 24}
                                              for i in range(3)],
-                           "region": {"x_min_m": 0, "y_min_m": -10, "x_max_m": 110, "y_max_m": 10},
+                           "region": {"x_min_m": 0, "y_min_m": -10, "x_max_m": 110, "y_max_m": 50},
                            "ue_region": [0, 0, 5, 5]}), "ue_region must be an object"),
 ])
 def test_malformed_deployment_files(tmp_path, name, text, needle):
