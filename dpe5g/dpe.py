@@ -65,6 +65,10 @@ def fix(y, prs, bs_xyz, center_m, cfg: SearchConfig = SearchConfig(), num: Numer
                          f"{center_m.shape}")
     if not bool(jnp.all(jnp.isfinite(center_m))) or not bool(jnp.all(jnp.isfinite(bs_xyz))):
         raise ValueError("center_m and bs_xyz must be finite")
+    if not bool(jnp.all(jnp.isfinite(y))) or not bool(jnp.all(jnp.isfinite(prs))):
+        raise ValueError("y and prs must be finite (a NaN or inf sample would make every cost NaN)")
+    if bool(jnp.any(jnp.all(prs == 0, axis=-1))):
+        raise ValueError("prs must not be all zero on a link (its correlogram would be empty)")
     batch_size = _checks.integer("batch_size", batch_size, 1, 1 << 16)
     fn = partial(_fix_one, cfg=cfg, num=num)
     lead = y.shape[:-2]

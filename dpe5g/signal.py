@@ -51,7 +51,9 @@ def unit_phasor(phase) -> jax.Array:
 
 
 def noise_variance(snr_db, prs) -> jax.Array:
-    """σ² of the complex AWGN for per-sample SNR ``snr_db`` (dB, scalar or (M,)), see the module docstring."""
+    """σ² of the complex AWGN for per-sample SNR ``snr_db`` (dB, scalar or (M,), in [-50, 100]), see the module
+    docstring."""
+    _checks.values_in_range("snr_db", snr_db, -50.0, 100.0, "dB")
     pilot_power = jnp.mean(jnp.abs(jnp.asarray(prs)) ** 2, axis=-1)
     return pilot_power * 10.0 ** (-jnp.asarray(snr_db) / 10.0)
 
@@ -129,6 +131,7 @@ def awgn(key: jax.Array, shape, variance) -> jax.Array:
     most of the Monte Carlo draws' time on this CPU): each is a Gaussian sample to float32 round-off (~6e-8
     relative), with the tails cut where float32 uniforms end, |x| ≲ 5.4 (a probability of ~7e-8 per sample), far
     below what any figure of the book resolves."""
+    _checks.values_in_range("variance", variance, 0.0, np.inf)
     x = jax.random.normal(key, (*shape, 2), jnp.float32).astype(jnp.float64)
     z = jax.lax.complex(x[..., 0], x[..., 1])
     return jnp.sqrt(jnp.asarray(variance) / 2.0)[..., None] * z

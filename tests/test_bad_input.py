@@ -42,6 +42,8 @@ ENTRY_POINTS = [
     ("experiment K", lambda v: experiment.Scenario(k_factor_db=v).k_factor_db, "k_factor_db", -30.0, 60.0),
     ("experiment prior", lambda v: experiment.Receiver(prior_scale_m=v).prior_scale_m, "prior_scale_m", 0.0, 1000.0),
     ("experiment snrs", lambda v: experiment.Links(snrs_db=(v,)).snrs_db, "snr_db", -50.0, 100.0),
+    ("noise_variance", lambda v: signal.noise_variance(v, np.ones(8)), "snr_db", -50.0, 100.0),
+    ("awgn", lambda v: np.abs(signal.awgn(KEY, (2, 8), v)), "variance", 0.0, 1e308),
 ]
 
 #: values of every class the issue names; the wrong unit: nanoseconds, GHz, kilometres typed where the base unit is
@@ -83,3 +85,22 @@ def test_a_traced_call_is_not_checked_but_its_inputs_were():
     before tracing), and the numbers are the untraced call's."""
     d = np.array([5.0, 30.0, 300.0])
     np.testing.assert_array_equal(jax.jit(scenario.los_probability)(d), scenario.los_probability(d))
+
+
+def test_dpe_fix_refuses_nan_samples_and_empty_pilots():
+    """The public fix (``dpe.fix``) on a user's signals: a NaN sample or a link whose pilots are all zero is a
+    ValueError, not a NaN fix."""
+    from dpe5g import dpe, nr
+
+    prs = np.asarray(nr.prs_matrix(range(3)))
+    y = np.array(prs)
+    bs = np.array([[0.0, 0.0, 10.0], [100.0, 0.0, 10.0], [0.0, 100.0, 10.0]])
+    centre = np.array([50.0, 50.0, 2.0, 0.0])
+    bad = y.copy()
+    bad[1, 5] = np.nan
+    with pytest.raises(ValueError, match="y and prs must be finite"):
+        dpe.fix(bad, prs, bs, centre)
+    empty = prs.copy()
+    empty[2] = 0
+    with pytest.raises(ValueError, match="prs must not be all zero"):
+        dpe.fix(y, empty, bs, centre)

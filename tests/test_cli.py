@@ -419,3 +419,12 @@ def test_ctrl_c_is_one_line_and_exit_130_at_any_moment(workdir):
     r = subprocess.run(args, cwd=workdir, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0 and (workdir / "r.csv").exists(), r.stderr
     assert all(c.stat().st_mtime_ns == done[c.name] for c in chunks() if c.name in done)  # resumed, not redone
+
+
+def test_a_cache_that_is_not_a_folder_is_named(workdir, monkeypatch, capsys):
+    """DPE5G_CACHE pointing at a file: one line naming the variable, exit 2, no result file."""
+    monkeypatch.setenv("DPE5G_CACHE", str(workdir / "afile"))
+    assert cli.main(["run", "--trials", "1", "--snr", "20", "--m", "6", "--centring", "truth", "--out", "r.csv"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"DPE5G_CACHE={workdir / 'afile'}: cannot write there" in err[0], err
+    assert not (workdir / "r.csv").exists() and (workdir / "afile").read_text() == FILES["afile"]
