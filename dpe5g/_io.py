@@ -58,6 +58,21 @@ def output_file(option: str, path: str, suffixes: tuple[str, ...], force: bool |
     return p
 
 
+#: the temporary files ``atomic_target`` is writing in this process, which ``remove_in_flight`` deletes when the
+#: command line is interrupted (it then ends at once, without unwinding)
+_IN_FLIGHT: set[str] = set()
+
+
+def remove_in_flight() -> None:
+    """Delete this process's temporary files that are still being written (``atomic_target``), so an interrupted
+    command leaves no partial file; the finished files are whole (each was moved into place in one step)."""
+    for tmp in list(_IN_FLIGHT):
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+
+
 @contextmanager
 def atomic_target(path, exclusive: bool = False):
     """Yield a temporary path beside ``path`` (``.<name>.<pid>.…tmp``, pid the writing process) to write to; on
@@ -72,6 +87,7 @@ def atomic_target(path, exclusive: bool = False):
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp")
     os.close(fd)
+    _IN_FLIGHT.add(tmp)
     try:
         yield Path(tmp)
         os.chmod(tmp, 0o666 & ~umask())
@@ -84,6 +100,8 @@ def atomic_target(path, exclusive: bool = False):
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+    finally:
+        _IN_FLIGHT.discard(tmp)
 
 
 def _link_new(tmp, path: Path) -> None:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import re
 import signal as os_signal  # (the name signal is dpe5g.signal)
 import sys
@@ -448,13 +449,28 @@ def _one_line(text: str) -> str:
     return " ".join(str(text).split())
 
 
+def _interrupted(prog: str):
+    """Ctrl-C, at any moment of a command: the files being written are removed (every finished file is whole:
+    ``_io.atomic_target``), one line, exit code 130 at once.  Not a KeyboardInterrupt: raised inside a callback
+    (JAX's garbage collection hook) or while threads finish, it was swallowed or ended the process unexplained."""
+    from ._io import remove_in_flight
+
+    remove_in_flight()
+    sys.stdout.flush()
+    bars = getattr(getattr(sys.modules.get("tqdm"), "tqdm", None), "_instances", None)  # a progress bar is drawn:
+    sys.stderr.write("\n" if bars else "")  # end its line first
+    sys.stderr.write(f"{prog}: interrupted (finished Monte Carlo chunks are cached; the same command resumes)\n")
+    sys.stderr.flush()
+    os._exit(130)
+
+
 def main(argv=None) -> int:
     """Run the command line; returns the exit code (0, or 2 after one line on stderr for bad input)."""
     argv = sys.argv[1:] if argv is None else list(argv)
-    if threading.current_thread() is threading.main_thread():  # from here on Ctrl-C is handled below
-        os_signal.signal(os_signal.SIGINT, os_signal.default_int_handler)
     parser = build_parser()
     prog = "dpe5g"
+    on_main = threading.current_thread() is threading.main_thread()
+    previous = os_signal.signal(os_signal.SIGINT, lambda signum, frame: _interrupted(prog)) if on_main else None
     try:
         args = parser.parse_args(_numbers_as_values(argv))
         prog = f"dpe5g {args.command}"
@@ -466,10 +482,13 @@ def main(argv=None) -> int:
     except OSError as e:
         where = f": {e.filename}" if e.filename else ""
         print(f"{prog}: error: {_one_line(e.strerror or e)}{where}", file=sys.stderr)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # (called from another thread, where the handler above cannot be set)
         print(f"{prog}: interrupted (finished Monte Carlo chunks are cached; the same command resumes)",
               file=sys.stderr)
         return 130
+    finally:  # give a caller in this process its handler back; the command line's start-up handler stays replaced
+        if on_main and getattr(previous, "__module__", None) != "dpe5g":
+            os_signal.signal(os_signal.SIGINT, previous)
     return 2
 
 
