@@ -56,3 +56,11 @@ def test_chapters_number_equations_as_the_compiled_paper():
         tags = [int(n) for n in re.findall(r"\\tag\{(\d+)\}", text)]
         cited = [int(n) for n in re.findall(r"[Ee]qs?\. \((\d+)\)", text)]
         assert all(1 <= n <= N_EQUATIONS for n in tags + cited), f"{path.name}: cites an equation the paper lacks"
+
+
+def test_the_api_reference_lists_every_public_module():
+    """book/api.md documents (automodule) every module of dpe5g a user can import, except the command line's."""
+    root = Path(__file__).resolve().parent.parent
+    modules = {p.stem for p in (root / "dpe5g").glob("*.py") if not p.stem.startswith("_")} - {"cli"}
+    listed = set(re.findall(r"^\.\. automodule:: dpe5g\.(\w+)$", (root / "book" / "api.md").read_text(), re.M))
+    assert listed == modules, (sorted(modules - listed), sorted(listed - modules))

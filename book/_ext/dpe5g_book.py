@@ -141,8 +141,16 @@ def _copy_notebooks(app, exception):
         nbformat.write(nb, dest)
 
 
+def _verbatim_docstring(app, what, name, obj, options, lines):
+    """The API reference shows each docstring as written (a literal block): they are plain text with Unicode
+    maths (|ĥ(τ)|², (..., M, N)), which reST would read as markup."""
+    if lines:
+        lines[:] = ["::", ""] + ["    " + ln for ln in lines] + [""]
+
+
 def setup(app):
     app.add_config_value("dpe5g_cache_sources", [], "env")
+    app.connect("autodoc-process-docstring", _verbatim_docstring)
     app.connect("builder-inited", _sync, priority=900)  # after MyST-NB has set its execution cache path
     app.connect("env-get-outdated", _outdated)
     app.connect("html-page-context", _page_context)
