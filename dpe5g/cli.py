@@ -141,6 +141,8 @@ def _run(args) -> int:
     except FileExistsError:
         raise ValueError(f"--out {args.out}: another run wrote it meanwhile; the results of this one are in the "
                          f"cache: rerun with another --out, or --force to overwrite it") from None
+    if threading.current_thread() is threading.main_thread():  # written: Ctrl-C now would only cut the summary
+        os_signal.signal(os_signal.SIGINT, os_signal.SIG_IGN)
     n_rows = e.run.n_trials * len(e.links.snrs_db) * len(e.receiver.m_values)
     print(report.run_summary(res))
     print(f"wrote {out} ({n_rows} rows: one per trial, SNR and M)")
@@ -327,12 +329,10 @@ def _add_run(sub) -> None:
     paper_e = Experiment()
     r = sub.add_parser(
         "run", help="run a Monte Carlo DPE study (RMSE vs SNR and M) and write its per-trial results",
-        description="Run a Monte Carlo DPE study on a deployment: per trial a UE uniform over the region, its M "
-                    "nearest BSs, LoS from eq. (11), TDL-D (LoS) / TDL-C (NLoS), a clock bias, then a DPE fix per "
-                    "SNR and M.  Defaults are the paper's Fig. 9 set-up with the honest receiver; only --trials and "
-                    "--out have no default.  Results are cached (.cache/montecarlo, or DPE5G_CACHE): a rerun, or "
-                    "an interrupted run restarted, computes only the missing trials.  Prints an RMSE table (SNR x "
-                    "M) at the end.",
+        description="Run a Monte Carlo DPE study on a deployment: per trial a UE in the region, its M nearest BSs, "
+                    "LoS from eq. (11), TDL-D / TDL-C, a clock bias, then a DPE fix per SNR and M (defaults: Fig. 9 "
+                    "with the honest receiver).  Results are cached (.cache/montecarlo, or DPE5G_CACHE): a rerun, or "
+                    "an interrupted run restarted, computes only the missing trials.  Prints an RMSE table.",
         epilog=f"Cost: a truth-centred fix is a few ms per (SNR, M); an honest one (prior, otdoa) tens of ms "
                f"(certified search), plus a compile of 10-60 s per run.  The paper's Fig. 9 uses "
                f"{paper.FIG9_HONEST_TRIALS} (honest) and {paper.FIG9_TRUTH_TRIALS} (truth) trials; with exactly "
@@ -394,12 +394,9 @@ def _add_other_commands(sub) -> None:
     f.set_defaults(func=_figures)
 
     w = sub.add_parser("warm", help="fill the Monte Carlo cache with every experiment the book runs",
-                       description="Run (or load) every Monte Carlo experiment the book's chapters run "
-                                   "(dpe5g.paper.book_experiments) into the cache, the last chapter's first and each "
-                                   "experiment's trials last first, so that a book build running at the same time "
-                                   "meets it in the middle; the chapters then read the cache.  Results are the same "
-                                   "as the book's own runs to the bit (trial t depends only on the seed and t).  "
-                                   "make does not start it: on 2 CPUs it only contends with the book's own runs.")
+                       description="Run (or load) every experiment of dpe5g.paper.book_experiments into the cache, "
+                                   "last first, so that a book build running at the same time meets it in the middle. "
+                                   "The results are the book's own to the bit (trial t depends on the seed and t).")
     w.add_argument("--forward", action="store_true", help="run in the book's order instead")
     w.add_argument("--progress", action="store_true", help="a progress bar per experiment on stderr")
     _add_cluster_options(w)
@@ -445,8 +442,7 @@ def _add_other_commands(sub) -> None:
     s.set_defaults(func=_scene)
 
 
-def _one_line(text: str) -> str:
-    return " ".join(str(text).split())
+_one_line = lambda text: " ".join(str(text).split())  # noqa: E731  (a message on one line)
 
 
 def _interrupted(prog: str):
@@ -492,5 +488,13 @@ def main(argv=None) -> int:
     return 2
 
 
+def entry() -> None:
+    """The ``dpe5g`` script and ``python -m dpe5g``: ``main``, then exit at once (output flushed, files closed),
+    skipping the interpreter's shutdown, where a Ctrl-C would end the process with no word."""
+    code = main()
+    sys.stdout.flush(), sys.stderr.flush()
+    os._exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

@@ -150,6 +150,7 @@ def _verbatim_docstring(app, what, name, obj, options, lines):
 
 def setup(app):
     app.add_config_value("dpe5g_cache_sources", [], "env")
+    app.setup_extension("sphinx.ext.autodoc")  # (the API reference; its event below)
     app.connect("autodoc-process-docstring", _verbatim_docstring)
     app.connect("builder-inited", _sync, priority=900)  # after MyST-NB has set its execution cache path
     app.connect("env-get-outdated", _outdated)
