@@ -29,7 +29,7 @@ VERIFY_RTOL = 1e-9
 #: within VERIFY_RTOL absolute (a gap of 1e-7 recomputed on an AVX-512 CPU differs from the store by 1.4e-16)
 ABSOLUTE_FIELDS = ("gap",)
 #: the sample ``make test`` recomputes (``tests/test_store.py``, ``dpe5g verify``): two trials of every experiment in
-#: three random families; the compiles of a family are its cost (README, "The results store")
+#: three random families; the compiles of a family are its cost (book/running.md, "The results store")
 SAMPLE_FAMILIES, SAMPLE_TRIALS = 3, 2
 
 

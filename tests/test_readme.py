@@ -1,4 +1,5 @@
-"""README.md's result and benchmark tables are generated from the committed data; they must not drift."""
+"""README.md's and book/running.md's result and benchmark tables are generated from the committed data; they must
+not drift; README.md stays short (at most 120 lines) and names no path outside the repository."""
 
 import subprocess
 import sys
@@ -19,12 +20,21 @@ def test_readme_check_notices_a_stale_table(tmp_path, monkeypatch):
     spec = importlib.util.spec_from_file_location("readme_tables", SCRIPT)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
-    stale = (ROOT / "README.md").read_text().replace("<!-- begin:fig9 -->\n", "<!-- begin:fig9 -->\n| 99 |\n", 1)
-    fake = tmp_path / "README.md"
-    fake.write_text(stale)
-    monkeypatch.setattr(mod, "README", fake)
-    assert mod.main(["--check"]) == 1
-    assert mod.main([]) == 0 and fake.read_text() == (ROOT / "README.md").read_text()
+    for attr, name, block in (("README", "README.md", "found"), ("RUNNING", "running.md", "fig9")):
+        real = getattr(mod, attr)
+        stale = real.read_text().replace(f"<!-- begin:{block} -->\n", f"<!-- begin:{block} -->\n| 99 |\n", 1)
+        fake = tmp_path / name
+        fake.write_text(stale)
+        monkeypatch.setattr(mod, attr, fake)
+        assert mod.main(["--check"]) == 1
+        assert mod.main([]) == 0 and fake.read_text() == real.read_text()
+        monkeypatch.setattr(mod, attr, real)
+
+
+def test_readme_is_short_and_stays_in_the_repository():
+    text = (ROOT / "README.md").read_text()
+    assert len(text.splitlines()) <= 120
+    assert "../" not in text
 
 
 def test_fresh_check_log_parsing():
