@@ -59,7 +59,7 @@ def plot_tdl(payload: dict):
     t_ns = np.asarray(d["grid_ns"])
     cir = np.asarray(d["grid_abs"])
     with style():
-        fig = Figure(figsize=(8.0, 3.0), layout="constrained")
+        fig = Figure(figsize=(8.0, 3.9), layout="constrained")
         ax_a, ax_b = fig.subplots(1, 2)
         nlos = ~los
         ml, _, _ = ax_a.stem(delays_ns[nlos], np.abs(gains[nlos]), basefmt=" ", label="taps |$h_l$|")
@@ -72,7 +72,7 @@ def plot_tdl(payload: dict):
         ax_a.set_xlabel("delay (ns)")
         ax_a.set_ylabel("amplitude")
         ax_a.set_title(f"(a) CIR, one draw (seed {payload['seed']})")
-        ax_a.legend(fontsize=7, loc="upper right")
+        ax_a.legend(fontsize=9, loc="upper center", bbox_to_anchor=(0.5, -0.22), ncol=1, frameon=False)
         ax_b.stem(delays_ns, pdp, bottom=-40, basefmt=" ")
         ax_b.set_ylim(-40, 3)
         ax_b.set_xlabel("delay (ns)")
@@ -293,6 +293,6 @@ def plot_plateau(payload: dict):
             ax.set_ylim(0, 1.05)
             ax.set_xlabel("candidate ToA offset c(τ − τ₀) (m)")
             ax.set_title(titles[name], fontsize=9)
-            ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2, frameon=False)
+            ax.legend(fontsize=9, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2, frameon=False)
         axes[0].set_ylabel("cost of one link / its maximum")
     return fig

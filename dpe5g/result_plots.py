@@ -197,7 +197,7 @@ def plot_window_study(rows: list[dict]):
             ax.grid(True, which="both", alpha=0.3)
             ax.set_xlabel("receiver window L (taps)")
             ax.set_ylabel(lab)
-        axes[1].legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False)
+        axes[1].legend(fontsize=9, loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False)
     return fig
 
 
@@ -248,17 +248,20 @@ def format_claim(claim_id: str, value: float) -> str:
 
 def plot_readings(payload: dict):
     """The readings table (Chapter 7): one row per reading of the paper, one column per claim of Figs. 9–10, each
-    cell its value, green where it meets the claim and red where it differs."""
+    cell its value with ✓ where it meets the claim (blue) and ✗ where it differs (orange): a colour-blind-safe pair,
+    and the mark carries the verdict without the colour."""
     claims, data = payload["config"]["claims"], payload["data"]
     ids, names = payload["config"]["claim_order"], payload["config"]["reading_order"]
     ok = np.array([[data[n]["reproduced"][c] for c in ids] for n in names], dtype=float)
     with style():
         fig = Figure(figsize=(12.0, 0.55 * len(names) + 2.6), layout="constrained")
         ax = fig.subplots()
-        ax.imshow(ok, cmap=ListedColormap(["#f4c7c3", "#c6e9c6"]), vmin=0, vmax=1, aspect="auto")
+        ax.imshow(ok, cmap=ListedColormap(["#fdd0a2", "#c6dbef"]), vmin=0, vmax=1, aspect="auto")
         for i, n in enumerate(names):
             for j, c in enumerate(ids):
-                ax.text(j, i, format_claim(c, data[n]["values"][c]), ha="center", va="center", fontsize=9)
+                mark = "✓" if ok[i, j] else "✗"
+                ax.text(j, i, f"{format_claim(c, data[n]['values'][c])} {mark}", ha="center", va="center",
+                        fontsize=10)
         ax.set_xticks(range(len(ids)), [claims[c]["short"] for c in ids], rotation=30, ha="right", fontsize=9)
         ax.set_yticks(range(len(names)), [data[n]["short"] for n in names], fontsize=9)
         ax.set_xticks(np.arange(len(ids) + 1) - 0.5, minor=True)
@@ -266,8 +269,8 @@ def plot_readings(payload: dict):
         ax.grid(which="major", visible=False)
         ax.grid(which="minor", color="w", lw=2)
         ax.tick_params(which="both", length=0)
-        ax.set_title("Which reading of the paper reproduces which claim (green: reproduced, red: differs)",
-                     fontsize=10)
+        ax.set_title("Which reading of the paper reproduces which claim (✓ blue: reproduced, ✗ orange: differs)",
+                     fontsize=11)
     return fig
 
 
