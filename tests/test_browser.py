@@ -173,3 +173,17 @@ def test_every_figure_is_numbered_and_captioned(server, browser, page_path):
         assert "Reproduces the paper's Fig. " in f["caption"] or "not in the paper" in f["caption"], f["caption"][:80]
         assert f["alt"] is None or not re.fullmatch(r"[0-9a-f]{32,}(\.png)?", f["alt"]), f"{page_path}: hash alt text"
     page.close()
+
+
+@pytest.mark.parametrize("page_path", ["book/intro.html", "book/running.html", "book/api.html"])
+def test_no_code_block_runs_off_the_page(server, browser, page_path):
+    """The landing page, the running page and the API reference: every code or text block wraps inside its box
+    (its content is no wider than the box), so no command or docstring is cut off at the right."""
+    page = browser.new_page(viewport={"width": 1400, "height": 1000})
+    try:
+        page.goto(f"{server}/{page_path}")
+        wide = page.evaluate("""() => [...document.querySelectorAll('article pre')]
+            .filter(p => p.scrollWidth > p.clientWidth + 1).map(p => p.textContent.slice(0, 80))""")
+    finally:
+        page.close()
+    assert not wide, f"{page_path}: {len(wide)} block(s) scroll sideways, e.g. {wide[0]!r}"
