@@ -175,10 +175,10 @@ def test_every_figure_is_numbered_and_captioned(server, browser, page_path):
     page.close()
 
 
-@pytest.mark.parametrize("page_path", ["book/intro.html", "book/running.html", "book/api.html"])
+@pytest.mark.parametrize("page_path", pages() or ["index.html"])
 def test_no_code_block_runs_off_the_page(server, browser, page_path):
-    """The landing page, the running page and the API reference: every code or text block wraps inside its box
-    (its content is no wider than the box), so no command or docstring is cut off at the right."""
+    """Every page: every code or text block wraps inside its box (its content is no wider than the box), so no
+    command, code line or docstring is cut off at the right."""
     page = browser.new_page(viewport={"width": 1400, "height": 1000})
     try:
         page.goto(f"{server}/{page_path}")

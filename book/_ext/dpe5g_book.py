@@ -69,7 +69,20 @@ def _sync(app) -> None:
 def _outdated(app, env, added, changed, removed):
     if getattr(app, "_dpe5g_sources_changed", False):
         return sorted(env.found_docs - set(added) - set(removed))
+    if _static_changed(app):  # Sphinx copies the static files only when it writes a page: write the root one
+        return [app.config.root_doc]
     return []
+
+
+def _static_changed(app) -> bool:
+    """Whether a file of the book's html_static_path is newer than its copy in the built book."""
+    src = Path(app.srcdir)
+    for folder in app.config.html_static_path:
+        for f in (src / folder).glob("*"):
+            built = Path(app.outdir) / "_static" / f.name
+            if f.is_file() and (not built.exists() or built.stat().st_mtime < f.stat().st_mtime):
+                return True
+    return False
 
 
 def _notebook(app, docname: str) -> Path:
