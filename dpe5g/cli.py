@@ -285,11 +285,9 @@ def _deployment(args) -> int:
 
     from . import deployment
 
-    from scipy.spatial import cKDTree
-
     dep = deployment.named(args.path)
     x0, y0, x1, y1 = dep.region
-    nearest = cKDTree(dep.bs_xyz[:, :2]).query(dep.bs_xyz[:, :2], k=2)[0][:, 1]  # (not n × n distances)
+    nearest = deployment.nearest_neighbours(dep.bs_xyz[:, :2])[0]
     print(f"{dep.name}: {dep.n_bs} BSs, region {x1 - x0:.1f} m x {y1 - y0:.1f} m = {dep.area_m2:,.0f} m2, "
           f"{dep.n_bs / dep.area_m2 * 1e6:.1f} BSs per km2, nearest-neighbour spacing {np.median(nearest):.1f} m "
           f"(median), {len(dep.buildings)} buildings, UE height {dep.ue_height_m:g} m"
@@ -307,7 +305,8 @@ def _scene(args) -> int:
         path = scene3d.export(figures.compute("fig07_deployment_map"), figures.compute("fig08_urban_correlogram"), out,
                               exclusive=not args.force)
     except FileExistsError:
-        raise ValueError(f"--out {args.out}: another process wrote it meanwhile; pass --force to overwrite it") from None
+        raise ValueError(f"--out {args.out}: another process wrote it meanwhile; pass --force to overwrite "
+                         f"it") from None
     print(f"wrote {path}")
     return 0
 
@@ -432,7 +431,8 @@ def _add_other_commands(sub) -> None:
     t.set_defaults(func=_profile)
 
     d = sub.add_parser("deployment", help="check a deployment file (JSON or CSV) and print a summary")
-    d.add_argument("path", nargs="?", default="tst", help="path, or a packaged deployment: 'tst' (default), 'ring', 'ring-wide'")
+    d.add_argument("path", nargs="?", default="tst",
+                   help="path, or a packaged deployment: 'tst' (default), 'ring', 'ring-wide'")
     d.set_defaults(func=_deployment)
 
     s = sub.add_parser("scene", help="export the meshcat 3-D scene of the urban example as a static HTML file")

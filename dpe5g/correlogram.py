@@ -16,10 +16,10 @@ c_m(τ) = N Σ_{l<L} |ĥ_m(τ + l T_s) / √N|² (Chapter 3 derives it), and the
 
 Precision: ``energy_grid`` follows the dtype of its input.  ``benchmarks/bench_engine.py`` measures it in complex64
 against complex128 on the same signals — the time of each and the ToA error complex64 adds to the detector's peak
-(the engine table of book/running.md): complex64 is about twice as fast and its ToA error is far below a millimetre, so the
-receivers' grid correlograms (``GRID_DTYPE``: the grid search and the OTDoA detector) use it.  The spline
-coefficients of the certified search stay float64 (its certificate compares costs to 1e-4 relative, and its bounds
-must hold), and so do the book's exactness checks (``correlogram`` on complex128 samples).
+(the engine table of book/running.md): complex64 is about twice as fast and its ToA error is far below a
+millimetre, so the receivers' grid correlograms (``GRID_DTYPE``: the grid search and the OTDoA detector) use it.
+The spline coefficients of the certified search stay float64 (its certificate compares costs to 1e-4 relative, and
+its bounds must hold), and so do the book's exactness checks (``correlogram`` on complex128 samples).
 
 ``correlogram`` and ``spline_correlogram`` are the validated entry points for time-domain samples y (the book's
 checks); the engine calls the traceable ``energy_grid`` / ``spline_coefficients`` on ``ls_spectrum`` directly.

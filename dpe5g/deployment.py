@@ -27,7 +27,8 @@ TST_FILE = DATA_DIR / "tst_deployment.json"
 #: the deployments packaged with dpe5g, by name (``builtin``): our Tsim Sha Tsui-like layout, and the rings of
 #: Chapter 3's studies (8 BSs on a 150 m circle, the UE in a 10 m or a 100 m square at its centre), made by
 #: ``scripts/make_ring.py``
-BUILTIN = {"tst": TST_FILE, "ring": DATA_DIR / "ring_deployment.json", "ring-wide": DATA_DIR / "ring_wide_deployment.json"}
+BUILTIN = {"tst": TST_FILE, "ring": DATA_DIR / "ring_deployment.json",
+           "ring-wide": DATA_DIR / "ring_wide_deployment.json"}
 
 #: allowed ranges for a deployment's numbers
 BS_HEIGHT_RANGE_M = (1.5, 150.0)  # TR 38.901 UMi: 10 m; the formulas need h_BS > h_E = 1 m
@@ -209,15 +210,22 @@ def _base_stations(source, rows, text: bool = False):
     return tuple(ids), xyz, np.array(pw)
 
 
-def _check_geometry(source, ids, xy) -> None:
-    """The BSs stand at least ``MIN_SPACING_M`` apart (nearest neighbours by a k-d tree: n log n, not n²) and not
-    all on one line (their RMS distance from the best line at least ``MIN_SPACING_M``)."""
+def nearest_neighbours(xy) -> tuple[np.ndarray, np.ndarray]:
+    """Each BS's nearest other BS: distances (B,) m and indices (B,), for BS positions xy (B, 2) m, by a k-d tree
+    (B log B, not a B × B distance matrix)."""
     from scipy.spatial import cKDTree
 
     d, j = cKDTree(xy).query(xy, k=2)
-    i = int(np.argmin(d[:, 1]))
-    if d[i, 1] < MIN_SPACING_M:
-        _fail(source, f"base stations {ids[i]} and {ids[j[i, 1]]} are less than {MIN_SPACING_M:g} m apart")
+    return d[:, 1], j[:, 1]
+
+
+def _check_geometry(source, ids, xy) -> None:
+    """The BSs stand at least ``MIN_SPACING_M`` apart (nearest neighbours by a k-d tree: n log n, not n²) and not
+    all on one line (their RMS distance from the best line at least ``MIN_SPACING_M``)."""
+    d, j = nearest_neighbours(xy)
+    i = int(np.argmin(d))
+    if d[i] < MIN_SPACING_M:
+        _fail(source, f"base stations {ids[i]} and {ids[j[i]]} are less than {MIN_SPACING_M:g} m apart")
     spread = np.linalg.svd(xy - xy.mean(axis=0), compute_uv=False)[-1] / np.sqrt(len(xy))
     if spread < MIN_SPACING_M:
         _fail(source, f"the {len(ids)} base stations lie on one line (their RMS distance from it is {spread:.2g} m, "

@@ -199,8 +199,8 @@ class _LinkModel:
         self.snrs = jnp.asarray(e.links.snrs_db if e.links.snr_mode != "link_budget" else (0.0,), dtype=jnp.float64)
 
     def place_ue(self, k_ue):
-        """The UE (3,) m uniform over the UE's area (``Deployment.ue_bounds``) at the UE height, its 2-D distance (B,) m to every BS and the BSs
-        ordered nearest first (B,)."""
+        """The UE (3,) m uniform over the UE's area (``Deployment.ue_bounds``) at the UE height, its 2-D distance
+        (B,) m to every BS and the BSs ordered nearest first (B,)."""
         x0, y0, x1, y1 = self.dep.ue_bounds
         xy = jax.random.uniform(k_ue, (2,), minval=jnp.array([x0, y0]), maxval=jnp.array([x1, y1]))
         ue = jnp.concatenate([xy, jnp.array([self.dep.ue_height_m])])

@@ -335,7 +335,8 @@ def ring_window_experiments(n_trials: int = RING_TRIALS, taps=RING_TAPS) -> dict
     search centred on the truth (the paper's set-up) without polish, c δt searched over ±``RING_BIAS_HALF_WIDTH_M``
     m, the same trials (seed ``RING_WINDOW_SEED``) for every L."""
     return {n: _ring(f"ring-window-L{n}", "ring", RING_WINDOW_SEED, n_trials,
-                     search=search_config.SearchConfig(n_taps=n, polish=False, bias_half_width_m=RING_BIAS_HALF_WIDTH_M))
+                     search=search_config.SearchConfig(n_taps=n, polish=False,
+                                                       bias_half_width_m=RING_BIAS_HALF_WIDTH_M))
             for n in taps}
 
 
@@ -358,8 +359,8 @@ def ml_toa_experiment(n_trials: int = ML_TOA_TRIALS) -> Experiment:
 
 def book_experiments() -> list[Experiment]:
     """Every Monte Carlo experiment the book's chapters run, at the trial counts they run, in the order they first
-    need them (Chapters 3 and 5–8; ``run`` reuses a longer run's first trials, so an experiment whose first trials a chapter
-    reads at a smaller count appears once, at its largest).  ``dpe5g warm`` fills the cache with them (a chapter
+    need them (Chapters 3 and 5–8; ``run`` reuses a longer run's first trials, so an experiment whose first trials a
+    chapter reads at a smaller count appears once, at its largest).  ``dpe5g warm`` fills the cache with them (a chapter
     computes whatever is missing itself, so this list only saves time); ``tests/test_warm.py`` checks it against the
     runs a book build recorded."""
     out = [*ring_window_experiments().values(), *ring_centring_experiments().values(),

@@ -102,8 +102,6 @@ def clock_bias(key, sigma_s: float, bound_sigmas: float, shape=()) -> jax.Array:
     """UE clock bias δt in seconds: Gaussian of standard deviation ``sigma_s`` truncated at ± bound_sigmas · sigma_s
     (the paper: σ = 5 ns after the coarse random-access synchronization; the bound is ours, 3 σ by default).
     sigma_s in [0, 1e-6] s (a σ above 1 µs is most likely nanoseconds typed as seconds); bound_sigmas in [0.1, 10]."""
-    if not isinstance(sigma_s, jax.core.Tracer):
-        _checks.in_range("sigma_s", sigma_s, 0.0, 1e-6, "s (5 ns is 5e-9)")
-    if not isinstance(bound_sigmas, jax.core.Tracer):
-        _checks.in_range("bound_sigmas", bound_sigmas, 0.1, 10.0, "σ")
+    _checks.values_in_range("sigma_s", sigma_s, 0.0, 1e-6, "s (5 ns is 5e-9)")
+    _checks.values_in_range("bound_sigmas", bound_sigmas, 0.1, 10.0, "σ")
     return sigma_s * jax.random.truncated_normal(key, -bound_sigmas, bound_sigmas, shape, dtype=jnp.float64)

@@ -53,7 +53,8 @@ def unit_phasor(phase) -> jax.Array:
 def noise_variance(snr_db, prs) -> jax.Array:
     """σ² of the complex AWGN for per-sample SNR ``snr_db`` (dB, scalar or (M,), in [-50, 100]), see the module
     docstring."""
-    _checks.values_in_range("snr_db", snr_db, -50.0, 100.0, "dB")
+    if not isinstance(snr_db, jax.core.Tracer):  # (traced: the engine checked its SNRs before tracing)
+        check_snr_db(snr_db)
     pilot_power = jnp.mean(jnp.abs(jnp.asarray(prs)) ** 2, axis=-1)
     return pilot_power * 10.0 ** (-jnp.asarray(snr_db) / 10.0)
 

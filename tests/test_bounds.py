@@ -84,8 +84,8 @@ def test_ml_toa_reaches_the_bound_at_high_snr():
     """The ML ToA of one LoS path (``bounds.ml_toa_errors_s`` of ``paper.ml_toa_experiment``, the OTDoA peak
     detector on free-space links) at −10 dB per sample, well above the threshold after the correlation over
     N = 4096: its mean square over 1000 trials × 4 links is the CRB's within the Monte Carlo error (relative standard
-    error of a mean square over n draws ≈ √(2/n) = 2.2 %), its bias below a tenth of √CRB.  The results come from the
-    store (its sampled verification checks them against today's code)."""
+    error of a mean square over n draws ≈ √(2/n) = 2.2 %), its bias below a tenth of √CRB.  The results come from
+    the store (its sampled verification checks them against today's code)."""
     e = paper.ml_toa_experiment()
     crb = bounds.toa_crb_s(bounds.subcarrier_frequencies_hz("full"), paper.ML_TOA_SNR_DB)
     err = bounds.ml_toa_errors_s(engine.run(e, progress=False))

@@ -42,7 +42,8 @@ def test_trials_equal_the_recorded_values(name, tmp_path):
         assert got.dtype == want.dtype and got.shape == want.shape, (name, k)
         if k == "gap":  # NaN where NaN (the grid search has no gap)
             assert k in verify.ABSOLUTE_FIELDS
-            np.testing.assert_allclose(got, want, rtol=verify.VERIFY_RTOL, atol=verify.VERIFY_RTOL, err_msg=f"{name} {k}")
+            np.testing.assert_allclose(got, want, rtol=verify.VERIFY_RTOL, atol=verify.VERIFY_RTOL,
+                                       err_msg=f"{name} {k}")
             continue
         assert np.array_equal(got, want, equal_nan=want.dtype.kind == "f"), (name, k)  # bit for bit
         if want.dtype.kind == "f":
