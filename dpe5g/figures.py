@@ -103,22 +103,26 @@ def caption_md(fig_id: str) -> str:
     return f"**Reproduces the paper's {spec.paper_ref}.** {spec.caption}"
 
 
-def glue(name: str, fig, caption: str) -> None:
-    """Hand a drawn figure (or any displayable object, e.g. HTML) and its Markdown caption to a chapter's ``{glue:figure}`` directive (MyST-NB glue).
-
-    Glues ``fig`` (a matplotlib Figure) as ``name`` and ``caption`` as ``name + "_caption"``; the chapter then shows
-    them as a numbered, captioned figure::
+def glue(name: str, fig, caption: str | None = None) -> None:
+    """Hand a drawn figure (or any displayable object, e.g. HTML) to a chapter's ``{glue:figure}`` directive
+    (MyST-NB glue); a matplotlib Figure must pass ``plots.check_legible`` (text ≥ 9 pt, shown unshrunk).  The
+    chapter writes the caption, with any number in it glued as ``{glue:text}``::
 
         ```{glue:figure} name
         :name: fig-name
-        {glue:md}`name_caption`
+        **Reproduces the paper's Fig. 9.** RMSE against SNR …
         ```
     """
-    from IPython.display import Markdown
+    from matplotlib.figure import Figure
     from myst_nb import glue as _glue
 
+    if isinstance(fig, Figure):
+        plots.check_legible(fig)
     _glue(name, fig, display=False)
-    _glue(f"{name}_caption", Markdown(caption), display=False)
+    if caption is not None:  # (the chapters' old glued captions, while they move into the chapters' Markdown)
+        from IPython.display import Markdown
+
+        _glue(f"{name}_caption", Markdown(caption), display=False)
 
 
 def write(fig_id: str, out_dir, progress: bool = False, trials: int | None = None) -> tuple[Path, Path]:

@@ -5,6 +5,10 @@ and the figures of the channel, the cost and the scenario (Figs. 1–8, Chapter 
 Each ``plot_*`` function takes the JSON-able payload that ``dpe5g.figures`` computed and returns a matplotlib
 Figure (created without pyplot, so no backend or global figure state is involved), so a figure can be redrawn from ``figures/data/<id>.json`` alone.  All figures use matplotlib's "default"
 style and the DejaVu Sans font bundled with matplotlib, so pixels depend only on the pinned matplotlib version.
+
+Legibility: the book shows a figure at its own size up to its 768-pixel column, so a figure at most ``MAX_WIDTH_IN``
+wide (at 100 dpi) is never shrunk, and text of ``MIN_FONT_PT`` is 9 pt on the page.  ``check_legible`` enforces both
+when a figure is saved (``save_png``) or handed to a chapter (``figures.glue``).
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib import patheffects
 from matplotlib.figure import Figure
+from matplotlib.text import Text
 
 #: rcParams on top of matplotlib's "default" style.  Fixed font and hinting keep PNGs byte-stable per version.
 RC = {
@@ -31,6 +36,26 @@ RC = {
 }
 
 
+#: the smallest text of any figure (pt) and the widest figure (inches, at RC's 100 dpi, cropped to its drawn extent)
+MIN_FONT_PT = 9.0
+MAX_WIDTH_IN = 7.6
+
+
+def check_legible(fig) -> None:
+    """ValueError unless every visible text of ``fig`` is at least ``MIN_FONT_PT`` and both its size and its drawn
+    extent (what the book shows, cropped) are at most ``MAX_WIDTH_IN`` wide, so that the book shows it unshrunk."""
+    fig.draw_without_rendering()
+    small = [(t.get_fontsize(), t.get_text()) for t in fig.findobj(Text)
+             if t.get_visible() and t.get_text().strip() and t.get_fontsize() < MIN_FONT_PT]
+    if small:
+        size, text = min(small)
+        raise ValueError(f"figure text {text!r} is {size:g} pt; every text must be at least {MIN_FONT_PT:g} pt "
+                         f"({len(small)} smaller)")
+    width = max(fig.get_figwidth(), fig.get_tightbbox().width)  # the saved PNG's width, or the book's cropped one
+    if width > MAX_WIDTH_IN + 0.05:
+        raise ValueError(f"figure is {width:.2f} in wide; at most {MAX_WIDTH_IN} in is shown without shrinking its text")
+
+
 @contextlib.contextmanager
 def style():
     """Context with the project's plotting style."""
@@ -39,7 +64,9 @@ def style():
 
 
 def save_png(fig, path) -> None:
-    """Write ``fig`` as PNG with no timestamp or software metadata (byte-stable for the same inputs)."""
+    """Write ``fig`` as PNG with no timestamp or software metadata (byte-stable for the same inputs); ValueError
+    from ``check_legible`` first."""
+    check_legible(fig)
     fig.savefig(path, format="png", metadata={"Software": None})
 
 
@@ -59,7 +86,7 @@ def plot_tdl(payload: dict):
     t_ns = np.asarray(d["grid_ns"])
     cir = np.asarray(d["grid_abs"])
     with style():
-        fig = Figure(figsize=(8.0, 3.9), layout="constrained")
+        fig = Figure(figsize=(7.6, 4.1), layout="constrained")
         ax_a, ax_b = fig.subplots(1, 2)
         nlos = ~los
         ml, _, _ = ax_a.stem(delays_ns[nlos], np.abs(gains[nlos]), basefmt=" ", label="taps |$h_l$|")
@@ -78,11 +105,27 @@ def plot_tdl(payload: dict):
         ax_b.set_xlabel("delay (ns)")
         ax_b.set_ylabel("normalized power (dB)")
         ax_b.set_title(f"(b) normalized PDP, RMS DS {d['rms_ds_ns']:.1f} ns")
-        for ax in (ax_a, ax_b):
-            ax.set_xlim(-0.04 * delays_ns.max() - 5, 1.04 * delays_ns.max() + 5)
+        # (a) spans the delays that hold 99 % of the drawn power (at least 200 ns), so the taps near 0 are apart;
+        # the weak late taps are in (b), which spans them all
+        shown = cir_span_ns(delays_ns, np.abs(gains) ** 2)
+        ax_a.set_xlim(-0.04 * shown - 5, 1.04 * shown)
+        beyond = delays_ns > shown
+        if beyond.any():
+            ax_a.text(0.98, 0.96, f"{beyond.sum()} weaker taps up to\n{delays_ns.max():.0f} ns: see (b)",
+                      transform=ax_a.transAxes, ha="right", va="top", fontsize=9)
+        ax_b.set_xlim(-0.04 * delays_ns.max() - 5, 1.04 * delays_ns.max() + 5)
         fig.suptitle(f"{cfg['profile_name']} ({cfg['table']}), desired DS {cfg['delay_spread_s'] * 1e9:g} ns",
                      fontsize=10)
     return fig
+
+
+def cir_span_ns(delays_ns, power, share: float = 0.99, floor_ns: float = 200.0) -> float:
+    """The delay (ns) by which the taps hold ``share`` of the total ``power``, rounded up to 50 ns and at least
+    ``floor_ns``: the span of the TDL figures' panel (a).  delays_ns, power : (n_taps,)."""
+    order = np.argsort(delays_ns)
+    cum = np.cumsum(np.asarray(power)[order]) / np.sum(power)
+    t = float(np.asarray(delays_ns)[order][min(int(np.searchsorted(cum, share)), len(cum) - 1)])
+    return max(floor_ns, 50.0 * np.ceil(t / 50.0))
 
 
 def plot_cost_surface(payload: dict):
@@ -93,7 +136,7 @@ def plot_cost_surface(payload: dict):
     c = np.asarray(d["cost_norm"])
     ue = cfg["ue_xyz"]
     with style():
-        fig = Figure(figsize=(8.0, 3.9), layout="constrained")
+        fig = Figure(figsize=(7.5, 4.0), layout="constrained")
         fig.get_layout_engine().set(wspace=0.08)  # room between the colorbar's label and (b)'s y label
         ax_a, ax_b = fig.subplots(1, 2)
         im = ax_a.pcolormesh(x, y, c, shading="nearest", cmap="viridis", vmin=0, vmax=1)
@@ -116,7 +159,7 @@ def plot_cost_surface(payload: dict):
         ax_b.axvline(0.0, color="r", lw=0.8)
         ax_b.set_xlabel("offset from true position (m)")
         ax_b.set_ylabel("normalized cost")
-        ax_b.set_title("(b) cuts through the true position")
+        ax_b.set_title("(b) cuts through the truth")
         ax_b.legend(fontsize=9, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2, frameon=False)
     return fig
 
@@ -177,7 +220,7 @@ def plot_deployment(payload: dict):
     d = payload["data"]
     x0, y0, x1, y1 = d["region"]
     with style():
-        fig = Figure(figsize=(6.4, 6.3), layout="constrained")
+        fig = Figure(figsize=(7.4, 7.3), layout="constrained")
         ax = fig.subplots()
         ax.set_facecolor("#f4f4f0")
         heights = [b[4] for b in d["buildings"]]
@@ -218,7 +261,7 @@ def plot_deployment(payload: dict):
         mid = lambda cuts, lo, hi: [(a + b) / 2 for a, b in zip([lo, *cuts], [*cuts, hi])]
         texts = []
         for s in streets:
-            t = ax.text(0, 0, s["name"], fontsize=7.5, color="#444444", style="italic", zorder=4.5, path_effects=halo,
+            t = ax.text(0, 0, s["name"], fontsize=9, color="#444444", style="italic", zorder=4.5, path_effects=halo,
                         in_layout=False)
             if s["axis"] == "north-south":
                 t.set_rotation(90)
@@ -234,7 +277,7 @@ def plot_deployment(payload: dict):
                  (1.4, 0, "left", "center"), (-1.4, 0, "right", "center"), (0, 1.3, "center", "bottom"),
                  (0, -1.3, "center", "top")]
         for bid, (bx, by, _) in zip(d["bs_ids"], bs):
-            t = ax.annotate(bid[2:], (bx, by), xytext=(0, 0), textcoords="offset points", fontsize=8, zorder=5,
+            t = ax.annotate(bid[2:], (bx, by), xytext=(0, 0), textcoords="offset points", fontsize=9, zorder=5,
                             annotation_clip=False, path_effects=halo, in_layout=False)
             cands = [dict(position=(r * sx, r * sy), ha=ha, va=va) for r in (4.0, 7.0, 11.0) for sx, sy, ha, va in spots]
             texts.append((t, cands))
@@ -252,7 +295,7 @@ def plot_urban_correlogram(payload: dict):
         fig = Figure(figsize=(6.2, 5.3), layout="constrained")
         ax = fig.subplots()
         cost = np.asarray(d["cost_norm"])
-        im = ax.pcolormesh(x - ue[0], y - ue[1], cost, shading="nearest", cmap="viridis", vmin=cost.min(), vmax=1)
+        im = ax.pcolormesh(x - ue[0], y - ue[1], cost, shading="nearest", cmap="viridis", vmin=0, vmax=1)  # as Fig. 6
         fig.colorbar(im, ax=ax, label="normalized cost, eq. (10)")
         ax.plot(0, 0, "r+", markersize=14, mew=2, label="ground truth")
         ax.plot(est[0] - ue[0], est[1] - ue[1], ls="none", marker="X", markersize=10, mfc="white", mec="k", mew=1.0,
@@ -277,7 +320,7 @@ def plot_plateau(payload: dict):
     x = np.asarray(d["offset_m"])
     titles = {"TDL-D": "TDL-D (LoS, K = {:g} dB)".format(c["k_factor_db"]), "TDL-C": "TDL-C (NLoS)"}
     with style():
-        fig = Figure(figsize=(9.0, 4.0), layout="constrained")
+        fig = Figure(figsize=(7.4, 4.2), layout="constrained")
         axes = fig.subplots(1, 2, sharey=True)
         for ax, name in zip(axes, ("TDL-D", "TDL-C")):
             p = d[name]
@@ -293,6 +336,6 @@ def plot_plateau(payload: dict):
             ax.set_ylim(0, 1.05)
             ax.set_xlabel("candidate ToA offset c(τ − τ₀) (m)")
             ax.set_title(titles[name], fontsize=9)
-            ax.legend(fontsize=9, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2, frameon=False)
         axes[0].set_ylabel("cost of one link / its maximum")
+        fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncol=3, fontsize=9, frameon=False)
     return fig

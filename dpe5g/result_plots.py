@@ -3,6 +3,8 @@ of the paper against its claims, and the studies of Chapters 5 and 8, in the sty
 
 from __future__ import annotations
 
+import textwrap
+
 import numpy as np
 from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
@@ -142,21 +144,25 @@ def plot_cdf(payload: dict):
     grid = np.asarray(payload["config"]["error_grid_m"])
     data = payload["data"]
     titles = {"two_of_four": "(a) 2 of 4 links LoS (paper's case)", "pr_los": "(b) LoS from eq. (11)"}
-    curves = [("dpe_otdoa", "DPE centred on OTDoA fix", "#1f77b4", "-"),
-              ("dpe_prior", "DPE centred on 5 m prior", "#2ca02c", "-"),
-              ("dpe_truth", "DPE centred on truth (paper)", "0.45", "--"),
-              ("otdoa_first_path", "OTDoA, first-path ToA", "#d62728", "-"),
-              ("otdoa_peak", "OTDoA, peak ToA (naive)", "#ff7f0e", ":")]
+    # the two honest DPE curves nearly coincide: the OTDoA-centred one wide and solid, the prior-centred one thin and
+    # dashed on top of it, so both stay visible
+    curves = [("dpe_otdoa", "DPE centred on OTDoA fix", "#1f77b4", "-", 2.6),
+              ("dpe_prior", "DPE centred on 5 m prior", "#2ca02c", "--", 1.3),
+              ("dpe_truth", "DPE centred on truth, ±{half:g} m window (paper)", "0.45", "-.", 1.3),
+              ("otdoa_first_path", "OTDoA, first-path ToA", "#d62728", "-", 1.3),
+              ("otdoa_peak", "OTDoA, peak ToA (naive)", "#ff7f0e", ":", 1.6)]
     dpe_lab = ", ".join(f"{100 * q:g} % within {v:g} m" for q, v in PAPER_FIG10_DPE_M.items())
     ot_lab = ", ".join(f"{100 * q:g} % at {v:g} m" for q, v in PAPER_FIG10_OTDOA_M.items())
     with style():
-        fig = Figure(figsize=(10.0, 5.6), layout="constrained")
-        axes = fig.subplots(1, 2, sharey=True)
+        fig = Figure(figsize=(7.4, 10.4), layout="constrained")
+        axes = fig.subplots(2, 1, sharex=True)
         for ax, case in zip(axes, ("two_of_four", "pr_los")):
             d = data[case]
-            for key, lab, col, ls in curves:
+            half = payload["config"]["experiments"][f"{case}/truth"]["half_width_m"]
+            for key, lab, col, ls, lw in curves:
                 q = d[key]["p50_p90_p99_m"]
-                ax.step(grid, d[key]["cdf"], ls, where="post", color=col, label=f"{lab}: 90 % {q[1]:.1f} m")
+                ax.step(grid, d[key]["cdf"], ls, where="post", color=col, lw=lw,
+                        label=f"{lab.format(half=half)}: 90 % {q[1]:.1f} m")
             for lev in (0.9, 0.99):
                 ax.axhline(lev, color="0.5", lw=0.7, ls=":")
             ax.plot(list(PAPER_FIG10_DPE_M.values()), list(PAPER_FIG10_DPE_M), **PAPER_MARKER,
@@ -167,10 +173,11 @@ def plot_cdf(payload: dict):
             ax.set_xlim(0.03, 1000)
             ax.set_ylim(0, 1.0)
             ax.set_yticks(np.arange(0, 1.01, 0.1))
+            ax.set_ylabel("CDF")
+            ax.xaxis.set_tick_params(labelbottom=True)
             ax.set_xlabel("horizontal position error (m)")
             ax.set_title(titles[case], fontsize=10)
-            ax.legend(fontsize=9, loc="upper left", bbox_to_anchor=(0.0, -0.12), frameon=False)
-        axes[0].set_ylabel("CDF")
+            ax.legend(fontsize=9, loc="upper left", bbox_to_anchor=(0.0, -0.14), frameon=False)
     return fig
 
 
@@ -179,7 +186,7 @@ def plot_window_study(rows: list[dict]):
     per (set-up, M) of ``studies.urban_window_table``."""
     cols = sorted({(r["setup"], r["m"]) for r in rows})
     with style():
-        fig = Figure(figsize=(9.0, 3.8), layout="constrained")
+        fig = Figure(figsize=(7.4, 4.4), layout="constrained")
         axes = fig.subplots(1, 2)
         for (setup, m), col, marker in zip(cols, COLORS, "osd^v<>"):
             sel = sorted((r for r in rows if (r["setup"], r["m"]) == (setup, m)), key=lambda r: r["n_taps"])
@@ -197,7 +204,8 @@ def plot_window_study(rows: list[dict]):
             ax.grid(True, which="both", alpha=0.3)
             ax.set_xlabel("receiver window L (taps)")
             ax.set_ylabel(lab)
-        axes[1].legend(fontsize=9, loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False)
+        fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncol=2, fontsize=9,
+                   frameon=False)
     return fig
 
 
@@ -242,8 +250,8 @@ def format_claim(claim_id: str, value: float) -> str:
     if claim_id in ("fig9_falls", "fig9_more_hurts"):
         return f"{value:.2f}×"
     if claim_id in ("fig9_saturation", "fig10_gain"):
-        return f"{100 * value:.1f} %"
-    return f"{value:.1f} m" if value >= 10 else f"{value:.2f} m"
+        return f"{100 * value:.0f} %" if abs(value) >= 1 else f"{100 * value:.1f} %"
+    return f"{value:.0f} m" if value >= 100 else f"{value:.1f} m" if value >= 10 else f"{value:.2f} m"
 
 
 def plot_readings(payload: dict):
@@ -252,25 +260,26 @@ def plot_readings(payload: dict):
     and the mark carries the verdict without the colour."""
     claims, data = payload["config"]["claims"], payload["data"]
     ids, names = payload["config"]["claim_order"], payload["config"]["reading_order"]
-    ok = np.array([[data[n]["reproduced"][c] for c in ids] for n in names], dtype=float)
+    ok = np.array([[data[n]["reproduced"][c] for n in names] for c in ids], dtype=float)  # (claim, reading)
     with style():
-        fig = Figure(figsize=(12.0, 0.55 * len(names) + 2.6), layout="constrained")
+        fig = Figure(figsize=(7.5, 0.42 * len(ids) + 2.4), layout="constrained")
         ax = fig.subplots()
         ax.imshow(ok, cmap=ListedColormap(["#fdd0a2", "#c6dbef"]), vmin=0, vmax=1, aspect="auto")
-        for i, n in enumerate(names):
-            for j, c in enumerate(ids):
+        for i, c in enumerate(ids):
+            for j, n in enumerate(names):
                 mark = "✓" if ok[i, j] else "✗"
-                ax.text(j, i, f"{format_claim(c, data[n]['values'][c])} {mark}", ha="center", va="center",
-                        fontsize=10)
-        ax.set_xticks(range(len(ids)), [claims[c]["short"] for c in ids], rotation=30, ha="right", fontsize=9)
-        ax.set_yticks(range(len(names)), [data[n]["short"] for n in names], fontsize=9)
-        ax.set_xticks(np.arange(len(ids) + 1) - 0.5, minor=True)
-        ax.set_yticks(np.arange(len(names) + 1) - 0.5, minor=True)
+                ax.text(j, i, f"{format_claim(c, data[n]['values'][c])}\n{mark}", ha="center", va="center",
+                        fontsize=9)
+        ax.set_yticks(range(len(ids)), [claims[c]["short"].replace("\n", " ") for c in ids], fontsize=9)
+        ax.set_xticks(range(len(names)), [data[n]["short"] for n in names], rotation=35, ha="left",
+                      rotation_mode="anchor", fontsize=9)
+        ax.xaxis.tick_top()
+        ax.set_xticks(np.arange(len(names) + 1) - 0.5, minor=True)
+        ax.set_yticks(np.arange(len(ids) + 1) - 0.5, minor=True)
         ax.grid(which="major", visible=False)
         ax.grid(which="minor", color="w", lw=2)
         ax.tick_params(which="both", length=0)
-        ax.set_title("Which reading of the paper reproduces which claim (✓ blue: reproduced, ✗ orange: differs)",
-                     fontsize=11)
+        ax.set_xlabel("✓ blue: the claim is reproduced under this reading;  ✗ orange: it differs", fontsize=9)
     return fig
 
 
@@ -292,7 +301,7 @@ def plot_link_sinr(groups: dict):
         ax.set_yticks(np.arange(0, 1.01, 0.1))
         ax.set_xlabel("per-sample SNR / SINR of a link (dB)")
         ax.set_ylabel("CDF over links")
-        ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+        fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=2, fontsize=9, frameon=False)
     return fig
 
 
@@ -303,18 +312,24 @@ def plot_reuse_rmse(payload: dict):
     setups = payload["setups"]
     vals = np.concatenate([np.ravel(v) for v in setups.values()])
     with style():
-        fig = Figure(figsize=(3.3 * len(setups) + 0.6, 4.2), layout="constrained")
-        axes = np.atleast_1d(fig.subplots(1, len(setups), sharey=True))
+        ncol = min(2, len(setups))
+        nrow = -(-len(setups) // ncol)
+        fig = Figure(figsize=(7.4, 3.4 * nrow + 0.6), layout="constrained")
+        axes = np.atleast_1d(fig.subplots(nrow, ncol, sharey=True, squeeze=False).ravel())
+        for ax in axes[len(setups):]:
+            ax.set_visible(False)
         for ax, (label, rmse) in zip(axes, setups.items()):
             rmse = np.asarray(rmse)
             for j, (m, marker, col) in enumerate(zip(payload["m_values"], "osd^v<>", COLORS)):
                 ax.plot(snr, rmse[:, j], "-", marker=marker, color=col, label=f"M = {m}")
-            ax.set_title(label, fontsize=9)
+            ax.set_title(textwrap.fill(label, 42), fontsize=9)
             ax.set_xticks(snr)
             ax.set_xlabel("SNR of the nearest link (dB)")
             log_ticks(ax, vals.min() / 1.15, vals.max() * 1.15)
-        axes[0].set_ylabel("RMSE (m)")
-        axes[-1].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+        for ax in axes[::ncol]:
+            ax.set_ylabel("RMSE (m)")
+        fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncol=len(payload["m_values"]),
+                   fontsize=9, frameon=False)
     return fig
 
 
@@ -326,8 +341,8 @@ def plot_reuse_cdf(payload: dict):
     if n_cases == 0:
         raise ValueError("plot_reuse_cdf: payload['cases'] is empty, need at least one LoS case")
     with style():
-        fig = Figure(figsize=(5.0 * n_cases + (1.5 if n_cases == 1 else 0.0), 4.8), layout="constrained")
-        axes = np.atleast_1d(fig.subplots(1, n_cases, sharey=True))
+        fig = Figure(figsize=(7.4, 4.6 * n_cases), layout="constrained")
+        axes = np.atleast_1d(fig.subplots(n_cases, 1))
         for ax, (case, runs) in zip(axes, payload["cases"].items()):
             for (label, errs), col in zip(runs.items(), COLORS):
                 for key, ls, what in (("dpe", "-", "DPE on OTDoA fix"), ("otdoa", "--", "OTDoA, first path")):
@@ -341,6 +356,6 @@ def plot_reuse_cdf(payload: dict):
             ax.set_yticks(np.arange(0, 1.01, 0.1))
             ax.set_xlabel("horizontal position error (m)")
             ax.set_title(titles.get(case, case), fontsize=10)
-            ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(0.0, -0.14), frameon=False)
-        axes[0].set_ylabel("CDF")
+            ax.set_ylabel("CDF")
+            ax.legend(fontsize=9, loc="upper left", bbox_to_anchor=(0.0, -0.14), frameon=False)
     return fig

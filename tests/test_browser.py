@@ -187,3 +187,20 @@ def test_no_code_block_runs_off_the_page(server, browser, page_path):
     finally:
         page.close()
     assert not wide, f"{page_path}: {len(wide)} block(s) scroll sideways, e.g. {wide[0]!r}"
+
+
+@pytest.mark.parametrize("page_path", pages() or ["index.html"])
+def test_figures_are_shown_at_their_own_size(server, browser, page_path):
+    """Every page: every figure image is shown at least as wide as its pixels (the book never shrinks one).  With
+    ``tests/test_legibility.py`` (every figure at most 7.6 in at 100 dpi, every text at least 9 pt) this keeps every
+    figure's text at 9 pt or more on the page."""
+    page = browser.new_page(viewport={"width": 1400, "height": 1000})
+    try:
+        page.goto(f"{server}/{page_path}")
+        page.wait_for_load_state("load")
+        shrunk = page.evaluate("""() => [...document.querySelectorAll('article img')]
+            .filter(i => i.naturalWidth > i.clientWidth + 1)
+            .map(i => `${i.src.slice(-24)}: ${i.naturalWidth} px shown at ${i.clientWidth} px`)""")
+    finally:
+        page.close()
+    assert not shrunk, f"{page_path}: {len(shrunk)} figure(s) shrunk, their text below 9 pt: {shrunk}"
