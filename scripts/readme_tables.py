@@ -252,7 +252,7 @@ def readings_table() -> str:
     head = (f"No reading reproduces all {s['n_claims']} claims" if s["best"] < s["n_claims"]
             else "A reading reproduces every claim")
     return "\n".join([
-        f"Each reading of the paper tested on its claims about Figs. 9 and 10 (Chapter 7; ✓ reproduced, ✗ differs; "
+        f"Each reading of the paper tested on its claims about Figs. 9 and 10 ({{numref}}`Chapter %s <chapter-reproduction>`; ✓ reproduced, ✗ differs; "
         f"Fig. 9 at {', '.join(f'{v:g}' for v in p['config']['snrs_db'])} dB per the reading's SNR convention):", "",
         report.readings_markdown(p), "",
         f"{head}; the most, {s['best']} of {s['n_claims']}, by {best}.  Our reading of the paper's set-up reproduces "
