@@ -15,7 +15,7 @@ an editable install; DPE5G_JAX_CACHE overrides the directory, "off" leaves JAX's
 is already configured.  A compiled program is stored under a key of its code, shapes, options and the jax version,
 so it changes no result; it saves the 10–30 s compile of each Monte Carlo engine in every later process (each
 chapter of the book runs in its own).  Every program is stored, however quick its compile: a chapter re-executed
-with a warm cache runs Chapter 3 in 40 s instead of 74 s, most of that in sub-second compiles.
+with a warm cache runs the DPE chapter in 40 s instead of 74 s, most of that in sub-second compiles.
 
 It also asks XLA for its backend optimisation level 1 (``XLA_OPT_LEVEL``) instead of its default, unless
 DPE5G_XLA_OPT_LEVEL says otherwise ("0"–"3", or "xla" for XLA's own default) or XLA_FLAGS already sets the level:

@@ -1,6 +1,6 @@
 """Cramér–Rao bounds (CRB) of ToA and of the position: not in the paper, which cites the CRB of DPE but shows none.
 
-Single link, frequency domain (the unitary DFT of eq. (5), Chapter 2): on the pilot subcarriers k ∈ K,
+Single link, frequency domain (the unitary DFT of eq. (5), the signal-model chapter): on the pilot subcarriers k ∈ K,
 
     Y_k = d_k Σ_l a_l e^{-j2π f_k (τ + δ_l)} + W_k,     W_k ~ CN(0, σ²),  |d_k| = 1,
 
@@ -22,7 +22,7 @@ from BS m to the UE (``position_fisher``).  That is the DPE bound: every link's 
 parameters and only τ_m depends on the position.  The two-step bound (``tdoa_position_crb``) starts instead from
 the links' ToA estimates, efficient with variances 1/J_τ,m, forms differences to a reference link (the clock bias
 cancels) and solves for (x, y) by weighted least squares with the differences' correlated covariance.  The two are
-the same matrix (the clock bias is a nuisance parameter either way; Chapter 8 checks it numerically): with
+the same matrix (the clock bias is a nuisance parameter either way; the bounds chapter checks it numerically): with
 independent per-link gains and known tap delays, DPE has no asymptotic advantage over two-step, and its gains lie
 below the threshold SNR, where the CRB does not hold.
 
@@ -77,8 +77,8 @@ def toa_fisher(freqs_hz, snr_db, gains=None, tap_delays_s=None) -> float:
     """Fisher information J_τ (1/s²) of the ToA of one link from known unit-modulus pilots on ``freqs_hz``, the
     gains of its taps unknown (the projection formula of the module docstring).
 
-    snr_db : per-subcarrier SNR in dB of a unit-power channel, 10 log10(1/σ²) (the per-sample SNR of Chapter 2 for
-    the full band).  gains : complex (L,) tap gains (default: one path of unit power, the LoS case);
+    snr_db : per-subcarrier SNR in dB of a unit-power channel, 10 log10(1/σ²) (the per-sample SNR of the signal-model
+    chapter for the full band).  gains : complex (L,) tap gains (default: one path of unit power, the LoS case);
     tap_delays_s : (L,) their delays relative to the first path in seconds (default 0).
     """
     f = _check_freqs(freqs_hz)
@@ -103,7 +103,7 @@ def window_model_toa_fisher(freqs_hz, snr_db, n_taps: int, gains=None, num: Nume
     on the sample grid, δ_l = l T_s, the true channel being such a channel (``gains``: its first taps, complex
     (≤ L,), on δ_l = 0, T_s, …; default one path of unit power).  It is the true signal's derivative projected off
     the span of the L delayed copies: what is left of the information about τ once every tap of the window is free
-    (Chapter 8: about half of the one-path information for any L ≥ 12, not zero)."""
+    (the bounds chapter: about half of the one-path information for any L ≥ 12, not zero)."""
     f = _check_freqs(freqs_hz)
     noise_var = 10.0 ** (-float(signal.check_snr_db(snr_db)) / 10.0)
     n_taps = _checks.integer("n_taps", n_taps, 1, num.n_fft)
@@ -188,8 +188,9 @@ def rmse_bound_m(e, n_trials: int, snrs_db=None) -> np.ndarray:
     e : ``experiment.Experiment``.  Each trial's links are the engine's (``trials.example``: positions, channels
     with their tap delays known, per-link SNR); the pilots are the full band (the paper's, the engine's).  The
     Fisher information of a link scales with its linear SNR, so it is computed once per link and scaled.
-    snrs_db : (S,) SNRs in dB, in the experiment's ``snr_convention``, to use instead of ``e.links.snrs_db`` (snr_mode "fixed" only: every link at
-    each; the trials' links do not depend on the SNR, so one call serves several experiments of the same trials)."""
+    snrs_db : (S,) SNRs in dB, in the experiment's ``snr_convention``, to use instead of ``e.links.snrs_db`` (snr_mode
+    "fixed" only: every link at each; the trials' links do not depend on the SNR, so one call serves several experiments
+    of the same trials)."""
     n_trials = _checks.integer("n_trials", n_trials, 1, e.run.n_trials)
     if snrs_db is not None and e.links.snr_mode != "fixed":
         raise ValueError("snrs_db replaces the SNRs of a 'fixed' experiment; this one takes them from the path loss")

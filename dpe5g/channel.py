@@ -167,7 +167,7 @@ def rms_delay_spread(delays_s, powers) -> float:
 
 #: what the delay spread a profile is scaled to means: "rms" — TR 38.901's RMS delay spread (eq. (2), the paper's
 #: figures' captions and Table I); "span" — the time between the earliest and the latest tap, as the paper's text
-#: defines DS_desired below eq. (2) (a reading the readings table of Chapter 7 tries)
+#: defines DS_desired below eq. (2) (a reading the readings table of the reproduction chapter tries)
 DELAY_SPREAD_DEFS = ("rms", "span")
 
 

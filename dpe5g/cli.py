@@ -86,8 +86,8 @@ def _with_option(err: ValueError, options: dict[str, str]) -> ValueError:
 def run_experiment(args):
     """The ``experiment.Experiment`` of ``dpe5g run``'s arguments: the paper's Fig. 9 set-up (``dpe5g.paper``) with
     the user's deployment, SNRs (dB), M values, trials, receiver window L (taps), delay spread (s), centring, prior
-    σ (m) and seed.  Centring "truth" uses the paper's coarse-to-fine grid (``search_config.SearchConfig()``), "prior" and
-    "otdoa" the honest certified search (``paper.honest_search()``), as the figures do.  When everything equals one
+    σ (m) and seed.  Centring "truth" uses the paper's coarse-to-fine grid (``search_config.SearchConfig()``), "prior"
+    and "otdoa" the honest certified search (``paper.honest_search()``), as the figures do.  When everything equals one
     of the paper's experiments, that experiment (and its cache) is used."""
     from dataclasses import replace
 
@@ -190,7 +190,8 @@ def _figures(args) -> int:
     return 0
 
 
-# ---- dpe5g warm -------------------------------------------------------------------------------------------------------
+# ---- dpe5g warm
+# -------------------------------------------------------------------------------------------------------
 
 def _warm(args) -> int:
     from . import engine, paper
@@ -208,7 +209,8 @@ def _warm(args) -> int:
     return 0
 
 
-# ---- dpe5g reproduce, verify ------------------------------------------------------------------------------------------
+# ---- dpe5g reproduce, verify
+# ------------------------------------------------------------------------------------------
 
 def _reproduce(args) -> int:
     from . import store, verify
@@ -344,7 +346,7 @@ def _add_run(sub) -> None:
     r.add_argument("--force", action="store_true", help="overwrite --out if it exists")
     r.add_argument("--deployment", default="tst", metavar="FILE",
                    help="deployment file, JSON or CSV (see `dpe5g deployment`), or a packaged one: 'tst' (the "
-                        "default; our Tsim Sha Tsui-like layout), 'ring' or 'ring-wide' (Chapter 3's rings)")
+                        "default; our Tsim Sha Tsui-like layout), 'ring' or 'ring-wide' (the DPE chapter's rings)")
     r.add_argument("--snr", type=float, nargs="+", default=list(paper_e.links.snrs_db), metavar="DB",
                    help=f"per-sample SNRs in dB, in [-50, 100] (default: the paper's "
                         f"{' '.join(f'{s:g}' for s in paper_e.links.snrs_db)})")
@@ -354,7 +356,7 @@ def _add_run(sub) -> None:
                         f"{' '.join(map(str, paper_e.receiver.m_values))})")
     r.add_argument("--taps", type=int, default=search_config.DEFAULT_TAPS, metavar="L",
                    help=f"receiver window L in taps, 1 to the FFT size (default: {search_config.DEFAULT_TAPS}, chosen in "
-                        f"Chapter 5)")
+                        f"the Fig. 9 chapter)")
     r.add_argument("--delay-spread", type=float, default=paper_e.scenario.delay_spread_s, metavar="S",
                    help=f"RMS delay spread of the TDL channels in SECONDS (default: "
                         f"{paper_e.scenario.delay_spread_s * 1e9:g}e-9, TR 38.901 UMi short)")
@@ -372,7 +374,7 @@ def _add_run(sub) -> None:
                    help="PRS frequency reuse factor: 0 (default) the paper's model, every BS's PRS on all bins and "
                         "received alone; 2, 4, 6 or 12 (Table I: 6) the TS 38.211 comb R over R symbols with every BS "
                         "of the deployment transmitting and co-channel interference; --snr is then the SNR of the "
-                        "nearest link, every other BS at its power from the path loss (Chapter 5)")
+                        "nearest link, every other BS at its power from the path loss (the Fig. 9 chapter)")
     _add_cluster_options(r)
     r.set_defaults(func=_run)
 

@@ -6,7 +6,7 @@ pilots d_m.  The least-squares CIR estimate of BS m in the frequency domain (eq.
     G_{m,k} = conj(d_{m,k}) Y_{m,k},        ĥ_m(τ) = (1/√N) Σ_k G_{m,k} e^{+j2πkΔfτ}   (``ls_spectrum``),
 
 the CIR estimate delayed by τ.  The BS-m term of eq. (10) at ToA τ is its energy in an L-tap window,
-c_m(τ) = N Σ_{l<L} |ĥ_m(τ + l T_s) / √N|² (Chapter 3 derives it), and the correlograms below tabulate it:
+c_m(τ) = N Σ_{l<L} |ĥ_m(τ + l T_s) / √N|² (the DPE chapter derives it), and the correlograms below tabulate it:
 
 * ``energy_grid`` — c_m on a grid of T_s/U (U inverse FFTs of length N per BS, the L-tap window sum by prefix
   doubling), read by the grid search with cubic interpolation and, with L = 1, by the OTDoA ToA detector;
@@ -87,7 +87,8 @@ def energy_grid(g, n_taps: int, upsample: int) -> jax.Array:
     eq. (10) with an L-tap window, exactly.  Returns real (..., M, N·U).  Traceable.
 
     The CIR estimate on T_s/U by one zero-padded inverse FFT of length U·N (``cir_grid``), the energy, then the
-    L-tap window sum by ``window_sum`` (no FFT; ``energy_from_cir``).  The cost is periodic in τ with period N T_s = 1/Δf."""
+    L-tap window sum by ``window_sum`` (no FFT; ``energy_from_cir``).  The cost is periodic in τ with period N T_s =
+    1/Δf."""
     return energy_from_cir(cir_grid(g, upsample), n_taps, upsample)
 
 
@@ -96,8 +97,8 @@ def cir_grid(g, upsample: int) -> jax.Array:
     ĥ_m(j T_s / U) / √N = (1/N) Σ_k g_k e^{j2πkj/(UN)}, one inverse FFT of length U·N of g zero-padded (the bins
     k < N carry the spectrum, the rest are empty: the transform interpolates ĥ exactly between samples).  Returns
     complex (..., M, N·U), g's dtype; traceable.  Linear in g: the engine forms the CIR of every SNR of a trial from
-    those of its noise-free spectrum and its unit noise (``receiver.noise_scales``).  (U phase-ramped transforms of length N
-    give the same numbers, but XLA fuses g's producers, such as the noise draw, into each of the U products and
+    those of its noise-free spectrum and its unit noise (``receiver.noise_scales``).  (U phase-ramped transforms of
+    length N give the same numbers, but XLA fuses g's producers, such as the noise draw, into each of the U products and
     repeats them U times.)"""
     _checks.require_x64()
     n = g.shape[-1]
@@ -121,9 +122,10 @@ MAX_WINDOW_DECAY_S = 1e-6
 
 def tap_weights(n_taps: int, decay_s: float = 0.0, sample_period_s: float = PAPER.sample_period_s) -> np.ndarray:
     """Weights w_l (L,) of the receiver window's taps.  decay_s = 0: all 1, eq. (8)'s window (the ML cost of
-    eq. (10), L free taps).  decay_s > 0: the first-path-aware window (our extension, not the paper's; Chapter 8),
-    w_l = exp(−l T_s / decay_s), the low-SNR limit of the MAP cost when the taps are independent CN(0, p_l) with an
-    exponential power-delay profile p_l ∝ exp(−l T_s / decay_s).  sample_period_s : T_s (the paper's by default)."""
+    eq. (10), L free taps).  decay_s > 0: the first-path-aware window (our extension, not the paper's; the bounds
+    chapter), w_l = exp(−l T_s / decay_s), the low-SNR limit of the MAP cost when the taps are independent CN(0, p_l)
+    with an exponential power-delay profile p_l ∝ exp(−l T_s / decay_s).  sample_period_s : T_s (the paper's by
+    default)."""
     _checks.integer("n_taps", n_taps, 1, 1 << 20)
     _checks.in_range("decay_s", decay_s, 0.0, MAX_WINDOW_DECAY_S, "s")
     _checks.in_range("sample_period_s", sample_period_s, 1e-12, 1e-3, "s")
@@ -165,7 +167,7 @@ def band_tap_spacing(num: Numerology = PAPER) -> float:
     band of the carrier's K = n_active subcarriers (``nr.band_bins``), Σ_{k in band} e^{j2πk(l − l')/K} = K δ_{ll'};
     T_s itself is the spacing for pilots on all N bins (eq. (8)).  With K < N and taps T_s apart, the taps' pulses
     overlap, eq. (10)'s window energy is no longer the ML cost of L free taps, and its maximum moves off the first
-    path toward the middle of the pulse's energy (Chapter 5 measures it)."""
+    path toward the middle of the pulse's energy (the Fig. 9 chapter measures it)."""
     return num.n_fft / num.n_active
 
 
@@ -178,7 +180,7 @@ def spline_coefficients(g, window, upsample: int) -> jax.Array:
     their real FFT, times the window and the inverse of the cubic B-spline's sampled kernel (1/6, 4/6, 1/6) at the
     knot spacing (the interpolation prefilter), then one zero-padded real inverse FFT of length N·U gives
     coefficients c_j such that Σ_j c_j β³(τ/(T_s/U) − j) equals c_m(τ) at every knot exactly (to round-off).
-    Between knots the spline differs from eq. (10) by ≤ 2e-5 of the peak at U = 8 (Chapter 3 measures it).
+    Between knots the spline differs from eq. (10) by ≤ 2e-5 of the peak at U = 8 (the DPE chapter measures it).
     (Computing the U knot phases as U/2 complex length-N transforms instead of the long one was measured slower on
     this CPU, 0.39 against 0.30 ms per BS, and dropped.)"""
     h = half_sample_cir(g)

@@ -10,7 +10,8 @@ are orthonormal and D_m^H D_m = I for unit-modulus pilots, so S_m^H S_m = I_L (t
 Two evaluations of the same number:
 
 * ``ml_cost_literal`` builds the matrices and multiplies them out (for verification on small N);
-* ``ml_cost`` uses the identity derived in Chapter 3: S_m^H y_m = √N · IDFT(conj(d_m) ⊙ DFT(y_m) ⊙ e^{+j2πkΔfτ_m})[0:L],
+* ``ml_cost`` uses the identity derived in the DPE chapter: S_m^H y_m = √N · IDFT(conj(d_m) ⊙ DFT(y_m) ⊙
+e^{+j2πkΔfτ_m})[0:L],
   the delay-compensated least-squares CIR estimate, so the cost is the energy of that estimate in an L-tap window.
 
 Position model: p = [x, y, z, δt] with τ_m(p) = ‖(x, y, z) - b_m‖ / c + δt.  The searches (``grid_search``,
@@ -82,8 +83,8 @@ def ml_cost(y, prs, tau, n_taps: int, scs_hz: float, weights=None) -> jax.Array:
 
     Same arguments and values as ``ml_cost_literal`` (agreement ≤ 1e-9 relative is tested), one FFT per BS and
     candidate instead of N × N matrices.  Differentiable in ``tau`` (used by the autodiff polish).
-    weights : (L,) weights of the window's taps (``correlogram.tap_weights``: the first-path-aware cost, Chapter 8,
-    not the paper's), Σ_l w_l |ĥ_l|²; None for eq. (10).
+    weights : (L,) weights of the window's taps (``correlogram.tap_weights``: the first-path-aware cost, the bounds
+    chapter, not the paper's), Σ_l w_l |ĥ_l|²; None for eq. (10).
     """
     _checks.require_x64()
     y, prs = correlogram.check_inputs(y, prs, n_taps)

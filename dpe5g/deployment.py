@@ -25,7 +25,7 @@ from . import _checks
 DATA_DIR = Path(__file__).resolve().parent / "data"
 TST_FILE = DATA_DIR / "tst_deployment.json"
 #: the deployments packaged with dpe5g, by name (``builtin``): our Tsim Sha Tsui-like layout, and the rings of
-#: Chapter 3's studies (8 BSs on a 150 m circle, the UE in a 10 m or a 100 m square at its centre), made by
+#: the DPE chapter's studies (8 BSs on a 150 m circle, the UE in a 10 m or a 100 m square at its centre), made by
 #: ``scripts/make_ring.py``
 BUILTIN = {"tst": TST_FILE, "ring": DATA_DIR / "ring_deployment.json",
            "ring-wide": DATA_DIR / "ring_wide_deployment.json"}

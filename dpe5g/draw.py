@@ -268,7 +268,8 @@ def prior_center(e: Experiment, ue, key) -> jax.Array:
 
 def draw_links(e: Experiment, n_trials: int) -> dict:
     """Link draws only (no DPE) for trials 0 … n_trials-1: LoS flags (T, I), per-sample link SNR and SINR
-    (T, S, I), 2-D distances (T, I) in metres — the statistics Chapter 4 shows, from the same keys as the engine."""
+    (T, S, I), 2-D distances (T, I) in metres — the statistics the urban-scenario chapter shows, from the same keys as
+    the engine."""
     draw = draw_fn(e, e.load_deployment())
 
     @jax.jit

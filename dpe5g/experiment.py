@@ -47,13 +47,14 @@ class Scenario:
         JSON/CSV deployment.
     los_mode : "pr_los" — each link LoS with the probability of eq. (11); "two_of_four" — the paper's stated case for
         Fig. 10: of the four nearest links, two (chosen at random) LoS and two NLoS (needs max(m_values) = 4);
-        "all_los" — every link LoS (TDL-D; not the paper's: Chapter 8 compares it with the Cramér–Rao bound);
-        "all_nlos" — every link NLoS (TDL-C; Chapter 3's ring studies); "free_space" — every link LoS with one path
-        of unit power and uniform phase at the geometric delay, no multipath (Chapter 8's check of the ML ToA
-        against its bound).
+        "all_los" — every link LoS (TDL-D; not the paper's: The bounds chapter compares it with the Cramér–Rao bound);
+        "all_nlos" — every link NLoS (TDL-C; the DPE chapter's ring studies); "free_space" — every link LoS with one
+        path of unit power and uniform phase at the geometric delay, no multipath (the bounds chapter's check of the ML
+        ToA against its bound).
     delay_spread_s, k_factor_db : TDL-C (NLoS) / TDL-D (LoS) at this delay spread (s); TDL-D's K (dB).
     delay_spread_def : what delay_spread_s means for both profiles (``channel.DELAY_SPREAD_DEFS``): "rms", TR
-        38.901's RMS spread (default), or "span", first to last tap (the paper's text; Chapter 7's readings).
+        38.901's RMS spread (default), or "span", first to last tap (the paper's text; the reproduction chapter's
+        readings).
     clock_sigma_s, clock_bound_sigmas : UE clock bias, Gaussian σ (s) truncated at ± bound · σ.
     prs_reuse : ``PRS_REUSES``.  0 (default) — the paper's model: every link's PRS on all N bins in one symbol,
         received alone (its own noise, no other BS).  R > 0 — Table I's PRS frequency reuse: the PRS of TS 38.211

@@ -319,7 +319,7 @@ def rmse_payload(experiments: dict, progress: bool = False) -> dict:
         config[name] = experiment_config(e)
     e = next(iter(experiments.values()))
     bound, bound_cfg = {}, {}
-    if "honest" in experiments and experiments["honest"].links.snr_mode == "fixed":  # Chapter 8's bound, on the same trials
+    if "honest" in experiments and experiments["honest"].links.snr_mode == "fixed":  # the bounds chapter's bound, on the same trials
         n_b = min(paper.BOUND_TRIALS, experiments["honest"].run.n_trials)
         bound, bound_cfg = {"bound_m": bounds.rmse_bound_m(experiments["honest"], n_b)}, {"bound_trials": n_b}
     return {
@@ -343,7 +343,7 @@ register("fig09_rmse_vs_snr", "Fig. 9",
          "(a) DPE RMSE against SNR for M = 6, 12, 18, 24 nearest BSs: the honest receiver (window centred on a "
          f"{paper.PRIOR_SIGMA_M:g} m "
          "prior, certified search; solid) and the paper's truth-centred grid (dashed); (b) the honest receiver beside the "
-         "Cramér–Rao bound (Chapter 8), log axis.",
+         "Cramér–Rao bound (the bounds chapter), log axis.",
          result_plots.plot_rmse_vs_snr)(
     lambda progress=False, trials=None: rmse_payload(
         paper.fig9() if trials is None else paper.fig9(honest_trials=trials, truth_trials=trials), progress))
@@ -393,7 +393,8 @@ register("fig10_cdf_dpe_vs_otdoa", "Fig. 10",
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# Chapter 7: the readings of the paper against its claims about Figs. 9 and 10 (not a figure of the paper).
+# the reproduction chapter: the readings of the paper against its claims about Figs. 9 and 10 (not a figure of the
+# paper).
 
 #: short names of the claims and readings for the table's axes
 CLAIM_SHORT = {"fig9_6m": "Fig. 9: ≤ 6 m\n10 dB, M = 6", "fig9_falls": "Fig. 9: falls\nwith SNR (< ½)",

@@ -205,8 +205,8 @@ class Solver:
         return A, beta, b[0, :2] / 1000.0, (ue_z - b[0, 2]) / 1000.0
 
     def set_parameters(self, bs_xyz, toa_s, ue_z) -> None:
-        """Write ``parameters`` into the cvxpy Parameters, for a variant of the problem built on them (Chapter 6
-        solves the squared residual); ``solve`` does not need them set."""
+        """Write ``parameters`` into the cvxpy Parameters, for a variant of the problem built on them (the Fig. 10
+        chapter solves the squared residual); ``solve`` does not need them set."""
         self._set(self._flat(*self.parameters(bs_xyz, toa_s, ue_z)))
 
     def system(self, bs_xyz, toa_s, ue_z):

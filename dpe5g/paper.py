@@ -1,6 +1,6 @@
 """The paper's experiments, defined once: Fig. 9 (the honest receiver and the paper's truth-centred set-up), Fig. 10
-(two LoS cases × three window centrings), the studies of Chapter 5 (low SNR, link budget, the receiver window L),
-Chapter 3's ring studies and Chapter 8's check of the ML ToA.
+(two LoS cases × three window centrings), the studies of the Fig. 9 chapter (low SNR, link budget, the receiver window
+L), the DPE chapter's ring studies and the bounds chapter's check of the ML ToA.
 
 Every function takes the trial count as a parameter (the defaults are what the committed figures use); the seeds,
 names and receivers are fixed here, so a chapter, the figure registry (``dpe5g.figures``), the CLI and the tests that
@@ -26,8 +26,8 @@ HONEST_SEARCH_HALF_WIDTH_M = 30.0
 PRIOR_SIGMA_M = 5.0
 #: trial counts of the committed Fig. 9: the honest receiver's are set by what the 2-core CI machine can afford (each
 #: of its fixes is a certified global search; 1000 took a fresh `make test` to 1231 s, over its 20-minute budget);
-#: the truth-centred comparison uses the same seed, so its first trials are the same signals.  Chapter 7's honest
-#: reading runs its own READING_TRIALS at three SNRs instead (``fig9_honest_readings``)
+#: the truth-centred comparison uses the same seed, so its first trials are the same signals.  The reproduction
+#: chapter's honest reading runs its own READING_TRIALS at three SNRs instead (``fig9_honest_readings``)
 FIG9_HONEST_TRIALS = 400
 FIG9_TRUTH_TRIALS = 1000
 #: Fig. 10 (Section IV-B)
@@ -37,7 +37,8 @@ FIG10_CASES = ("two_of_four", "pr_los")
 #: prior, and on the truth (the paper's set-up, a labelled comparison)
 FIG10_CENTRINGS = ("otdoa", "prior", "truth")
 FIG10_TRIALS = 2000
-#: Chapter 5's studies beside Fig. 9: per-sample SNRs where the noise starts to matter, and SNR from the path loss
+#: the Fig. 9 chapter's studies beside Fig. 9: per-sample SNRs where the noise starts to matter, and SNR from the path
+#: loss
 LOW_SNRS_DB = (-35.0, -30.0, -25.0, -20.0, -15.0, -10.0, 0.0)
 STUDY_TRIALS = 1000
 #: the receiver-window study: windows compared, and the set-ups they are compared on (Fig. 9's at one SNR, Fig. 10's
@@ -49,7 +50,7 @@ URBAN_WINDOW_SEEDS = {"fig9_20db": 31, "fig10_pr_los": 32, "fig10_two_of_four": 
 URBAN_WINDOW_TRIALS = 200
 
 
-#: Chapter 8 (beyond the paper): Fig. 9's set-up with every link LoS (TDL-D), beside the Cramér–Rao bound.  Its
+#: The bounds chapter (beyond the paper): Fig. 9's set-up with every link LoS (TDL-D), beside the Cramér–Rao bound.  Its
 #: receivers, (window taps L, TDL-D K-factor in dB, final box side of the certified search in m): the honest receiver
 #: with the default window and with a one-tap window (the ML receiver of a single path) on the paper's TDL-D, and the
 #: one-tap window on a nearly single-path TDL-D (K = 40 dB) with a search resolution (5 mm) finer than the bound at
@@ -60,18 +61,18 @@ ALL_LOS_SNRS_DB = (10.0, 25.0, 40.0)
 #: trials per receiver: enough to place an RMSE within about 7 % (its standard error is about RMSE / √(2n) for a
 #: light tail), which separates a receiver at the bound from one several times above it
 ALL_LOS_TRIALS = 100
-#: trials over which Chapter 8 averages the bound (the bound of a trial costs its links' Fisher information)
+#: trials over which the bounds chapter averages the bound (the bound of a trial costs its links' Fisher information)
 BOUND_TRIALS = 200
-#: Chapter 8's check of the ML ToA against its bound: one path per link (los_mode "free_space") at this per-sample
-#: SNR — above the threshold region once the correlation gain is added —, the OTDoA peak detector's ToAs of the
-#: ML_TOA_LINKS nearest links of each trial
+#: the bounds chapter's check of the ML ToA against its bound: one path per link (los_mode "free_space") at this
+#: per-sample SNR — above the threshold region once the correlation gain is added —, the OTDoA peak detector's ToAs of
+#: the ML_TOA_LINKS nearest links of each trial
 ML_TOA_SNR_DB = -10.0
 ML_TOA_LINKS = 4
 ML_TOA_TRIALS = 1000
 ML_TOA_SEED = 8
 
-#: Chapter 3's studies on a ring (``deployment.BUILTIN`` "ring", "ring-wide"): every link NLoS (TDL-C), every BS used,
-#: one SNR; the receiver windows L compared (truth-centred grid, the paper's set-up), and the trials per study
+#: the DPE chapter's studies on a ring (``deployment.BUILTIN`` "ring", "ring-wide"): every link NLoS (TDL-C), every BS
+#: used, one SNR; the receiver windows L compared (truth-centred grid, the paper's set-up), and the trials per study
 RING_SNR_DB = 20.0
 RING_TAPS = (1, 2, 4, 8, 12, 16, 24, 32, 48, 64)
 RING_BIAS_HALF_WIDTH_M = 30.0
@@ -122,7 +123,7 @@ def fig10(n_trials: int = FIG10_TRIALS) -> dict:
 
 def fig9_all_los(n_taps: int, k_factor_db: float = 13.3, box_final_m: float = 0.05,
                  n_trials: int = ALL_LOS_TRIALS) -> Experiment:
-    """Chapter 8: ``fig9_honest`` with every link LoS (los_mode "all_los", TDL-D with K = ``k_factor_db``) at
+    """The bounds chapter: ``fig9_honest`` with every link LoS (los_mode "all_los", TDL-D with K = ``k_factor_db``) at
     ``ALL_LOS_SNRS_DB``, with an ``n_taps``-tap receiver window and certified boxes refined to ``box_final_m``."""
     return Experiment.build(name=f"fig09-all-los-L{n_taps}-K{k_factor_db:g}-box{box_final_m:g}", n_trials=n_trials,
                       seed=URBAN_SEED, los_mode="all_los", k_factor_db=k_factor_db, snrs_db=ALL_LOS_SNRS_DB,
@@ -131,12 +132,13 @@ def fig9_all_los(n_taps: int, k_factor_db: float = 13.3, box_final_m: float = 0.
 
 
 def fig9_low_snr(n_trials: int = STUDY_TRIALS) -> Experiment:
-    """Chapter 5: Fig. 9's truth-centred experiment at per-sample SNRs from −35 to 0 dB (``LOW_SNRS_DB``)."""
+    """The Fig. 9 chapter: Fig. 9's truth-centred experiment at per-sample SNRs from −35 to 0 dB (``LOW_SNRS_DB``)."""
     return Experiment.build(name="fig09-low-snr", n_trials=n_trials, seed=URBAN_SEED, snrs_db=LOW_SNRS_DB)
 
 
 def fig9_link_budget(n_trials: int = STUDY_TRIALS) -> Experiment:
-    """Chapter 5: Fig. 9's truth-centred experiment with each link's SNR from the UMi path loss and shadowing."""
+    """The Fig. 9 chapter: Fig. 9's truth-centred experiment with each link's SNR from the UMi path loss and
+    shadowing."""
     return Experiment.build(name="fig09-link-budget", n_trials=n_trials, seed=URBAN_SEED, snr_mode="link_budget",
                       snrs_db=())
 
@@ -158,12 +160,12 @@ def urban_window_experiments(search: search_config.SearchConfig | None = None, t
             for name, kw in setups.items() for n in taps}
 
 
-#: Chapter 8 (beyond the paper): the first-path-aware DPE — the honest receiver with eq. (10)'s L window taps
+#: The bounds chapter (beyond the paper): the first-path-aware DPE — the honest receiver with eq. (10)'s L window taps
 #: weighted by an exponential power-delay prior whose decay is the scenario's delay spread
-#: (``search_config.SearchConfig.window_decay_s``) — compared with the flat window on the same trials.  Fig. 9's comparison at
-#: the ends and the middle of its SNRs, on the committed Fig. 9's trials; Fig. 10's on its first trials, centred on
-#: the OTDoA fix (the realistic receiver).  The counts: a paired comparison of two receivers on the same trials needs
-#: fewer trials than an absolute RMSE, and 1000 Fig. 10 trials still put ten fixes beyond the p99
+#: (``search_config.SearchConfig.window_decay_s``) — compared with the flat window on the same trials.  Fig. 9's
+#: comparison at the ends and the middle of its SNRs, on the committed Fig. 9's trials; Fig. 10's on its first trials,
+#: centred on the OTDoA fix (the realistic receiver).  The counts: a paired comparison of two receivers on the same
+#: trials needs fewer trials than an absolute RMSE, and 1000 Fig. 10 trials still put ten fixes beyond the p99
 FIRST_PATH_SNRS_DB = ALL_LOS_SNRS_DB
 FIRST_PATH_FIG9_TRIALS = 200
 FIRST_PATH_FIG10_TRIALS = 1000
@@ -197,20 +199,21 @@ def first_path_comparison(fig9_trials: int = FIRST_PATH_FIG9_TRIALS,
     return out
 
 
-#: Chapter 7's readings of the paper: the SNRs of Fig. 9 its claims are tested at (10 dB: "within 6 m", "more BSs
-#: hurt"; 25 and 40 dB: saturation, sub-metre), and the trials per experiment the issue asks for (≥ 1000)
+#: the reproduction chapter's readings of the paper: the SNRs of Fig. 9 its claims are tested at (10 dB: "within 6 m",
+#: "more BSs hurt"; 25 and 40 dB: saturation, sub-metre), and the trials per experiment the issue asks for (≥ 1000)
 READING_SNRS_DB = (10.0, 25.0, 40.0)
 READING_TRIALS = 1000
-#: Table I's PRS frequency reuse factor (Chapters 4–7): TS 38.211's comb 6 over 6 symbols, each BS on one of 6 comb
-#: offsets (``deployment.prs_plan``), every BS of the deployment transmitting and the co-channel ones interfering.
-#: Interference needs each BS's power: Fig. 9's variant puts the nearest link at each SNR of its axis and every other
-#: BS at its path-loss difference (snr_mode "nearest"); Fig. 10 already takes every link's power from the path loss
+#: Table I's PRS frequency reuse factor (the urban-scenario to reproduction chapters): TS 38.211's comb 6 over 6
+#: symbols, each BS on one of 6 comb offsets (``deployment.prs_plan``), every BS of the deployment transmitting and the
+#: co-channel ones interfering. Interference needs each BS's power: Fig. 9's variant puts the nearest link at each SNR
+#: of its axis and every other BS at its path-loss difference (snr_mode "nearest"); Fig. 10 already takes every link's
+#: power from the path loss
 REUSE = 6
 #: Fig. 9's variants run at the readings' SNRs (10 dB: "more BSs hurt"; 25 and 40 dB: saturation), READING_TRIALS
-#: trials with reuse (its reading in Chapter 7's table needs ≥ 1000 per cell); Chapter 5 compares the three set-ups
-#: on the first REUSE_COMPARE_TRIALS of those trials: a paired comparison of the same signals, enough to tell whether
-#: M = 24 is above or below M = 6 where the two differ by more than about 10 %, not to place each RMSE closely
-#: (1000 honest trials of a set-up cost about 90 s on the 2-core CI machine)
+#: trials with reuse (its reading in the reproduction chapter's table needs ≥ 1000 per cell); the Fig. 9 chapter
+#: compares the three set-ups on the first REUSE_COMPARE_TRIALS of those trials: a paired comparison of the same
+#: signals, enough to tell whether M = 24 is above or below M = 6 where the two differ by more than about 10 %, not to
+#: place each RMSE closely (1000 honest trials of a set-up cost about 90 s on the 2-core CI machine)
 REUSE_COMPARE_TRIALS = 200
 #: Fig. 10's reuse variant: READING_TRIALS (its reading's cells need ≥ 1000), the first trials of Fig. 10
 REUSE_FIG10_TRIALS = READING_TRIALS
@@ -289,7 +292,7 @@ def fig10_reuse(n_trials: int = REUSE_FIG10_TRIALS, reuse: int = REUSE) -> dict:
 
 
 #: the paper's quantitative claims about Figs. 9 and 10 (Section IV, abstract), tested per reading: id → (claim with
-#: its test, the paper's value).  The tests are those of Chapter 7's claim table, at the readings' SNRs.
+#: its test, the paper's value).  The tests are those of the reproduction chapter's claim table, at the readings' SNRs.
 CLAIMS = {
     "fig9_6m": ("Fig. 9: RMSE within 6 m at 10 dB, M = 6", "≤ 6 m"),
     "fig9_falls": ("Fig. 9: RMSE falls with SNR, M = 6 (40 dB over 10 dB below ½)", "≈ 6 m → < 1 m"),
@@ -331,7 +334,7 @@ def _ring(name: str, dep: str, seed: int, n_trials: int, **settings) -> Experime
 
 
 def ring_window_experiments(n_trials: int = RING_TRIALS, taps=RING_TAPS) -> dict[int, Experiment]:
-    """Chapter 3's receiver-window study: {L: experiment} on the "ring" deployment (UE in a 10 m square), the grid
+    """The DPE chapter's receiver-window study: {L: experiment} on the "ring" deployment (UE in a 10 m square), the grid
     search centred on the truth (the paper's set-up) without polish, c δt searched over ±``RING_BIAS_HALF_WIDTH_M``
     m, the same trials (seed ``RING_WINDOW_SEED``) for every L."""
     return {n: _ring(f"ring-window-L{n}", "ring", RING_WINDOW_SEED, n_trials,
@@ -341,7 +344,7 @@ def ring_window_experiments(n_trials: int = RING_TRIALS, taps=RING_TAPS) -> dict
 
 
 def ring_centring_experiments(n_trials: int = RING_TRIALS) -> dict[str, Experiment]:
-    """Chapter 3's window-centring study on the "ring-wide" deployment (UE in a 100 m square): the default grid
+    """The DPE chapter's window-centring study on the "ring-wide" deployment (UE in a 100 m square): the default grid
     search centred on the truth (the paper's set-up) and on each trial's OTDoA (first-path) fix, with the OTDoA
     baseline on the same signals (seed ``RING_CENTRING_SEED``)."""
     search = search_config.SearchConfig(bias_half_width_m=RING_BIAS_HALF_WIDTH_M)
@@ -350,19 +353,20 @@ def ring_centring_experiments(n_trials: int = RING_TRIALS) -> dict[str, Experime
 
 
 def ml_toa_experiment(n_trials: int = ML_TOA_TRIALS) -> Experiment:
-    """Chapter 8's check of the ML ToA: every link one path (los_mode "free_space") at ``ML_TOA_SNR_DB`` per sample,
-    the ``ML_TOA_LINKS`` nearest links of the "tst" deployment, the OTDoA baseline on (its peak detector is the ML
-    ToA of one path).  The experiment's DPE (the default grid, truth-centred) runs too; the check does not read it."""
+    """The bounds chapter's check of the ML ToA: every link one path (los_mode "free_space") at ``ML_TOA_SNR_DB`` per
+    sample, the ``ML_TOA_LINKS`` nearest links of the "tst" deployment, the OTDoA baseline on (its peak detector is the
+    ML ToA of one path).  The experiment's DPE (the default grid, truth-centred) runs too; the check does not read
+    it."""
     return Experiment.build(name="ml-toa", los_mode="free_space", snr_mode="fixed", snrs_db=(ML_TOA_SNR_DB,),
                             m_values=(ML_TOA_LINKS,), otdoa=True, seed=ML_TOA_SEED, n_trials=n_trials)
 
 
 def book_experiments() -> list[Experiment]:
     """Every Monte Carlo experiment the book's chapters run, at the trial counts they run, in the order they first
-    need them (Chapters 3 and 5–8; ``run`` reuses a longer run's first trials, so an experiment whose first trials a
-    chapter reads at a smaller count appears once, at its largest).  ``dpe5g warm`` fills the cache with them (a chapter
-    computes whatever is missing itself, so this list only saves time); ``tests/test_warm.py`` checks it against the
-    runs a book build recorded."""
+    need them (the DPE chapter and the Fig. 9 to bounds chapters; ``run`` reuses a longer run's first trials, so an
+    experiment whose first trials a chapter reads at a smaller count appears once, at its largest).  ``dpe5g warm``
+    fills the cache with them (a chapter computes whatever is missing itself, so this list only saves time);
+    ``tests/test_warm.py`` checks it against the runs a book build recorded."""
     out = [*ring_window_experiments().values(), *ring_centring_experiments().values(),
            fig9_honest(), fig9_truth(), *urban_window_experiments().values(), fig9_low_snr(), fig9_link_budget(),
            fig9_power(REUSE_COMPARE_TRIALS), fig9_power(REUSE_COMPARE_TRIALS, REUSE, co_channel=False),

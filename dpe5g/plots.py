@@ -1,10 +1,11 @@
 """Drawing of the paper's figures from their data (never from live computation): the style every figure shares,
-and the figures of the channel, the cost and the scenario (Figs. 1–8, Chapter 3's plateau); the Monte Carlo results
-(Figs. 9–10, the readings, the studies) are drawn by ``result_plots``.
+and the figures of the channel, the cost and the scenario (Figs. 1–8, the DPE chapter's plateau); the Monte Carlo
+results (Figs. 9–10, the readings, the studies) are drawn by ``result_plots``.
 
 Each ``plot_*`` function takes the JSON-able payload that ``dpe5g.figures`` computed and returns a matplotlib
-Figure (created without pyplot, so no backend or global figure state is involved), so a figure can be redrawn from ``figures/data/<id>.json`` alone.  All figures use matplotlib's "default"
-style and the DejaVu Sans font bundled with matplotlib, so pixels depend only on the pinned matplotlib version.
+Figure (created without pyplot, so no backend or global figure state is involved), so a figure can be redrawn from
+``figures/data/<id>.json`` alone.  All figures use matplotlib's "default" style and the DejaVu Sans font bundled with
+matplotlib, so pixels depend only on the pinned matplotlib version.
 
 Legibility: the book shows a figure at its own size up to its 768-pixel column, so a figure at most ``MAX_WIDTH_IN``
 wide (at 100 dpi) is never shrunk, and text of ``MIN_FONT_PT`` is 9 pt on the page.  ``check_legible`` enforces both
@@ -312,8 +313,8 @@ COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b")
 
 
 def plot_plateau(payload: dict):
-    """Chapter 3: one BS term of eq. (10) against the candidate ToA offset c (τ − τ₀) for a TDL-D (LoS) and a TDL-C
-    (NLoS) link and several windows L (``studies.plateau_payload``), with the link's sampled CIR power as grey
+    """The DPE chapter: one BS term of eq. (10) against the candidate ToA offset c (τ − τ₀) for a TDL-D (LoS) and a
+    TDL-C (NLoS) link and several windows L (``studies.plateau_payload``), with the link's sampled CIR power as grey
     stems.  A window of L taps sums the CIR power over [τ, τ + (L − 1) T_s], so where one tap holds the energy the
     cost is flat for (L − 1) T_s before the first path and falls off a cliff after it."""
     d, c = payload["data"], payload["config"]

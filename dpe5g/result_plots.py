@@ -1,5 +1,5 @@
 """Drawing of the Monte Carlo results from their data (never from live computation): Figs. 9 and 10, the readings
-of the paper against its claims, and the studies of Chapters 5 and 8, in the style of ``plots``."""
+of the paper against its claims, and the studies of the Fig. 9 and bounds chapters, in the style of ``plots``."""
 
 from __future__ import annotations
 
@@ -130,8 +130,8 @@ def plot_rmse_vs_snr(payload: dict):
         if with_bound:
             axb = bottom.subplots()
             _draw_rmse_and_bound(axb, snr, c["m_values"], {"": d["honest"]["rmse_m"]}, d["bound_m"])
-            axb.set_title(f"(b) honest receiver (solid), Cramér–Rao bound (dotted, {c['bound_trials']} trials)",
-                          fontsize=10)
+            axb.set_title(f"(b) honest receiver (solid), Cramér–Rao bound (dotted, {c['bound_trials']} trials);\n"
+                          "the bound assumes every link's tap delays known", fontsize=10)
             axb.set_xlabel("SNR per time-domain sample, before correlation (dB)")
             axb.set_ylabel("RMSE (m)")
             axb.set_xticks(snr)
@@ -182,8 +182,8 @@ def plot_cdf(payload: dict):
 
 
 def plot_window_study(rows: list[dict]):
-    """Chapter 5: RMSE (left) and 90 % error (right) of the honest receiver against the receiver window L, one line
-    per (set-up, M) of ``studies.urban_window_table``."""
+    """The Fig. 9 chapter: RMSE (left) and 90 % error (right) of the honest receiver against the receiver window L, one
+    line per (set-up, M) of ``studies.urban_window_table``."""
     cols = sorted({(r["setup"], r["m"]) for r in rows})
     with style():
         fig = Figure(figsize=(7.4, 4.4), layout="constrained")
@@ -230,8 +230,8 @@ def _draw_rmse_and_bound(ax, snr, m_values, curves: dict, bound, styles=("-", "-
 
 
 def plot_rmse_and_bound(payload: dict):
-    """Chapter 8 (not in the paper): RMSE of receivers against the per-sample SNR beside the Cramér–Rao bound, log
-    axis, one colour per M.  payload: snrs_db (S,), m_values (J,), curves {label: (S, J) RMSE in m} drawn solid,
+    """The bounds chapter (not in the paper): RMSE of receivers against the per-sample SNR beside the Cramér–Rao bound,
+    log axis, one colour per M.  payload: snrs_db (S,), m_values (J,), curves {label: (S, J) RMSE in m} drawn solid,
     dashed, …, bound (S, J) in m drawn dotted."""
     snr = np.asarray(payload["snrs_db"])
     with style():
@@ -255,9 +255,9 @@ def format_claim(claim_id: str, value: float) -> str:
 
 
 def plot_readings(payload: dict):
-    """The readings table (Chapter 7): one row per reading of the paper, one column per claim of Figs. 9–10, each
-    cell its value with ✓ where it meets the claim (blue) and ✗ where it differs (orange): a colour-blind-safe pair,
-    and the mark carries the verdict without the colour."""
+    """The readings table (the reproduction chapter): one row per reading of the paper, one column per claim of Figs.
+    9–10, each cell its value with ✓ where it meets the claim (blue) and ✗ where it differs (orange): a
+    colour-blind-safe pair, and the mark carries the verdict without the colour."""
     claims, data = payload["config"]["claims"], payload["data"]
     ids, names = payload["config"]["claim_order"], payload["config"]["reading_order"]
     ok = np.array([[data[n]["reproduced"][c] for n in names] for c in ids], dtype=float)  # (claim, reading)
@@ -284,7 +284,8 @@ def plot_readings(payload: dict):
 
 
 def plot_link_sinr(groups: dict):
-    """Chapter 4: CDF of the per-link SNR (dashed) and SINR with PRS reuse (solid), one colour per group of links.
+    """The urban-scenario chapter: CDF of the per-link SNR (dashed) and SINR with PRS reuse (solid), one colour per
+    group of links.
     groups : {label: {"snr_db": array, "sinr_db": array}} (per-sample dB, any shape, flattened)."""
     with style():
         fig = Figure(figsize=(7.4, 4.0), layout="constrained")
@@ -306,8 +307,8 @@ def plot_link_sinr(groups: dict):
 
 
 def plot_reuse_rmse(payload: dict):
-    """Chapter 5: RMSE against the nearest link's per-sample SNR for each M, one panel per set-up of the payload
-    {"snrs_db", "m_values", "setups": {label: (S, J) RMSE}} (the same trials in every panel), log axis."""
+    """The Fig. 9 chapter: RMSE against the nearest link's per-sample SNR for each M, one panel per set-up of the
+    payload {"snrs_db", "m_values", "setups": {label: (S, J) RMSE}} (the same trials in every panel), log axis."""
     snr = np.asarray(payload["snrs_db"])
     setups = payload["setups"]
     vals = np.concatenate([np.ravel(v) for v in setups.values()])
@@ -334,8 +335,8 @@ def plot_reuse_rmse(payload: dict):
 
 
 def plot_reuse_cdf(payload: dict):
-    """Chapter 6: error CDFs of the OTDoA-centred DPE (solid) and first-path OTDoA (dashed) with and without PRS reuse,
-    one panel per LoS case.  payload {"cases": {case: {label: {"dpe": errors, "otdoa": errors}}}}."""
+    """The Fig. 10 chapter: error CDFs of the OTDoA-centred DPE (solid) and first-path OTDoA (dashed) with and without
+    PRS reuse, one panel per LoS case.  payload {"cases": {case: {label: {"dpe": errors, "otdoa": errors}}}}."""
     titles = {"two_of_four": "(a) 2 of 4 links LoS (paper's case)", "pr_los": "(b) LoS from eq. (11)"}
     n_cases = len(payload["cases"])
     if n_cases == 0:

@@ -15,11 +15,12 @@ import numpy as np
 from . import _checks, correlogram
 from .nr import PAPER, Numerology
 
-#: Default receiver window L (taps).  First chosen in Chapter 3 on 8 NLoS (TDL-C) links on a 150 m ring with the grid
-#: on the truth, where L = 12 gave the smallest RMSE; chosen again on the urban scenario (mixed LoS/NLoS, Figs. 9 and
-#: 10 set-ups) with the honest receiver (prior-centred window, certified search; ``paper.urban_window_experiments``,
-#: Chapter 5), where the rule of ``studies.choose_window`` picks L = 12 again.  Shorter windows lock onto the strongest
-#: cluster of NLoS links; longer ones widen the LoS plateau and flatten the peak (the TDL-C excess delay is 69 samples).
+#: Default receiver window L (taps).  First chosen in the DPE chapter on 8 NLoS (TDL-C) links on a 150 m ring with the
+#: grid on the truth, where L = 12 gave the smallest RMSE; chosen again on the urban scenario (mixed LoS/NLoS, Figs. 9
+#: and 10 set-ups) with the honest receiver (prior-centred window, certified search; ``paper.urban_window_experiments``,
+#: the Fig. 9 chapter), where the rule of ``studies.choose_window`` picks L = 12 again.  Shorter windows lock onto the
+#: strongest cluster of NLoS links; longer ones widen the LoS plateau and flatten the peak (the TDL-C excess delay is 69
+#: samples).
 DEFAULT_TAPS = 12
 SEARCH_METHODS = ("grid", "bnb")
 
@@ -29,7 +30,7 @@ class SearchConfig:
     """Divide-and-conquer grid search of eq. (10) over (x, y, c δt) at known UE height (the paper's set-up), or over
     (x, y, z, c δt) with ``z_half_width_m`` > 0.
 
-    n_taps : receiver window L in taps (default ``DEFAULT_TAPS``; Chapter 3 shows the bias-vs-L study behind it).
+    n_taps : receiver window L in taps (default ``DEFAULT_TAPS``; the DPE chapter shows the bias-vs-L study behind it).
     upsample : correlogram grid T_s / upsample (4 → 0.61 m of range; cubic interpolation between grid points).
     half_width_m : the grid spans centre ± half_width_m in x and y.
     bias_half_width_m : and centre ± this in c δt (the paper's clock bias: σ = 5 ns = 1.5 m); 0 fixes δt.
@@ -39,12 +40,12 @@ class SearchConfig:
         with the step divided by 2.5, until the step is ≤ final_step_m.
     final_step_m : resolution reached by the grid (0.1 m by default).
     polish : after the grid, Newton steps on the exact ``ml_cost`` with JAX autodiff (accepted only if the cost rises).
-        Off by default, as in the paper, whose search ends on the grid: on Chapter 3's ring study it moves fixes by
-        4 cm (median, 13 cm at most) and costs about as much as the grid search.
+        Off by default, as in the paper, whose search ends on the grid: on the DPE chapter's ring study it moves fixes
+        by 4 cm (median, 13 cm at most) and costs about as much as the grid search.
     method : "grid" — the coarse-to-fine grid above (``grid_search``: the paper's divide-and-conquer search; no
-        guarantee); "bnb" — ``certified_search.certified_search``: branch-and-bound over (x, y, c δt) boxes that returns the global maximum of
-        eq. (10) (cubic-spline form) inside the window with a certified gap.  The fields below apply to "bnb" only,
-        which searches (x, y, c δt) at the known UE height (``z_half_width_m`` must be 0).
+        guarantee); "bnb" — ``certified_search.certified_search``: branch-and-bound over (x, y, c δt) boxes that returns
+        the global maximum of eq. (10) (cubic-spline form) inside the window with a certified gap.  The fields below
+        apply to "bnb" only, which searches (x, y, c δt) at the known UE height (``z_half_width_m`` must be 0).
     spline_upsample : T_s / spline_upsample is the knot spacing of the spline form of eq. (10) (8 → 0.305 m).
     box_m : side of the first boxes in x and y (the c δt window is split into ``bias_boxes`` boxes).
     box_final_m : boxes are halved until their x, y side is ≤ this (m).
@@ -60,7 +61,7 @@ class SearchConfig:
         the bound left over the final boxes, does.
     gap_tol : a fix is certified when its upper bound exceeds its cost by at most gap_tol × cost.
     window_decay_s : 0 (default) — eq. (10)'s window, its L taps weighted equally; > 0 (seconds, "bnb" only) — the
-        first-path-aware window, our extension and not the paper's (Chapter 8): tap l weighted by
+        first-path-aware window, our extension and not the paper's (the bounds chapter): tap l weighted by
         exp(−l T_s / window_decay_s) (``correlogram.tap_weights``).
     """
 

@@ -62,7 +62,7 @@ def noise_variance(snr_db, prs) -> jax.Array:
 #: what a stated SNR means: "per_sample" — signal power over noise variance per time sample (the SNR of
 #: ``noise_variance``, this book's convention); "total" — the SNR after correlating the N samples of the symbol, the
 #: energy of the whole pilot over the noise variance, 10 log10 N dB above the per-sample SNR (a reading of the paper's
-#: SNR, which it does not define; Chapter 7)
+#: SNR, which it does not define; the reproduction chapter)
 SNR_CONVENTIONS = ("per_sample", "total")
 
 
@@ -103,8 +103,8 @@ def received_spectrum(prs, freq_response, toa_s, clock_bias_s=0.0, num: Numerolo
     δt in seconds, scalar or (...,), common to the M base stations.  Returns complex (..., M, N).
 
     This is the one signal path of the package: ``received_noiseless`` is its inverse DFT, and the Monte Carlo
-    engine (``dpe5g.receiver.spectrum_at``) adds its noise here, in the frequency domain, where the receivers start (the DFT is
-    unitary, so CN(0, σ²) per bin is exactly the time-domain AWGN of the same variance).
+    engine (``dpe5g.receiver.spectrum_at``) adds its noise here, in the frequency domain, where the receivers start (the
+    DFT is unitary, so CN(0, σ²) per bin is exactly the time-domain AWGN of the same variance).
     """
     _checks.require_x64()
     tau = jnp.asarray(toa_s) + jnp.asarray(clock_bias_s)[..., None]

@@ -1,5 +1,5 @@
-"""The studies behind the receiver's choices: the window L on Chapter 3's ring (``ring_window_table``) and again on
-the urban scenario (``urban_window_table``, ``choose_window``), the plateau of eq. (10) for one link
+"""The studies behind the receiver's choices: the window L on the DPE chapter's ring (``ring_window_table``) and again
+on the urban scenario (``urban_window_table``, ``choose_window``), the plateau of eq. (10) for one link
 (``plateau_payload``), and where each fix places each link's ToA (``range_offsets_m``).  Their experiments are
 defined in ``dpe5g.paper`` and run by the engine like every other.
 """
