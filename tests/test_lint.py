@@ -41,8 +41,9 @@ def private_uses(source: str, own: str) -> list[str]:
 
 
 def chapter_code(text: str) -> str:
-    """The code cells of a MyST notebook, their option lines left out."""
-    cells = re.findall(r"```\{code-cell\}[^\n]*\n(.*?)```", text, re.S)
+    """The code cells of a MyST notebook, their option lines (``:tags:`` or a ``---`` YAML block) left out."""
+    cells = [re.sub(r"\A---\n.*?\n---\n", "", c, flags=re.S)
+             for c in re.findall(r"```\{code-cell\}[^\n]*\n(.*?)```", text, re.S)]
     return "\n\n".join("\n".join(line for line in c.split("\n") if not line.startswith((":", "%", "---")))
                        for c in cells)
 
