@@ -95,15 +95,7 @@ def render(payload: dict):
     return get(payload["id"]).plot(payload)
 
 
-def caption_md(fig_id: str) -> str:
-    """The book's caption of a registered figure (Markdown): the paper's figure it reproduces, then its caption."""
-    spec = get(fig_id)
-    if spec.paper_ref is None:
-        return f"**Our table, not in the paper.** {spec.caption}"
-    return f"**Reproduces the paper's {spec.paper_ref}.** {spec.caption}"
-
-
-def glue(name: str, fig, caption: str | None = None) -> None:
+def glue(name: str, fig) -> None:
     """Hand a drawn figure (or any displayable object, e.g. HTML) to a chapter's ``{glue:figure}`` directive
     (MyST-NB glue); a matplotlib Figure must pass ``plots.check_legible`` (text ≥ 9 pt, shown unshrunk).  The
     chapter writes the caption, with any number in it glued as ``{glue:text}``::
@@ -119,10 +111,6 @@ def glue(name: str, fig, caption: str | None = None) -> None:
     if isinstance(fig, Figure):
         plots.check_legible(fig)
     _glue(name, fig, display=False)
-    if caption is not None:  # (the chapters' old glued captions, while they move into the chapters' Markdown)
-        from IPython.display import Markdown
-
-        _glue(f"{name}_caption", Markdown(caption), display=False)
 
 
 def write(fig_id: str, out_dir, progress: bool = False, trials: int | None = None) -> tuple[Path, Path]:

@@ -37,14 +37,15 @@ RC = {
 }
 
 
-#: the smallest text of any figure (pt) and the widest figure (inches, at RC's 100 dpi, cropped to its drawn extent)
+#: the smallest text of any figure (pt), and the widest figure (inches at RC's 100 dpi: the book's 768-pixel column)
 MIN_FONT_PT = 9.0
-MAX_WIDTH_IN = 7.6
+MAX_WIDTH_IN = 7.68
 
 
 def check_legible(fig) -> None:
-    """ValueError unless every visible text of ``fig`` is at least ``MIN_FONT_PT`` and both its size and its drawn
-    extent (what the book shows, cropped) are at most ``MAX_WIDTH_IN`` wide, so that the book shows it unshrunk."""
+    """ValueError unless every visible text of ``fig`` is at least ``MIN_FONT_PT`` and the figure, as saved (its
+    size) and as the book shows it (its drawn extent plus the 0.1-inch margins of a tight crop), is at most
+    ``MAX_WIDTH_IN`` wide, so that the book shows it unshrunk."""
     fig.draw_without_rendering()
     small = [(t.get_fontsize(), t.get_text()) for t in fig.findobj(Text)
              if t.get_visible() and t.get_text().strip() and t.get_fontsize() < MIN_FONT_PT]
@@ -52,8 +53,8 @@ def check_legible(fig) -> None:
         size, text = min(small)
         raise ValueError(f"figure text {text!r} is {size:g} pt; every text must be at least {MIN_FONT_PT:g} pt "
                          f"({len(small)} smaller)")
-    width = max(fig.get_figwidth(), fig.get_tightbbox().width)  # the saved PNG's width, or the book's cropped one
-    if width > MAX_WIDTH_IN + 0.05:
+    width = max(fig.get_figwidth(), fig.get_tightbbox().width + 2 * matplotlib.rcParams["savefig.pad_inches"])
+    if width > MAX_WIDTH_IN:
         raise ValueError(f"figure is {width:.2f} in wide; at most {MAX_WIDTH_IN} in is shown without shrinking its text")
 
 
@@ -87,7 +88,7 @@ def plot_tdl(payload: dict):
     t_ns = np.asarray(d["grid_ns"])
     cir = np.asarray(d["grid_abs"])
     with style():
-        fig = Figure(figsize=(7.6, 4.1), layout="constrained")
+        fig = Figure(figsize=(7.4, 4.1), layout="constrained")
         ax_a, ax_b = fig.subplots(1, 2)
         nlos = ~los
         ml, _, _ = ax_a.stem(delays_ns[nlos], np.abs(gains[nlos]), basefmt=" ", label="taps |$h_l$|")
@@ -137,7 +138,7 @@ def plot_cost_surface(payload: dict):
     c = np.asarray(d["cost_norm"])
     ue = cfg["ue_xyz"]
     with style():
-        fig = Figure(figsize=(7.5, 4.0), layout="constrained")
+        fig = Figure(figsize=(7.3, 4.0), layout="constrained")
         fig.get_layout_engine().set(wspace=0.08)  # room between the colorbar's label and (b)'s y label
         ax_a, ax_b = fig.subplots(1, 2)
         im = ax_a.pcolormesh(x, y, c, shading="nearest", cmap="viridis", vmin=0, vmax=1)
@@ -239,7 +240,7 @@ def plot_deployment(payload: dict):
                     lw=1.4 if los else 1.0, zorder=3)
         bs = np.asarray(d["bs_xyz"])
         ax.plot(bs[:, 0], bs[:, 1], "^", color="#d62728", markersize=7, markeredgecolor="k", mew=0.5, zorder=4,
-                label=f"BS ({len(bs)}, 10 m, 24 dBm)")
+                label=f"BS ({len(bs)}, 10 m, 24 dBm)", clip_on=False)  # masts on the map's edge drawn whole
         ax.plot(ue[0], ue[1], "o", color="#1f77b4", markersize=8, markeredgecolor="k", zorder=5, label="example UE")
         ax.plot([], [], "-", color="#2ca02c", label="LoS link")
         ax.plot([], [], "--", color="#ff7f0e", label="NLoS link")
@@ -305,7 +306,7 @@ def plot_urban_correlogram(payload: dict):
         ax.set_ylabel("north offset from the UE (m)")
         ax.set_aspect("equal")
         ax.legend(fontsize=9, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2, frameon=False)
-        ax.set_title(f"{c['m']} nearest BSs ({d['n_los']} LoS), {c['snr_db']:g} dB, L = {c['n_taps']}")
+        ax.set_title(f"{c['m']} nearest BSs ({d['n_los']} LoS), {c['snr_db']:g} dB, receiver window of {c['n_taps']} taps")
     return fig
 
 
@@ -330,7 +331,7 @@ def plot_plateau(payload: dict):
                       label="sampled CIR power |h[n]|²")
             for n, col in zip(c["taps"], COLORS):
                 plateau = (n - 1) * c["sample_m"]
-                lab = f"L = {n}" + (f" (plateau {plateau:.1f} m)" if n > 1 else "")
+                lab = f"L = {n}" + (f" (plateau (L − 1)cTₛ = {plateau:.1f} m)" if n > 1 else "")
                 ax.plot(x, d[name]["cost"][str(n)], color=col, lw=1.4, label=lab)
             ax.axvline(0.0, color="k", lw=0.8, ls=":")
             ax.set_xlim(x.min(), x.max())
@@ -338,5 +339,5 @@ def plot_plateau(payload: dict):
             ax.set_xlabel("candidate ToA offset c(τ − τ₀) (m)")
             ax.set_title(titles[name], fontsize=9)
         axes[0].set_ylabel("cost of one link / its maximum")
-        fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncol=3, fontsize=9, frameon=False)
+        fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncol=2, fontsize=9, frameon=False)
     return fig

@@ -148,7 +148,8 @@ def received_samples(
     clock_bias_s: float = 0.0,
     num: Numerology = PAPER,
 ) -> jax.Array:
-    """Received samples y_m = F^{-1} D_m Γ_m(p) H_m + η_m of eqs. (5)–(6) with AWGN at ``snr_db``.
+    """Received samples y_m = F D_m Γ_m(p) H_m + η_m of eqs. (5)–(6) with AWGN at ``snr_db``, F the unitary inverse
+    DFT (the synthesis of eq. (5); the module docstring says how this reads eq. (6)).
 
     key : jax.random key for the noise; snr_db : dB, scalar or (M,), per-sample SNR as defined in the module
     docstring.  Other arguments as ``received_noiseless``.  Returns complex (M, N).

@@ -192,7 +192,7 @@ def test_no_code_block_runs_off_the_page(server, browser, page_path):
 @pytest.mark.parametrize("page_path", pages() or ["index.html"])
 def test_figures_are_shown_at_their_own_size(server, browser, page_path):
     """Every page: every figure image is shown at least as wide as its pixels (the book never shrinks one).  With
-    ``tests/test_legibility.py`` (every figure at most 7.6 in at 100 dpi, every text at least 9 pt) this keeps every
+    ``tests/test_legibility.py`` (every figure at most 7.68 in at 100 dpi, every text at least 9 pt) this keeps every
     figure's text at 9 pt or more on the page."""
     page = browser.new_page(viewport={"width": 1400, "height": 1000})
     try:

@@ -25,7 +25,7 @@ def test_small_text_and_wide_figures_are_refused():
             plots.check_legible(fig)
         wide = Figure(figsize=(9.0, 3.0))
         wide.subplots().plot([0, 1])
-        with pytest.raises(ValueError, match=r"9.\d\d in wide; at most 7.6 in"):
+        with pytest.raises(ValueError, match=r"9.\d\d in wide; at most 7.68 in"):
             plots.check_legible(wide)
         with pytest.raises(ValueError, match="at least 9 pt"):
             figures.glue("small", fig)

@@ -147,3 +147,37 @@ def test_the_name_check_sees_a_moved_name():
     assert missing_names("from dpe5g import correlogram\ncorrelogram.mix_parts(1)\n", "") == [
         "correlogram.mix_parts (line 2)"]
     assert missing_names("from dpe5g import receiver\nreceiver.mix_parts(1)\n", "") == []
+
+
+def book_sources() -> dict:
+    """Every page of the book (chapters and book/*.md) and every module whose docstrings the book shows."""
+    pages = sorted(CHAPTERS.glob("*.md")) + sorted((ROOT / "book").glob("*.md")) + sorted(PKG.glob("*.py"))
+    return {str(p.relative_to(ROOT)): p.read_text() for p in pages}
+
+
+def test_no_generated_prose_and_no_typed_chapter_numbers():
+    """The book's sentences are written in its pages, not built by code: no ``{glue:md}`` (numbers are glued with
+    ``{glue:text}``, and a sentence that depends on them has a check cell).  Chapters are referred to by
+    ``{numref}``/``{ref}`` (or, in code and docstrings, by their subject), never by a typed number that a
+    renumbering would break."""
+    generated = [name for name, text in book_sources().items() if "{glue:md}" in text]
+    typed = [f"{name}:{text[:m.start()].count(chr(10)) + 1}" for name, text in book_sources().items()
+             for m in re.finditer(r"\bChapters? \d", text)]
+    assert not generated, f"{{glue:md}} (prose built by code) in {generated}"
+    assert not typed, f"typed chapter numbers at {typed}"
+
+
+def test_no_prose_line_is_a_myst_comment():
+    """MyST reads a line that starts with ``%`` as a comment and drops it: a wrapped sentence whose line begins
+    with "% of the trials" silently loses that line."""
+    dropped = []
+    for name, text in book_sources().items():
+        if not name.endswith(".md"):
+            continue
+        fence = False
+        for k, line in enumerate(text.splitlines(), 1):
+            if line.lstrip().startswith("```"):
+                fence = not fence
+            elif not fence and line.startswith("%"):
+                dropped.append(f"{name}:{k}")
+    assert not dropped, f"lines MyST drops as comments: {dropped}"
