@@ -356,7 +356,8 @@ def plot_reuse_cdf(payload: dict):
             ax.set_ylim(0, 1)
             ax.set_yticks(np.arange(0, 1.01, 0.1))
             ax.set_xlabel("horizontal position error (m)")
-            ax.set_title(titles.get(case, case), fontsize=10)
+            title = titles.get(case, case)
+            ax.set_title(title if n_cases > 1 else title.removeprefix("(a) ").removeprefix("(b) "), fontsize=10)
             ax.set_ylabel("CDF")
             ax.legend(fontsize=9, loc="upper left", bbox_to_anchor=(0.0, -0.14), frameon=False)
     return fig

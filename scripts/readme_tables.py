@@ -226,7 +226,7 @@ def found_text(book: bool = False) -> str:
         f"- **Fig. 9** (RMSE against SNR, {ref('chapter-rmse', 'Chapter %s')}), honest receiver: "
         f"{h(i_lo, ms[0]):.2f} m at {lo:g} dB and "
         f"{h(i_hi, ms[0]):.2f} m at {hi:g} dB with M = {ms[0]}, {h(i_lo, ms[-1]):.2f} m and {h(i_hi, ms[-1]):.2f} m "
-        f"with M = {ms[-1]}: it moves by at most {spread:.0f} % over {lo:g}–{hi:g} dB for any M, where the paper's "
+        f"with M = {ms[-1]}: it moves by at most {spread:.0f} % over {lo:g}–{hi:g} dB for any M, whereas the paper's "
         f"falls with the SNR (within 6 m at {lo:g} dB with M = 6, below 1 m at {hi:g} dB with M ≥ 18).",
         f"- **Fig. 10** (error CDF with the 4 nearest BSs, 2 of them LoS; {ref('chapter-otdoa', 'Chapter %s')}): 90 % "
         f"of DPE's errors within {r['dpe_otdoa']['p50_p90_p99_m'][1]:.2f} m when its search is centred on the OTDoA "
