@@ -107,6 +107,8 @@ def link_snr_db(e: Experiment, rx_dbm, rx_nearest_dbm, snrs) -> jax.Array:
     then read in the experiment's ``snr_convention``."""
     if e.links.snr_mode == "link_budget":
         snr = e.links.budget.model_snr_db(rx_dbm - e.links.budget.noise_dbm)[None, :]
+        if e.links.snr_offset_db:
+            snr = snr + e.links.snr_offset_db
     else:
         snr = snrs[:, None] + (rx_dbm - rx_nearest_dbm)[None, :]
     return signal.per_sample_snr_db(snr, e.links.snr_convention)
@@ -136,7 +138,8 @@ def draw_fn(e: Experiment, dep: deployment.Deployment):
     of the profile it belongs to, and the received spectrum ``signal.received_spectrum`` (the one signal path;
     ``signal.received_noiseless`` is its inverse DFT, which a test checks against the engine).  With PRS reuse the
     co-channel BSs' draws come from fold_in(key, 2000), so the links' draws are those of the same experiment
-    without reuse."""
+    without reuse; with an NLoS excess delay (``Scenario.nlos_excess_median_s``) the links' Δτ come from
+    fold_in(key, 3000), so every other draw is that of the same experiment without it."""
     links = _LinkModel(e, dep)
     m_max = max(e.receiver.m_values)
 
@@ -151,10 +154,18 @@ def draw_fn(e: Experiment, dep: deployment.Deployment):
             los = jnp.ones(m_max, dtype=bool)
         elif e.scenario.los_mode == "all_nlos":
             los = jnp.zeros(m_max, dtype=bool)
+        elif e.scenario.los_mode == "nearest_two_los":  # the two nearest LoS, the two farther NLoS
+            los = jnp.array([True, True, False, False])
         else:  # two of the four nearest LoS, which two at random
             los = jax.random.permutation(k_los, jnp.array([True, True, False, False]))
         bias = scenario.clock_bias(k_b, e.scenario.clock_sigma_s, e.scenario.clock_bound_sigmas)
         h, gains = links.channels(los, k_c, k_d, m_max)
+        delays = jnp.where(los[:, None], links.delays_d, links.delays_c)
+        if e.scenario.nlos_excess_median_s:  # every path of an NLoS link Δτ late, from a key of its own
+            excess = scenario.nlos_excess_delay(jax.random.fold_in(key, 3000), los, e.scenario.nlos_excess_median_s,
+                                                e.scenario.nlos_excess_sigma_lg)
+            h = h * signal.delay_phasor(excess)
+            delays = delays + excess[:, None]
         prs = links.prs_all[idx]
         y_clean = signal.received_spectrum(prs, h, cost.toa(ue, bs), bias)
         if e.links.snr_mode == "fixed":
@@ -170,7 +181,7 @@ def draw_fn(e: Experiment, dep: deployment.Deployment):
             reuse = ReuseDraw(res=links.res_all[idx], co_channel=x, n_res=e.scenario.prs_reuse)
         noise = signal.awgn(k_n, y_clean.shape, 1.0)  # CN(0, 1) per bin, scaled per SNR by ``receiver.spectrum_at``
         return TrialDraw(ue_xyz=ue, clock_bias_s=bias, bs_index=idx, bs_xyz=bs, los=los, prs=prs, gains=gains,
-                         delays_s=jnp.where(los[:, None], links.delays_d, links.delays_c), y0=y_clean,
+                         delays_s=delays, y0=y_clean,
                          link_snr_db=snr, link_sinr_db=sinr_db(snr, reuse), noise=noise, reuse=reuse,
                          per_link_power=e.links.snr_mode != "fixed")
 

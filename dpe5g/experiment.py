@@ -28,7 +28,11 @@ SOURCES = ("channel.py", "correlogram.py", "deployment.py", "cost.py", "grid_sea
            "dpe.py", "experiment.py", "draw.py", "receiver.py", "trials.py", "engine.py", "store.py", "nr.py",
            "otdoa.py", "scenario.py", "signal.py")
 
-LOS_MODES = ("pr_los", "two_of_four", "all_los", "all_nlos", "free_space")
+#: settings added after the results store was first filled, with their defaults: at its default such a setting is
+#: left out of ``Experiment.config_key``, so the stored results of every experiment that does not use it keep their key
+LATER_SETTINGS = {"nlos_excess_median_s": 0.0, "nlos_excess_sigma_lg": 0.0, "snr_offset_db": 0.0}
+
+LOS_MODES = ("pr_los", "two_of_four", "all_los", "all_nlos", "free_space", "nearest_two_los")
 SNR_MODES = ("fixed", "link_budget", "nearest")
 #: PRS frequency reuse factors: 0 — the paper's model (full-band PRS on all N bins, one symbol, every link received
 #: alone); R in ``nr.PRS_COMB_SIZES`` — TS 38.211's comb R, fully staggered over R symbols, BSs on R resources
@@ -50,7 +54,8 @@ class Scenario:
         "all_los" — every link LoS (TDL-D; not the paper's: The bounds chapter compares it with the Cramér–Rao bound);
         "all_nlos" — every link NLoS (TDL-C; the DPE chapter's ring studies); "free_space" — every link LoS with one
         path of unit power and uniform phase at the geometric delay, no multipath (the bounds chapter's check of the ML
-        ToA against its bound).
+        ToA against its bound); "nearest_two_los" — of the four nearest links, the two nearest LoS and the two
+        farther NLoS (a deterministic reading of the paper's Fig. 10 case; needs max(m_values) = 4).
     delay_spread_s, k_factor_db : TDL-C (NLoS) / TDL-D (LoS) at this delay spread (s); TDL-D's K (dB).
     delay_spread_def : what delay_spread_s means for both profiles (``channel.DELAY_SPREAD_DEFS``): "rms", TR
         38.901's RMS spread (default), or "span", first to last tap (the paper's text; the reproduction chapter's
@@ -66,6 +71,10 @@ class Scenario:
         taps are then spaced for the pilots' band (``receiver.receiver_window``).
     co_channel : with prs_reuse > 0, whether the co-channel BSs' signals are received (True, default) or left out
         (the pattern and the shared noise alone, for comparison).
+    nlos_excess_median_s, nlos_excess_sigma_lg : NLoS excess delay (``scenario.nlos_excess_delay``; ours, not the
+        paper's): every path of an NLoS link arrives Δτ after the geometric delay, lg Δτ normal with median
+        nlos_excess_median_s (s, in [0, 1e-6]) and standard deviation nlos_excess_sigma_lg (decades, in [0, 1]).  Off
+        by default (median 0), when the first tap sits at the geometric delay as in TR 38.901's TDL models.
     """
 
     deployment: str = "tst"
@@ -77,6 +86,8 @@ class Scenario:
     clock_bound_sigmas: float = 3.0
     prs_reuse: int = 0
     co_channel: bool = True
+    nlos_excess_median_s: float = 0.0
+    nlos_excess_sigma_lg: float = 0.0
 
     def __post_init__(self):
         _checks.one_of("los_mode", self.los_mode, LOS_MODES)
@@ -88,6 +99,11 @@ class Scenario:
         _checks.one_of("prs_reuse", self.prs_reuse, PRS_REUSES)
         if not isinstance(self.co_channel, bool):
             raise ValueError(f"co_channel must be True or False, got {self.co_channel!r}")
+        _checks.in_range("nlos_excess_median_s", self.nlos_excess_median_s, 0.0, 1e-6, "s (30 ns is 3e-8)")
+        _checks.in_range("nlos_excess_sigma_lg", self.nlos_excess_sigma_lg, 0.0, 1.0, "decades")
+        if self.nlos_excess_median_s and self.prs_reuse:
+            raise ValueError("nlos_excess_median_s > 0 is not modelled with prs_reuse > 0 (the co-channel BSs' "
+                             "channels have no excess delay): use one or the other")
 
     def load_deployment(self) -> deployment.Deployment:
         """The deployment this scenario names."""
@@ -107,12 +123,15 @@ class Links:
         "total", after correlation over the N samples (the per-sample SNR is then 10 log10 N dB lower).  The results'
         link_snr_db is always the per-sample SNR the links were simulated at.
     budget : the link budget (``scenario.LinkBudget``).
+    snr_offset_db : with snr_mode "link_budget", dB added to every link's SNR (our sweep of Fig. 10's unstated SNR,
+        in [-60, 20]); 0 otherwise.
     """
 
     snr_mode: str = "fixed"
     snrs_db: tuple[float, ...] = (10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0)
     snr_convention: str = "per_sample"
     budget: scenario.LinkBudget = field(default_factory=scenario.LinkBudget)
+    snr_offset_db: float = 0.0
 
     def __post_init__(self):
         _checks.one_of("snr_mode", self.snr_mode, SNR_MODES)
@@ -127,6 +146,10 @@ class Links:
         elif len(self.snrs_db):
             raise ValueError(f"snrs_db must be empty when snr_mode is 'link_budget' (the SNR comes from the path "
                              f"loss), got {self.snrs_db!r}")
+        _checks.in_range("snr_offset_db", self.snr_offset_db, -60.0, 20.0, "dB")
+        if self.snr_offset_db and self.snr_mode != "link_budget":
+            raise ValueError(f"snr_offset_db applies to snr_mode 'link_budget' only (the other modes list their "
+                             f"SNRs), got {self.snr_offset_db!r} with {self.snr_mode!r}")
 
     @property
     def n_snr(self) -> int:
@@ -223,8 +246,8 @@ class Experiment:
         if sc.prs_reuse and self.links.snr_mode == "fixed":
             raise ValueError("prs_reuse > 0 needs each BS's received power for its interference: snr_mode must be "
                              "'link_budget' or 'nearest', got 'fixed'")
-        if sc.los_mode == "two_of_four" and max(rx.m_values) != 4:
-            raise ValueError(f"los_mode 'two_of_four' fixes the LoS state of the four nearest links; m_values must "
+        if sc.los_mode in ("two_of_four", "nearest_two_los") and max(rx.m_values) != 4:
+            raise ValueError(f"los_mode {sc.los_mode!r} fixes the LoS state of the four nearest links; m_values must "
                              f"end in 4, got {rx.m_values!r}")
 
     @classmethod
@@ -285,6 +308,9 @@ class Experiment:
         d = self.to_dict()
         for k in ("name", "n_trials", "chunk_trials"):
             d.pop(k)
+        for k, default in LATER_SETTINGS.items():  # at its default, a setting added later leaves the key as it was
+            if d[k] == default:
+                d.pop(k)
         h = hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode())
         h.update(deployment_digest(self).encode())
         return h.hexdigest()[:16]

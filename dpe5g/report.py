@@ -89,3 +89,9 @@ def provenance_markdown(experiments, recomputed: dict | None = None) -> str:
         lines.append(f"| {e.run.name} | {e.run.n_trials} ({hit.n_trials}) | `{hit.meta['config_key']}` | "
                      f"`{hit.meta['code_version']}` | {commit} | {again} |")
     return "\n".join(lines)
+
+
+def markdown_table(header, rows) -> str:
+    """A Markdown pipe table: ``header`` (columns) and ``rows`` (lists of cells), every cell str()-ed."""
+    lines = ["| " + " | ".join(map(str, header)) + " |", "|" + "---|" * len(header)]
+    return "\n".join(lines + ["| " + " | ".join(map(str, r)) + " |" for r in rows])

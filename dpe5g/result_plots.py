@@ -361,3 +361,33 @@ def plot_reuse_cdf(payload: dict):
             ax.set_ylabel("CDF")
             ax.legend(fontsize=9, loc="upper left", bbox_to_anchor=(0.0, -0.14), frameon=False)
     return fig
+
+
+def plot_p90_sweep(payload: dict):
+    """The NLoS-bias chapter: 90 % error (log axis) with its 95 % bootstrap interval against a swept setting, one
+    line per receiver, one panel per case.  payload {"x": (K,), "xlabel", "panels": {title: {receiver: {"p90_m",
+    "lo_m", "hi_m": (K,)}}}, "marks": {label: metres}} (the paper's stated values, dotted horizontal lines)."""
+    x = np.asarray(payload["x"], dtype=float)
+    panels = payload["panels"]
+    styles = ("-o", "--s", "-.d", "-^", ":v")
+    with style():
+        fig = Figure(figsize=(7.4, 3.9 * len(panels) + 0.9), layout="constrained")
+        axes = np.atleast_1d(fig.subplots(len(panels), 1, sharex=True))
+        for ax, (title, curves) in zip(axes, panels.items()):
+            for (label, c), col, st in zip(curves.items(), COLORS, styles):
+                p90 = np.asarray(c["p90_m"])
+                err = [p90 - np.asarray(c["lo_m"]), np.asarray(c["hi_m"]) - p90]
+                ax.errorbar(x, p90, yerr=err, fmt=st, color=col, ms=5, capsize=3, label=label)
+            for (label, v), col in zip(payload.get("marks", {}).items(), ("k", "0.4")):
+                ax.axhline(v, color=col, lw=1.0, ls=":", label=label)
+            vals = [v for c in curves.values() for k in ("lo_m", "hi_m") for v in c[k]]
+            vals += list(payload.get("marks", {}).values())
+            log_ticks(ax, min(vals) / 1.3, max(vals) * 1.3)
+            ax.set_xticks(x)
+            ax.set_title(title, fontsize=10)
+            ax.set_ylabel("90 % error (m)")
+            ax.xaxis.set_tick_params(labelbottom=True)
+        axes[-1].set_xlabel(payload["xlabel"])
+        fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncol=2, fontsize=9,
+                   frameon=False)
+    return fig

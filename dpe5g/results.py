@@ -138,3 +138,13 @@ def error_stats(res: Results) -> dict:
     return {"rmse_m": res.rmse_m(), "median_m": np.median(err, axis=0), "p90_m": np.quantile(err, 0.9, axis=0),
             "p99_m": np.quantile(err, 0.99, axis=0), "rmse_unflagged_m": np.sqrt(np.nanmean(kept**2, axis=0)),
             "edge_share": edge.mean(axis=0), "certified_share": res.certified.mean(axis=0)}
+
+
+def bootstrap_interval(err, stat=lambda e: np.quantile(e, 0.9), n_boot: int = 2000, seed: int = 0,
+                       level: float = 0.95) -> tuple[float, float]:
+    """The ``level`` bootstrap interval (percentile method) of ``stat`` (default: the 90 % point) of errors err (T,),
+    resampling the trials ``n_boot`` times with a generator seeded by ``seed`` (so the interval reproduces)."""
+    err = np.asarray(err, dtype=float)
+    rng = np.random.default_rng(seed)
+    draws = np.array([stat(err[rng.integers(0, err.size, err.size)]) for _ in range(n_boot)])
+    return float(np.quantile(draws, (1 - level) / 2)), float(np.quantile(draws, (1 + level) / 2))

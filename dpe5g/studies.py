@@ -10,6 +10,7 @@ import jax
 import numpy as np
 
 from . import channel, correlogram, engine, nr, results, signal
+from .experiment import OTDOA_DETECTORS
 from .nr import C
 
 
@@ -104,3 +105,28 @@ def range_offsets_m(res) -> np.ndarray:
     out = est - true[:, None, None, :]
     used = np.arange(bs.shape[1])[None, :] < np.asarray(res.experiment.receiver.m_values)[:, None]  # (J, I)
     return np.where(used[None, None], out, np.nan)
+
+
+#: the receivers of a Fig. 10 row of ``fig10_rows``: DPE by centring, OTDoA by detector
+FIG10_RECEIVERS = ("dpe_otdoa", "dpe_prior", "dpe_truth", "otdoa_first_path", "otdoa_peak")
+
+
+def fig10_rows(experiments: dict, n_boot: int = 1000) -> list[dict]:
+    """One row per (key, receiver) of Fig. 10-like experiments {key: {centring: Experiment}} (the "otdoa" one holding
+    both OTDoA detectors' fixes): the key, the receiver, its 50 / 90 / 99 % errors (m), the 95 % bootstrap interval
+    of its 90 % error (``results.bootstrap_interval``) and, for DPE, the share of fixes on the window's edge."""
+    rows = []
+    for key, by_centring in experiments.items():
+        for cen, e in by_centring.items():
+            res = engine.run(e)
+            errs = {f"dpe_{cen}": (res.error_m[:, 0, 0], res.edge[:, 0, 0])}
+            if e.receiver.otdoa:
+                errs |= {f"otdoa_{det}": (res.otdoa_error_m[:, 0, k, 0], None)
+                         for k, det in enumerate(OTDOA_DETECTORS)}
+            for rx, (err, edge) in errs.items():
+                p50, p90, p99 = results.quantiles(err)
+                lo, hi = results.bootstrap_interval(err, n_boot=n_boot)
+                rows.append({"key": key, "receiver": rx, "n_trials": int(err.size), "p50_m": p50, "p90_m": p90,
+                             "p99_m": p99, "p90_lo_m": lo, "p90_hi_m": hi,
+                             "edge_share": None if edge is None else float(np.mean(edge))})
+    return rows

@@ -186,3 +186,72 @@ def test_prs_reuse_plan_bad_input():
         deployment.prs_plan(np.zeros((3, 3)), 5)
     with pytest.raises(ValueError, match="n_bs must be at most reuse × PRS IDs = 2 × 4096"):
         deployment.prs_plan(np.zeros((2 * 4096 + 1, 3)), 2)
+
+
+def test_nlos_excess_delay_is_the_stated_log_normal():
+    """scenario.nlos_excess_delay: 0 on LoS links; on NLoS links lg Δτ normal with the stated median and σ_lg
+    (Kolmogorov–Smirnov against that law), and exactly the median when σ_lg = 0."""
+    import jax
+    from scipy import stats
+
+    los = np.arange(20000) % 4 == 0
+    d = np.asarray(scenario.nlos_excess_delay(jax.random.PRNGKey(3), los, 30e-9, 0.3))
+    assert np.all(d[los] == 0.0)
+    lg = np.log10(d[~los])
+    assert stats.kstest(lg, stats.norm(np.log10(30e-9), 0.3).cdf).pvalue > 1e-3
+    assert stats.kstest(lg, stats.norm(np.log10(30e-9) + 0.05, 0.3).cdf).pvalue < 1e-6  # the test can fail
+    fixed = np.asarray(scenario.nlos_excess_delay(jax.random.PRNGKey(3), los, 30e-9, 0.0))
+    assert np.all(fixed[~los] == 30e-9)
+    with pytest.raises(ValueError, match=r"median_s must be finite and in \[0, 1e-06\] s"):
+        scenario.nlos_excess_delay(jax.random.PRNGKey(3), los, 30.0, 0.3)
+    with pytest.raises(ValueError, match="sigma_lg"):
+        scenario.nlos_excess_delay(jax.random.PRNGKey(3), los, 30e-9, -1.0)
+
+
+def test_nlos_excess_delay_delays_every_path_of_the_nlos_links_only():
+    """With the excess delay on, a trial's draws are those of the same experiment without it, except that each NLoS
+    link's spectrum is turned by Γ(Δτ) (all its paths Δτ late) and its tap delays grow by Δτ; at its default the
+    setting leaves the experiment's key as it was."""
+    import dataclasses
+
+    import jax
+
+    from dpe5g import draw, experiment, paper, signal
+
+    base = paper.fig9_truth(n_trials=4)
+    late = dataclasses.replace(base, scenario=dataclasses.replace(base.scenario, nlos_excess_median_s=30e-9,
+                                                                  nlos_excess_sigma_lg=0.2))
+    assert late.config_key() != base.config_key()
+    as_before = dataclasses.replace(base, scenario=dataclasses.replace(base.scenario, nlos_excess_sigma_lg=0.0))
+    assert as_before.config_key() == base.config_key()
+    dep = base.load_deployment()
+    key = draw.trial_key(base.run.seed, 1)
+    d0, d1 = draw.draw_fn(base, dep)(key), draw.draw_fn(late, dep)(key)
+    los = np.asarray(d0.los)
+    assert (~los).any() and np.array_equal(los, np.asarray(d1.los))
+    excess = np.asarray(d1.delays_s - d0.delays_s)[:, 0]
+    assert np.all(excess[los] == 0.0) and np.all(excess[~los] > 0.0)
+    np.testing.assert_allclose(np.asarray(d1.y0), np.asarray(d0.y0 * signal.delay_phasor(excess)), atol=1e-12)
+    np.testing.assert_array_equal(np.asarray(d1.noise), np.asarray(d0.noise))
+    with pytest.raises(ValueError, match="nlos_excess_median_s must be in"):
+        experiment.Scenario(nlos_excess_median_s=30.0)
+
+
+def test_nearest_two_los_and_the_snr_offset_change_only_what_they_say():
+    """los_mode "nearest_two_los": the two nearest of the four links LoS, the two farther NLoS, every trial;
+    snr_offset_db: every link's SNR moved by exactly that many dB, the other draws unchanged."""
+    from dpe5g import draw, paper
+
+    base = paper.fig10(4)[("two_of_four", "truth")]
+    near = paper.fig10_nearest_los(4)["truth"]
+    low = paper.fig10_snr_offset(-12.0, 4)["truth"]
+    dep = base.load_deployment()
+    for t in range(3):
+        key = draw.trial_key(base.run.seed, t)
+        d0, dn, dl = (draw.draw_fn(e, dep)(key) for e in (base, near, low))
+        assert np.array_equal(np.asarray(dn.los), [True, True, False, False])
+        np.testing.assert_array_equal(np.asarray(dn.ue_xyz), np.asarray(d0.ue_xyz))
+        np.testing.assert_allclose(np.asarray(dl.link_snr_db - d0.link_snr_db), -12.0, atol=1e-12)
+        np.testing.assert_array_equal(np.asarray(dl.y0), np.asarray(d0.y0))
+    with pytest.raises(ValueError, match="snr_offset_db applies to snr_mode 'link_budget' only"):
+        paper.fig9_truth(4).replace(snr_offset_db=-6.0)
