@@ -134,22 +134,25 @@ def verify_sample(seed: int, n_families: int = SAMPLE_FAMILIES, n_trials: int = 
 
 def coverage_runs(n_stored: int, n_per_run: int, quantile: float = 0.95) -> tuple[float, int]:
     """Runs of ``verify_sample`` (``n_per_run`` distinct families of ``n_stored`` each, independent seeds)
-    until every family, so every stored experiment, has been verified at least once: (mean, the ``quantile`` point).  Exact, from the
-    distribution of the runs needed (inclusion–exclusion over the experiments never drawn)."""
+    until every family, so every stored experiment, has been verified at least once: (mean, the ``quantile`` point).
+    Exact up to rounding, from the chain of the number of families not yet drawn: a run that finds k of them undrawn
+    draws i of those with the hypergeometric probability C(k, i) C(n − k, m − i) / C(n, m) (all terms positive, so
+    no cancellation, unlike inclusion–exclusion over the families never drawn)."""
     from math import comb
 
-    def p_all_within(r: int) -> float:  # P(every experiment drawn within r runs)
-        miss = sum((-1) ** (j + 1) * comb(n_stored, j) * (comb(n_stored - j, n_per_run) / comb(n_stored, n_per_run)) ** r
-                   for j in range(1, n_stored - n_per_run + 1))
-        return 1.0 - miss
-
-    mean, r, cdf = 0.0, 0, 0.0
-    q_point = None
+    n, m = n_stored, min(n_per_run, n_stored)
+    step = np.zeros((n + 1, n + 1))  # step[k, k - i]: P(k undrawn → k - i undrawn)
+    for k in range(n + 1):
+        for i in range(0, min(k, m) + 1):
+            step[k, k - i] = comb(k, i) * comb(n - k, m - i) / comb(n, m)
+    dist = np.zeros(n + 1)
+    dist[n] = 1.0
+    mean, r, cdf, q_point = 0.0, 0, 0.0, None
     while cdf < 1 - 1e-12 and r < 100_000:
         r += 1
-        new = p_all_within(r)
-        mean += r * (new - cdf)
-        cdf = new
+        dist = dist @ step
+        mean += r * (dist[0] - cdf)
+        cdf = dist[0]
         if q_point is None and cdf >= quantile:
             q_point = r
     return mean, q_point
