@@ -204,8 +204,9 @@ def plot_window_study(rows: list[dict]):
             ax.grid(True, which="both", alpha=0.3)
             ax.set_xlabel("receiver window L (taps)")
             ax.set_ylabel(lab)
-        fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncol=2, fontsize=9,
-                   frameon=False)
+        handles, labels = axes[0].get_legend_handles_labels()
+        fig.legend(handles, labels, loc="outside lower center", ncol=2 if max(map(len, labels)) <= 45 else 1,
+                   fontsize=9, frameon=False)
     return fig
 
 
@@ -384,10 +385,11 @@ def plot_p90_sweep(payload: dict):
             vals += list(payload.get("marks", {}).values())
             log_ticks(ax, min(vals) / 1.3, max(vals) * 1.3)
             ax.set_xticks(x)
-            ax.set_title(title, fontsize=10)
+            ax.set_title(textwrap.fill(title, 90), fontsize=10)
             ax.set_ylabel("90 % error (m)")
             ax.xaxis.set_tick_params(labelbottom=True)
         axes[-1].set_xlabel(payload["xlabel"])
-        fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncol=2, fontsize=9,
-                   frameon=False)
+        handles, labels = axes[0].get_legend_handles_labels()
+        fig.legend(handles, labels, loc="outside lower center", ncol=2 if max(map(len, labels)) <= 45 else 1,
+                   fontsize=9, frameon=False)
     return fig
