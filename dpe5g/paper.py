@@ -164,9 +164,9 @@ def fig10_window_confound(n_trials: int = FIG10_TRIALS) -> dict:
     the paper's truth-centred window (±10 m, the clock window of the truth-centred grid) — "certified ±10 m" — and
     inside the honest receivers' ±30 m window, still centred on the truth — "certified ±30 m"; the grid in the
     ±10 m window is Fig. 10's "truth" experiment."""
-    out = {}
+    out, f10 = {}, fig10(n_trials)
     for case in FIG10_CASES:
-        truth = fig10(n_trials)[(case, "truth")]
+        truth = f10[(case, "truth")]
         grid = truth.receiver.search
         narrow = replace(honest_search(), half_width_m=grid.half_width_m,
                          bias_half_width_m=grid.bias_half_width_m)

@@ -89,15 +89,21 @@ def test_reproduce_reports_and_rewrites(small, capsys):
     assert verify.reproduce([e], progress=False) == []  # rewritten: now what the code computes
 
 
-def test_coverage_runs_matches_a_simulation():
-    rng = np.random.default_rng(0)
+def simulated_coverage_runs(n_families: int, per_run: int, reps: int, seed: int) -> np.ndarray:
+    """Runs until every one of n_families has been drawn, per_run distinct families a run, in reps simulations."""
+    rng = np.random.default_rng(seed)
     runs = []
-    for _ in range(2000):
+    for _ in range(reps):
         seen, r = set(), 0
-        while len(seen) < 10:
-            seen |= set(rng.choice(10, 3, replace=False).tolist())
+        while len(seen) < n_families:
+            seen |= set(rng.choice(n_families, per_run, replace=False).tolist())
             r += 1
         runs.append(r)
+    return np.asarray(runs)
+
+
+def test_coverage_runs_matches_a_simulation():
+    runs = simulated_coverage_runs(10, 3, 2000, seed=0)
     mean, q95 = verify.coverage_runs(10, 3)
     assert abs(mean - np.mean(runs)) < 0.15 and abs(q95 - np.quantile(runs, 0.95)) <= 1
 
@@ -122,13 +128,6 @@ def test_coverage_runs_stays_exact_for_many_families():
     """85 families (the store's count once the NLoS study joined it): inclusion–exclusion over the families never
     drawn cancelled catastrophically there (a mean of 571449 runs); the chain of undrawn families agrees with a
     simulation."""
-    rng = np.random.default_rng(1)
-    runs = []
-    for _ in range(400):
-        seen, r = set(), 0
-        while len(seen) < 85:
-            seen |= set(rng.choice(85, 3, replace=False).tolist())
-            r += 1
-        runs.append(r)
+    runs = simulated_coverage_runs(85, 3, 400, seed=1)
     mean, q95 = verify.coverage_runs(85, 3)
     assert abs(mean - np.mean(runs)) < 6 and abs(q95 - np.quantile(runs, 0.95)) < 15
