@@ -193,9 +193,9 @@ def _figures(args) -> int:
 # ---- dpe5g warm ------------------------------------------------------------------------------------------------------
 
 def _warm(args) -> int:
-    from . import engine, paper
+    from . import engine, verify
 
-    exps = paper.book_experiments()
+    exps = verify.store_experiments()
     order = exps if args.forward else exps[::-1]
     t0 = time.perf_counter()
     with _cluster(args) as client:
@@ -393,7 +393,7 @@ def _add_other_commands(sub) -> None:
     f.set_defaults(func=_figures)
 
     w = sub.add_parser("warm", help="fill the Monte Carlo cache with every experiment the book runs",
-                       description="Run (or load) every experiment of dpe5g.paper.book_experiments into the cache, "
+                       description="Run (or load) every experiment of dpe5g.verify.store_experiments into the cache, "
                                    "last first, so that a book build running at the same time meets it in the middle. "
                                    "The results are the book's own to the bit (trial t depends on the seed and t).")
     w.add_argument("--forward", action="store_true", help="run in the book's order instead")

@@ -121,93 +121,6 @@ def fig10(n_trials: int = FIG10_TRIALS) -> dict:
     return out
 
 
-#: the NLoS excess-delay study (ours: the paper's claim that DPE mitigates the NLoS bias, under a model where NLoS
-#: links have one): Fig. 10's receivers with every NLoS link's paths late by a log-normal Δτ
-#: (``scenario.nlos_excess_delay``), at each median of ``scenario.NLOS_EXCESS_MEDIANS_S`` (0 is Fig. 10 itself).
-#: σ_lg = 0.26 decades is the spread Sionna's implementation of TR 38.901 §7.6.9 uses for RMa NLoS (the standard's
-#: UMi row was not available to us); the trial count resolves a 90 % error to about ±6 % (bootstrap, stated in the book)
-NLOS_EXCESS_SIGMA_LG = 0.26
-NLOS_EXCESS_TRIALS = 1000
-
-
-def fig10_nlos_excess(median_s: float, n_trials: int = NLOS_EXCESS_TRIALS) -> dict:
-    """``fig10``'s experiments, keyed (case, centring), with every NLoS link's paths ``median_s`` late (median of a
-    log-normal of ``NLOS_EXCESS_SIGMA_LG`` decades, drawn per link; the receivers do not know it).  median_s 0 gives
-    Fig. 10's own experiments (their first ``n_trials`` trials)."""
-    if median_s == 0:
-        return fig10(n_trials)
-    tag = f"excess{median_s * 1e9:g}ns"
-    return {k: e.replace(name=f"{e.run.name}-{tag}", nlos_excess_median_s=median_s,
-                         nlos_excess_sigma_lg=NLOS_EXCESS_SIGMA_LG) for k, e in fig10(n_trials).items()}
-
-
-#: Fig. 10's unstated SNR, swept: every link's link-budget SNR offset by these dB (0: Fig. 10; −36 dB is about the
-#: correlation gain 10 log10 N, the "total SNR" reading), the paper's stated case, FIG10_SWEEP_TRIALS trials each
-FIG10_SNR_OFFSETS_DB = (0.0, -6.0, -12.0, -18.0, -24.0, -30.0, -36.0)
-FIG10_SWEEP_TRIALS = 1000
-#: the medians of the NLoS excess delay at which Fig. 9's honest receiver is run (FIG9_HONEST_TRIALS trials each)
-FIG9_EXCESS_MEDIANS_S = (30e-9, 100e-9)
-
-
-def fig10_snr_offset(offset_db: float, n_trials: int = FIG10_SWEEP_TRIALS) -> dict:
-    """Fig. 10's paper's case (two of the four nearest links LoS) with every link's SNR offset by ``offset_db``,
-    keyed by centring ("otdoa" also holds both OTDoA detectors' fixes); offset 0 gives Fig. 10's own experiments."""
-    f10 = fig10(n_trials)
-    out = {cen: f10[("two_of_four", cen)] for cen in FIG10_CENTRINGS}
-    if offset_db == 0:
-        return out
-    return {cen: e.replace(name=f"{e.run.name}-snr{offset_db:+g}db", snr_offset_db=offset_db) for cen, e in out.items()}
-
-
-def fig10_window_confound(n_trials: int = FIG10_TRIALS) -> dict:
-    """The optimiser and the window apart, on Fig. 10's trials, keyed (case, variant): the certified search inside
-    the paper's truth-centred window (±10 m, the clock window of the truth-centred grid) — "certified ±10 m" — and
-    inside the honest receivers' ±30 m window, still centred on the truth — "certified ±30 m"; the grid in the
-    ±10 m window is Fig. 10's "truth" experiment."""
-    out, f10 = {}, fig10(n_trials)
-    for case in FIG10_CASES:
-        truth = f10[(case, "truth")]
-        grid = truth.receiver.search
-        narrow = replace(honest_search(), half_width_m=grid.half_width_m,
-                         bias_half_width_m=grid.bias_half_width_m)
-        for variant, search in (("certified ±10 m", narrow), ("certified ±30 m", honest_search())):
-            tag = "bnb10" if variant.endswith("10 m") else "bnb30"
-            out[(case, variant)] = truth.replace(name=f"{truth.run.name}-{tag}", search=search)
-    return out
-
-
-def fig10_nearest_los(n_trials: int = FIG10_TRIALS) -> dict:
-    """Fig. 10 with the deterministic reading of its case: of the four nearest links the two nearest LoS, the two
-    farther NLoS (los_mode "nearest_two_los"), keyed by centring; the same seed and so the same UEs as Fig. 10."""
-    return {cen: e.replace(name=e.run.name.replace("two-of-four", "nearest-two-los"), los_mode="nearest_two_los")
-            for (case, cen), e in fig10(n_trials).items() if case == "two_of_four"}
-
-
-def fig9_excess(median_s: float, n_trials: int = FIG9_HONEST_TRIALS) -> Experiment:
-    """Fig. 9's honest receiver (``fig9_honest``) with every NLoS link's paths ``median_s`` late (σ_lg
-    ``NLOS_EXCESS_SIGMA_LG``; the same trials otherwise)."""
-    return fig9_honest(n_trials).replace(name=f"fig09-honest-excess{median_s * 1e9:g}ns", nlos_excess_median_s=median_s,
-                                         nlos_excess_sigma_lg=NLOS_EXCESS_SIGMA_LG)
-
-
-def fig9_blind(n_trials: int = FIG9_HONEST_TRIALS) -> Experiment:
-    """Fig. 9 blind: the honest receiver's certified search in the ±30 m window centred on each trial's OTDoA fix
-    (first-path detector, the M nearest links) instead of on the prior; the same trials as ``fig9_honest``."""
-    return fig9_honest(n_trials).replace(name="fig09-blind", centring="otdoa", otdoa=True)
-
-
-def nlos_study_experiments() -> list[Experiment]:
-    """Every experiment of the NLoS-bias chapter, at the trial counts it reads."""
-    out = []
-    for median in scenario.NLOS_EXCESS_MEDIANS_S[1:]:
-        out += list(fig10_nlos_excess(median).values())
-    for offset in FIG10_SNR_OFFSETS_DB[1:]:
-        out += list(fig10_snr_offset(offset).values())
-    out += list(fig10_window_confound().values()) + list(fig10_nearest_los().values())
-    out += [fig9_excess(m) for m in FIG9_EXCESS_MEDIANS_S] + [fig9_blind()]
-    return out
-
-
 def fig9_all_los(n_taps: int, k_factor_db: float = 13.3, box_final_m: float = 0.05,
                  n_trials: int = ALL_LOS_TRIALS) -> Experiment:
     """The bounds chapter: ``fig9_honest`` with every link LoS (los_mode "all_los", TDL-D with K = ``k_factor_db``) at
@@ -304,62 +217,6 @@ REUSE = 6
 REUSE_COMPARE_TRIALS = 200
 #: Fig. 10's reuse variant: READING_TRIALS (its reading's cells need ≥ 1000), the first trials of Fig. 10
 REUSE_FIG10_TRIALS = READING_TRIALS
-#: the readings, in the order of the table: name → (label, changes to the paper's set-up as we read it).  Set-up as
-#: we read it: window centred on the truth (the paper's centring), RMS delay spread, per-sample SNR, L = 12,
-#: first-path OTDoA, Fig. 10's stated case (two of the four nearest links LoS)
-READINGS = {
-    "as_read": ("the paper's set-up as this book reads it", {}),
-    "peak_otdoa": ("… with a strongest-peak ToA for OTDoA", {"otdoa_detector": "peak"}),
-    "span": ("… with the delay spread as the first-to-last span (the paper's text)", {"delay_spread_def": "span"}),
-    "total_snr": ("… with the SNR after correlation (total)", {"snr_convention": "total"}),
-    "span_total": ("… with both", {"delay_spread_def": "span", "snr_convention": "total"}),
-    "honest": ("the honest receiver (window on a prior / the OTDoA fix, certified search)", {"centring": "honest"}),
-    "reuse": (f"the honest receiver with Table I's PRS reuse {REUSE} and co-channel interference, every link's "
-              "power from the path loss", {"centring": "honest", "prs_reuse": REUSE}),
-}
-
-
-def fig9_honest_readings(n_trials: int = READING_TRIALS) -> Experiment:
-    """Fig. 9's honest receiver (``fig9_honest``) at the readings' SNRs (``READING_SNRS_DB``) with
-    ``READING_TRIALS`` trials: the honest reading's Fig. 9 cells.  A trial's draws, and its noise (drawn once and
-    scaled to each SNR), do not depend on the SNR list, so its first trials are Fig. 9's signals at these SNRs."""
-    return fig9_honest(n_trials).replace(name="fig09-honest-readings", snrs_db=READING_SNRS_DB)
-
-
-def reading_experiments(name: str, n_trials: int | None = None) -> dict:
-    """The experiments of reading ``name`` (``READINGS``): {"fig9": Experiment, "fig10_dpe": Experiment,
-    "fig10_otdoa": Experiment holding the OTDoA fixes, "otdoa_detector": "first_path" or "peak"}; Fig. 10 is its
-    stated case (two of the four nearest links LoS).  The readings that change only the OTDoA detector or the
-    centring read the figures' own experiments (and caches), at the figures' trial counts, except the honest
-    reading's Fig. 9, which runs ``fig9_honest_readings`` (``READING_TRIALS`` trials, more than the committed Fig. 9's
-    honest curves can afford); the others run ``READING_TRIALS`` trials of Fig. 9's set-up at ``READING_SNRS_DB`` and
-    of Fig. 10's, truth-centred, with the OTDoA baseline on the same signals.  n_trials : run every experiment with
-    this many trials instead (a quick look; the book uses the defaults)."""
-    if name not in READINGS:
-        raise ValueError(f"reading must be one of {', '.join(READINGS)}, got {name!r}")
-    kw = dict(READINGS[name][1])
-    detector = kw.pop("otdoa_detector", "first_path")
-    f10 = fig10() if n_trials is None else fig10(n_trials)
-    honest, reuse = kw.pop("centring", None) == "honest", kw.pop("prs_reuse", 0)
-    if honest and reuse:
-        e10 = fig10_reuse(reuse=reuse) if n_trials is None else fig10_reuse(n_trials, reuse)
-        return {"fig9": fig9_power(reuse=reuse) if n_trials is None else fig9_power(n_trials, reuse),
-                "fig10_dpe": e10["two_of_four"], "fig10_otdoa": e10["two_of_four"], "otdoa_detector": detector}
-    if honest:
-        return {"fig9": fig9_honest_readings() if n_trials is None else fig9_honest_readings(n_trials),
-                "fig10_dpe": f10[("two_of_four", "otdoa")], "fig10_otdoa": f10[("two_of_four", "otdoa")],
-                "otdoa_detector": detector}
-    if not kw:
-        return {"fig9": fig9_truth() if n_trials is None else fig9_truth(n_trials),
-                "fig10_dpe": f10[("two_of_four", "truth")], "fig10_otdoa": f10[("two_of_four", "otdoa")],
-                "otdoa_detector": detector}
-    n = READING_TRIALS if n_trials is None else n_trials
-    tag = "-".join(str(v).replace("_", "-") for v in kw.values())
-    e10 = f10[("two_of_four", "truth")].replace(name=f"fig10-two-of-four-truth-{tag}", n_trials=n, otdoa=True, **kw)
-    return {"fig9": fig9_truth(n).replace(name=f"fig09-{tag}", snrs_db=READING_SNRS_DB, **kw),
-            "fig10_dpe": e10, "fig10_otdoa": e10, "otdoa_detector": detector}
-
-
 def fig9_power(n_trials: int = READING_TRIALS, reuse: int = 0, co_channel: bool = True) -> Experiment:
     """Fig. 9's honest receiver (``fig9_honest``) at ``READING_SNRS_DB`` of the nearest link, every other link at its
     received-power difference from the path loss and shadowing (snr_mode "nearest").  reuse 0: the paper's PRS, each
@@ -376,43 +233,6 @@ def fig10_reuse(n_trials: int = REUSE_FIG10_TRIALS, reuse: int = REUSE) -> dict:
     f10 = fig10(n_trials)
     return {case: f10[(case, "otdoa")].replace(name=f"fig10-{case.replace('_', '-')}-otdoa-reuse{reuse}",
                                                prs_reuse=reuse) for case in FIG10_CASES}
-
-
-#: the paper's quantitative claims about Figs. 9 and 10 (Section IV, abstract), tested per reading: id → (claim with
-#: its test, the paper's value).  The tests are those of the reproduction chapter's claim table, at the readings' SNRs.
-CLAIMS = {
-    "fig9_6m": ("Fig. 9: RMSE within 6 m at 10 dB, M = 6", "≤ 6 m"),
-    "fig9_falls": ("Fig. 9: RMSE falls with SNR, M = 6 (40 dB over 10 dB below ½)", "≈ 6 m → < 1 m"),
-    "fig9_submetre": ("Fig. 9: sub-metre at 40 dB with M ≥ 18 (the better M)", "< 1 m"),
-    "fig9_more_hurts": ("Fig. 9: more BSs hurt at 10 dB (RMSE M = 24 over M = 6 above 1)", "> 1"),
-    "fig9_saturation": ("Fig. 9: saturation 18 → 24 BSs (largest change at 25 and 40 dB within 10 %)", "≈ 0"),
-    "fig10_dpe_p90": ("Fig. 10: DPE, 90 % of errors within 2 m", "2 m"),
-    "fig10_dpe_p99": ("Fig. 10: DPE, 99 % of errors within 7 m", "7 m"),
-    "fig10_otdoa_p90": ("Fig. 10: OTDoA 90 % point 42 m (within 20 %)", "42 m"),
-    "fig10_gain": ("Fig. 10: 1 − p90(DPE) / p90(OTDoA) = 95.24 % (within 2 points)", "95.24 %"),
-}
-
-
-def claim_values(rmse_m, snrs_db, m_values, dpe_err_m, otdoa_err_m) -> dict:
-    """Test ``CLAIMS`` on one reading's results: rmse_m (S, J) Fig. 9's RMSE at SNRs snrs_db (must hold 10, 25 and
-    40 dB) and M m_values (must hold 6, 18, 24); dpe_err_m, otdoa_err_m (T,) Fig. 10's horizontal errors.
-    Returns {claim id: (value, reproduced)}: metres, a ratio or a share as the claim states it."""
-    snrs, ms = [float(s) for s in snrs_db], [int(m) for m in m_values]
-    missing = {10.0, 25.0, 40.0} - set(snrs), {6, 18, 24} - set(ms)
-    if missing[0] or missing[1]:
-        raise ValueError(f"claim_values needs Fig. 9 at 10, 25, 40 dB and M = 6, 18, 24; missing SNRs "
-                         f"{sorted(missing[0])}, M {sorted(missing[1])}")
-    r = lambda snr, m: float(np.asarray(rmse_m)[snrs.index(snr), ms.index(m)])
-    d90, d99 = (float(q) for q in np.quantile(dpe_err_m, [0.9, 0.99]))
-    o90 = float(np.quantile(otdoa_err_m, 0.9))
-    sat = max(abs(r(s, 24) / r(s, 18) - 1) for s in (25.0, 40.0))
-    return {"fig9_6m": (r(10, 6), r(10, 6) <= 6), "fig9_falls": (r(40, 6) / r(10, 6), r(40, 6) < r(10, 6) / 2),
-            "fig9_submetre": (min(r(40, 18), r(40, 24)), min(r(40, 18), r(40, 24)) < 1),
-            "fig9_more_hurts": (r(10, 24) / r(10, 6), r(10, 24) > r(10, 6)),
-            "fig9_saturation": (sat, sat <= 0.10),
-            "fig10_dpe_p90": (d90, d90 <= 2), "fig10_dpe_p99": (d99, d99 <= 7),
-            "fig10_otdoa_p90": (o90, abs(o90 - 42) <= 0.2 * 42),
-            "fig10_gain": (1 - d90 / o90, abs(1 - d90 / o90 - 0.9524) <= 0.02)}
 
 
 def _ring(name: str, dep: str, seed: int, n_trials: int, **settings) -> Experiment:
@@ -446,33 +266,3 @@ def ml_toa_experiment(n_trials: int = ML_TOA_TRIALS) -> Experiment:
     it."""
     return Experiment.build(name="ml-toa", los_mode="free_space", snr_mode="fixed", snrs_db=(ML_TOA_SNR_DB,),
                             m_values=(ML_TOA_LINKS,), otdoa=True, seed=ML_TOA_SEED, n_trials=n_trials)
-
-
-def book_experiments() -> list[Experiment]:
-    """Every Monte Carlo experiment the book's chapters run, at the trial counts they run, in the order they first
-    need them (the DPE chapter and the Fig. 9 to bounds chapters; ``run`` reuses a longer run's first trials, so an
-    experiment whose first trials a chapter reads at a smaller count appears once, at its largest).  ``dpe5g warm``
-    fills the cache with them (a chapter computes whatever is missing itself, so this list only saves time);
-    ``tests/test_warm.py`` checks it against the runs a book build recorded."""
-    out = [*ring_window_experiments().values(), *ring_centring_experiments().values(),
-           fig9_honest(), fig9_truth(), *urban_window_experiments().values(), fig9_low_snr(), fig9_link_budget(),
-           fig9_power(REUSE_COMPARE_TRIALS), fig9_power(REUSE_COMPARE_TRIALS, REUSE, co_channel=False),
-           fig9_power(reuse=REUSE), *fig10().values(), fig10_reuse()["two_of_four"]]
-    for name in READINGS:
-        out += [v for k, v in reading_experiments(name).items() if k != "otdoa_detector"]
-    out += [fig9_all_los(*c) for c in ALL_LOS_CASES]
-    out.append(ml_toa_experiment())
-    for flat, fpa in first_path_comparison().values():
-        out += [flat, fpa]
-    out += nlos_study_experiments()
-    longest = {}
-    for e in out:  # one entry per cached run (the name and config without the trial count), at its largest count
-        k = (e.run.name, e.key())
-        longest[k] = e if k not in longest or e.run.n_trials > longest[k].run.n_trials else longest[k]
-    seen, order = set(), []
-    for e in out:
-        k = (e.run.name, e.key())
-        if k not in seen:
-            seen.add(k)
-            order.append(longest[k])
-    return order

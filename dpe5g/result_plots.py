@@ -256,31 +256,44 @@ def format_claim(claim_id: str, value: float) -> str:
 
 
 def plot_readings(payload: dict):
-    """The readings table (the reproduction chapter): one row per reading of the paper, one column per claim of Figs.
+    """The readings table (the reproduction chapter): one column per reading of the paper, one row per claim of Figs.
     9–10, each cell its value with ✓ where it meets the claim (blue) and ✗ where it differs (orange): a
-    colour-blind-safe pair, and the mark carries the verdict without the colour."""
+    colour-blind-safe pair, and the mark carries the verdict without the colour.  Two grey rows below give the share
+    of each reading's DPE fixes on its search window's edge (Fig. 9 over its cells, Fig. 10)."""
     claims, data = payload["config"]["claims"], payload["data"]
     ids, names = payload["config"]["claim_order"], payload["config"]["reading_order"]
-    ok = np.array([[data[n]["reproduced"][c] for n in names] for c in ids], dtype=float)  # (claim, reading)
+    edge_rows = (("fig9", "Fig. 9: DPE fixes\non the window's edge"), ("fig10_dpe", "Fig. 10: DPE fixes\non the edge"))
+    ok = np.array([[data[n]["reproduced"][c] for n in names] for c in ids] + [[0.5] * len(names)] * len(edge_rows),
+                  dtype=float)  # (claim + edge rows, reading): 1 reproduced, 0 differs, 0.5 no verdict
+
+    def two_lines(claim_id, value, mark):  # the number above its unit and mark: narrow columns
+        text = format_claim(claim_id, value)
+        num, unit = text.rsplit(" ", 1) if " " in text else (text[:-1], text[-1])
+        return f"{num}\n{unit} {mark}"
+
     with style():
-        fig = Figure(figsize=(7.5, 0.42 * len(ids) + 2.4), layout="constrained")
+        fig = Figure(figsize=(7.5, 0.5 * len(ok) + 2.2), layout="constrained")
         ax = fig.subplots()
-        ax.imshow(ok, cmap=ListedColormap(["#fdd0a2", "#c6dbef"]), vmin=0, vmax=1, aspect="auto")
-        for i, c in enumerate(ids):
-            for j, n in enumerate(names):
-                mark = "✓" if ok[i, j] else "✗"
-                ax.text(j, i, f"{format_claim(c, data[n]['values'][c])}\n{mark}", ha="center", va="center",
-                        fontsize=9)
-        ax.set_yticks(range(len(ids)), [claims[c]["short"].replace("\n", " ") for c in ids], fontsize=9)
-        ax.set_xticks(range(len(names)), [data[n]["short"] for n in names], rotation=35, ha="left",
+        ax.imshow(ok, cmap=ListedColormap(["#fdd0a2", "#e5e5e5", "#c6dbef"]), vmin=0, vmax=1, aspect="auto")
+        for j, n in enumerate(names):
+            for i, c in enumerate(ids):
+                ax.text(j, i, two_lines(c, data[n]["values"][c], "✓" if ok[i, j] else "✗"), ha="center",
+                        va="center", fontsize=9)
+            for i, (key, _) in enumerate(edge_rows, len(ids)):
+                ax.text(j, i, f"{100 * data[n]['edge_share'][key]:.1f}\n%", ha="center", va="center", fontsize=9)
+        ax.set_yticks(range(len(ok)), [claims[c]["short"] for c in ids] + [label for _, label in edge_rows],
+                      fontsize=9)
+        ax.set_xticks(range(len(names)), [data[n]["short"] for n in names], rotation=60, ha="left",
                       rotation_mode="anchor", fontsize=9)
         ax.xaxis.tick_top()
         ax.set_xticks(np.arange(len(names) + 1) - 0.5, minor=True)
-        ax.set_yticks(np.arange(len(ids) + 1) - 0.5, minor=True)
+        ax.set_yticks(np.arange(len(ok) + 1) - 0.5, minor=True)
         ax.grid(which="major", visible=False)
         ax.grid(which="minor", color="w", lw=2)
+        ax.axhline(len(ids) - 0.5, color="k", lw=1)
         ax.tick_params(which="both", length=0)
-        ax.set_xlabel("✓ blue: the claim is reproduced under this reading;  ✗ orange: it differs", fontsize=9)
+        ax.set_xlabel("✓ blue: the claim is reproduced under this reading;  ✗ orange: it differs\ngrey: the share "
+                      "of DPE fixes on the search window's edge", fontsize=9)
     return fig
 
 

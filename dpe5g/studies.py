@@ -130,3 +130,12 @@ def fig10_rows(experiments: dict, n_boot: int = 1000) -> list[dict]:
                              "p99_m": p99, "p90_lo_m": lo, "p90_hi_m": hi,
                              "edge_share": None if edge is None else float(np.mean(edge))})
     return rows
+
+
+def crossings(xs, values, level: float) -> list[tuple]:
+    """The consecutive pairs (xs[i], xs[i + 1]) between which ``values`` rises through ``level``: values[i] < level
+    ≤ values[i + 1] (e.g. the SNR offsets between which a receiver's 90 % error passes the paper's 42 m)."""
+    xs, values = list(xs), [float(v) for v in values]
+    if len(xs) != len(values):
+        raise ValueError(f"crossings needs one value per x, got {len(xs)} x and {len(values)} values")
+    return [(xs[i], xs[i + 1]) for i in range(len(xs) - 1) if values[i] < level <= values[i + 1]]

@@ -1,9 +1,10 @@
-"""The paper's experiments and claims (``dpe5g.paper``): the readings and the claim tests of Chapter 7."""
+"""The paper's experiments (``dpe5g.paper``), its readings and the claims' tests (``dpe5g.readings``), and the list of
+every experiment the store holds (``dpe5g.verify.store_experiments``)."""
 
 import numpy as np
 import pytest
 
-from dpe5g import channel, paper, signal, store
+from dpe5g import channel, nlos_study, paper, readings, scenario, signal, store, verify
 
 
 def test_claim_values_apply_each_claims_test():
@@ -13,38 +14,38 @@ def test_claim_values_apply_each_claims_test():
                      [0.9, 0.8, 0.7, 0.72]])  # 40 dB: below half of 10 dB, sub-metre
     dpe_err = np.linspace(0, 2.2, 1001)  # p90 1.98 m, p99 2.178 m
     otdoa_err = np.linspace(0, 46, 1001)  # p90 41.4 m
-    v = paper.claim_values(rmse, snrs, ms, dpe_err, otdoa_err)
-    assert set(v) == set(paper.CLAIMS)
+    v = readings.claim_values(rmse, snrs, ms, dpe_err, otdoa_err)
+    assert set(v) == set(readings.CLAIMS)
     assert v["fig9_6m"] == (5.9, True) and v["fig9_more_hurts"][1] and v["fig9_falls"][1]
     assert v["fig9_submetre"] == (0.7, True)
     assert v["fig9_saturation"][0] == pytest.approx(0.05) and v["fig9_saturation"][1]
     assert v["fig10_dpe_p90"][1] and v["fig10_dpe_p99"][1] and v["fig10_otdoa_p90"][1]
     assert v["fig10_gain"][0] == pytest.approx(1 - 1.98 / 41.4) and v["fig10_gain"][1]
-    worse = paper.claim_values(rmse * 2, snrs, ms, dpe_err * 4, otdoa_err / 10)
+    worse = readings.claim_values(rmse * 2, snrs, ms, dpe_err * 4, otdoa_err / 10)
     assert not any(ok for k, (_, ok) in worse.items() if k not in ("fig9_falls", "fig9_more_hurts",
                                                                       "fig9_saturation"))
     with pytest.raises(ValueError, match="missing SNRs"):
-        paper.claim_values(rmse[:2], snrs[:2], ms, dpe_err, otdoa_err)
+        readings.claim_values(rmse[:2], snrs[:2], ms, dpe_err, otdoa_err)
 
 
 def test_readings_are_experiments_that_differ_in_their_reading_only():
-    base = paper.reading_experiments("as_read")
+    base = readings.experiments("as_read")
     assert base["fig9"] == paper.fig9_truth() and base["otdoa_detector"] == "first_path"
-    assert paper.reading_experiments("peak_otdoa")["otdoa_detector"] == "peak"
-    both = paper.reading_experiments("span_total")
+    assert readings.experiments("peak_otdoa")["otdoa_detector"] == "peak"
+    both = readings.experiments("span_total")
     for k in ("fig9", "fig10_dpe"):
         assert both[k].scenario.delay_spread_def == "span" and both[k].links.snr_convention == "total"
         assert both[k].receiver.centring == "truth" and both[k].run.seed == base[k].run.seed
     assert both["fig10_dpe"].receiver.otdoa and both["fig10_dpe"].scenario.los_mode == "two_of_four"
     assert both["fig9"].links.snrs_db == paper.READING_SNRS_DB and both["fig9"].run.n_trials == paper.READING_TRIALS
-    honest = paper.reading_experiments("honest")["fig9"]
-    assert honest == paper.fig9_honest_readings() and honest.run.n_trials == paper.READING_TRIALS
+    honest = readings.experiments("honest")["fig9"]
+    assert honest == readings.fig9_honest_readings() and honest.run.n_trials == paper.READING_TRIALS
     assert honest.replace(name="fig09-honest", snrs_db=paper.fig9_honest().links.snrs_db,
                           n_trials=paper.FIG9_HONEST_TRIALS) == paper.fig9_honest()
-    assert paper.reading_experiments("span", n_trials=7)["fig10_dpe"].run.n_trials == 7
+    assert readings.experiments("span", n_trials=7)["fig10_dpe"].run.n_trials == 7
     # the reuse reading: the honest receivers of Fig. 9 (per-link power) and Fig. 10 with Table I's reuse, on the
     # figures' seeds, differing from their reuse-free experiments in the reuse only
-    reuse = paper.reading_experiments("reuse")
+    reuse = readings.experiments("reuse")
     assert reuse["fig9"].scenario.prs_reuse == reuse["fig10_dpe"].scenario.prs_reuse == paper.REUSE and reuse["fig9"].scenario.co_channel
     assert reuse["fig9"].replace(name="fig09-power", prs_reuse=0) == paper.fig9_power()
     assert reuse["fig9"].links.snr_mode == "nearest" and reuse["fig9"].run.n_trials >= paper.READING_TRIALS
@@ -52,20 +53,51 @@ def test_readings_are_experiments_that_differ_in_their_reading_only():
     assert reuse["fig10_dpe"].replace(name=f10.run.name, prs_reuse=0) == f10
     assert reuse["fig10_dpe"] is reuse["fig10_otdoa"] and reuse["fig10_dpe"].run.n_trials >= paper.READING_TRIALS
     with pytest.raises(ValueError, match="reading must be one of"):
-        paper.reading_experiments("literal")
+        readings.experiments("literal")
     assert set(channel.DELAY_SPREAD_DEFS) == {"rms", "span"}
     assert signal.per_sample_snr_db(40.0, "total") == pytest.approx(40 - 10 * np.log10(4096))
     with pytest.raises(ValueError, match="convention"):
         signal.per_sample_snr_db(40.0, "after_correlation")
 
 
+def test_the_nlos_chapters_readings_change_one_setting_each():
+    as_read, f10 = readings.experiments("as_read"), paper.fig10()
+    # the certified search in the paper's window: only the optimiser differs from the truth-centred grid
+    cert = readings.experiments("certified_window")
+    search = nlos_study.certified_in_paper_window()
+    grid = as_read["fig10_dpe"].receiver.search
+    assert search.method == "bnb" != grid.method
+    assert (search.half_width_m, search.bias_half_width_m) == (grid.half_width_m, grid.bias_half_width_m)
+    assert cert["fig9"].receiver.centring == cert["fig10_dpe"].receiver.centring == "truth"
+    assert cert["fig9"].replace(name="fig09", search=grid, snrs_db=paper.fig9_truth().links.snrs_db) == paper.fig9_truth()
+    assert cert["fig10_dpe"].replace(name=f10[("two_of_four", "truth")].run.name, search=grid) == \
+        f10[("two_of_four", "truth")]
+    assert cert["fig10_otdoa"] == f10[("two_of_four", "otdoa")]
+    # the deterministic LoS case: Fig. 10's LoS only; Fig. 9 as read
+    near = readings.experiments("nearest_los")
+    assert near["fig9"] == as_read["fig9"] and near["fig10_dpe"].scenario.los_mode == "nearest_two_los"
+    for k, cen in (("fig10_dpe", "truth"), ("fig10_otdoa", "otdoa")):
+        e = f10[("two_of_four", cen)]
+        assert near[k].replace(name=e.run.name, los_mode="two_of_four") == e
+    # the honest receiver with each median of the excess delay: the honest reading's experiments with it on
+    honest = readings.experiments("honest")
+    for m in scenario.NLOS_EXCESS_MEDIANS_S[1:]:
+        ex = readings.experiments(f"excess{m * 1e9:g}")
+        assert ex["fig9"].scenario.nlos_excess_median_s == ex["fig10_dpe"].scenario.nlos_excess_median_s == m
+        assert ex["fig9"].replace(name=honest["fig9"].run.name, nlos_excess_median_s=0.0,
+                                  nlos_excess_sigma_lg=0.0) == honest["fig9"]
+        e10 = honest["fig10_dpe"].replace(n_trials=ex["fig10_dpe"].run.n_trials)
+        assert ex["fig10_dpe"].replace(name=e10.run.name, nlos_excess_median_s=0.0, nlos_excess_sigma_lg=0.0) == e10
+        assert ex["fig10_dpe"] is ex["fig10_otdoa"] and ex["otdoa_detector"] == "first_path"
+
+
 def test_book_experiments_one_entry_per_run_at_its_largest_count():
-    exps = paper.book_experiments()
+    exps = verify.store_experiments()
     dirs = [store.cache_dir(e).name for e in exps]
     assert len(dirs) == len(set(dirs))
     by_dir = dict(zip(dirs, exps))
     # Chapter 5 reads the first REUSE_COMPARE_TRIALS of the reuse reading's run: listed once, at the reading's count
     assert by_dir[store.cache_dir(paper.fig9_power(reuse=paper.REUSE)).name].run.n_trials == paper.READING_TRIALS
-    for e in (paper.fig9_honest(), paper.fig9_truth(), paper.fig10()[("pr_los", "truth")], paper.fig9_honest_readings(),
+    for e in (paper.fig9_honest(), paper.fig9_truth(), paper.fig10()[("pr_los", "truth")], readings.fig9_honest_readings(),
               paper.fig9_all_los(*paper.ALL_LOS_CASES[-1])):
         assert by_dir[store.cache_dir(e).name].run.n_trials >= e.run.n_trials

@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from dpe5g import deployment, scenario
+from dpe5g import deployment, nlos_study, scenario
 
 
 def test_packaged_deployment_has_the_papers_numbers():
@@ -243,8 +243,8 @@ def test_nearest_two_los_and_the_snr_offset_change_only_what_they_say():
     from dpe5g import draw, paper
 
     base = paper.fig10(4)[("two_of_four", "truth")]
-    near = paper.fig10_nearest_los(4)["truth"]
-    low = paper.fig10_snr_offset(-12.0, 4)["truth"]
+    near = nlos_study.fig10_nearest_los(4)["truth"]
+    low = nlos_study.fig10_snr_offset(-12.0, 4)["truth"]
     dep = base.load_deployment()
     for t in range(3):
         key = draw.trial_key(base.run.seed, t)
