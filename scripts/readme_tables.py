@@ -234,8 +234,8 @@ def found_text(book: bool = False) -> str:
         f"{100 * r['improvement_p90']:.0f} %, where the paper reports 95.24 %.",
         f"- **Claims**: of the paper's {s['n_claims']} claims about Figs. 9–10, {s['counts']['as_read']} reproduce "
         f"under our reading of its set-up and {s['counts']['honest']} with the honest receiver (one that never sees "
-        f"the true position); none of the {len(s['counts'])} readings of its unstated details that we tried "
-        f"reproduces more than {s['best']}.",
+        f"the true position); none of the {len(s['counts'])} set-ups of our readings table (readings of its "
+        f"unstated details, and our NLoS variants) reproduces more than {s['best']}.",
         f"- **Errata**: {n_errata} errata and gaps in the paper, from swapped channel profiles in Table I to an "
         "undefined SNR.",
         ("- **Where**: the claim-by-claim comparison and the errata are "
