@@ -93,6 +93,13 @@ def fig9_blind(n_trials: int = paper.FIG9_HONEST_TRIALS) -> Experiment:
     return paper.fig9_honest(n_trials).replace(name="fig09-blind", centring="otdoa", otdoa=True)
 
 
+def fig9_blind_readings(n_trials: int = paper.READING_TRIALS) -> Experiment:
+    """``fig9_blind`` at the readings' SNRs (``paper.READING_SNRS_DB``) with ``paper.READING_TRIALS`` trials: the
+    blind receiver beside the honest reading's Fig. 9 (``readings.fig9_honest_readings``, the same trials), enough
+    trials to count the rare fixes that the blind window misses."""
+    return fig9_blind(n_trials).replace(name="fig09-blind-readings", snrs_db=paper.READING_SNRS_DB)
+
+
 def experiments() -> list[Experiment]:
     """Every experiment of the NLoS-bias chapter, at the trial counts it reads."""
     out = []
@@ -101,5 +108,5 @@ def experiments() -> list[Experiment]:
     for offset in FIG10_SNR_OFFSETS_DB[1:]:
         out += list(fig10_snr_offset(offset).values())
     out += list(fig10_window_confound().values()) + list(fig10_nearest_los().values())
-    out += [fig9_excess(m) for m in FIG9_EXCESS_MEDIANS_S] + [fig9_blind()]
+    out += [fig9_excess(m) for m in FIG9_EXCESS_MEDIANS_S] + [fig9_blind(), fig9_blind_readings()]
     return out

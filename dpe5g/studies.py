@@ -139,3 +139,14 @@ def crossings(xs, values, level: float) -> list[tuple]:
     if len(xs) != len(values):
         raise ValueError(f"crossings needs one value per x, got {len(xs)} x and {len(values)} values")
     return [(xs[i], xs[i + 1]) for i in range(len(xs) - 1) if values[i] < level <= values[i + 1]]
+
+
+def paired_rmse_ratio(err_a, err_b, n_boot: int = 2000, seed: int = 0) -> tuple[float, float, float]:
+    """RMSE(err_a) / RMSE(err_b) of two receivers' errors (m) on the same trials, (T,) each, and its 95 % bootstrap
+    interval resampling the trials with their pairs kept (``results.bootstrap_interval``): (ratio, low, high)."""
+    a, b = np.asarray(err_a, dtype=float), np.asarray(err_b, dtype=float)
+    if a.shape != b.shape or a.ndim != 1:
+        raise ValueError(f"paired_rmse_ratio needs two (T,) arrays of the same trials, got {a.shape} and {b.shape}")
+    ratio = lambda idx: float(np.sqrt(np.mean(a[idx] ** 2) / np.mean(b[idx] ** 2)))
+    lo, hi = results.bootstrap_interval(np.arange(a.size), lambda i: ratio(i.astype(int)), n_boot=n_boot, seed=seed)
+    return ratio(np.arange(a.size)), lo, hi

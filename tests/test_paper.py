@@ -89,6 +89,10 @@ def test_the_nlos_chapters_readings_change_one_setting_each():
         e10 = honest["fig10_dpe"].replace(n_trials=ex["fig10_dpe"].run.n_trials)
         assert ex["fig10_dpe"].replace(name=e10.run.name, nlos_excess_median_s=0.0, nlos_excess_sigma_lg=0.0) == e10
         assert ex["fig10_dpe"] is ex["fig10_otdoa"] and ex["otdoa_detector"] == "first_path"
+    # the blind Fig. 9 beside the honest reading's: the same trials, the window on the OTDoA fix instead of the prior
+    blind = nlos_study.fig9_blind_readings()
+    assert blind.receiver.centring == "otdoa" and blind.receiver.otdoa
+    assert blind.replace(name=honest["fig9"].run.name, centring="prior", otdoa=False) == honest["fig9"]
 
 
 def test_book_experiments_one_entry_per_run_at_its_largest_count():
