@@ -95,7 +95,7 @@ def test_the_nlos_chapters_readings_change_one_setting_each():
     assert blind.replace(name=honest["fig9"].run.name, centring="prior", otdoa=False) == honest["fig9"]
 
 
-def test_book_experiments_one_entry_per_run_at_its_largest_count():
+def test_store_experiments_one_entry_per_run_at_its_largest_count():
     exps = verify.store_experiments()
     dirs = [store.cache_dir(e).name for e in exps]
     assert len(dirs) == len(set(dirs))
