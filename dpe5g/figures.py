@@ -400,8 +400,8 @@ READING_SHORT = {"as_read": "as this book reads it", "peak_otdoa": "… peak-ToA
 
 def readings_payload(progress: bool = False, trials: int | None = None) -> dict:
     """Each reading of ``readings.READINGS`` tested on each claim of ``readings.CLAIMS`` (``readings.claim_values``), from
-    its experiments' results (run or loaded from the cache), with the share of its DPE fixes on the search window's
-    edge: Fig. 9's over every (SNR, M) cell at the readings' SNRs, Fig. 10's."""
+    its experiments' results (run or loaded from the cache), with the share (a fraction, 0 to 1) of its DPE fixes on
+    the search window's edge: in Fig. 9 over every (SNR, M) cell at the readings' SNRs, in Fig. 10 over its trials."""
 
     data = {}
     for name, (label, changes) in readings.READINGS.items():

@@ -1,8 +1,9 @@
 """The NLoS-bias chapter's experiments (ours, beyond the paper): Fig. 10's receivers with an NLoS excess delay on
 every NLoS link, Fig. 10's unstated SNR swept, the optimiser and the window of the paper's truth-centred receiver
 apart, the deterministic reading of Fig. 10's LoS case, and Fig. 9 with the excess delay and with a blind window.
-Each is one of ``dpe5g.paper``'s figure experiments with one setting changed, on the figure's seed, so that its trials
-are the figure's signals with that change.
+Each is one of ``dpe5g.paper``'s figure experiments with a few settings changed (the excess delay, the SNR offset,
+the search, the LoS rule or the window's centre), on the figure's seed, so that its trials are the figure's signals
+with that change.
 """
 
 from __future__ import annotations
@@ -54,7 +55,7 @@ def certified_in_paper_window() -> search_config.SearchConfig:
     """The honest receiver's certified search (``paper.honest_search``) inside the paper's window: the default grid
     search's half-widths (±10 m in position, its clock-bias window), for a receiver centred on the truth as the paper's
     is, so that only the optimiser differs from the paper's set-up."""
-    grid = search_config.SearchConfig()
+    grid = paper.fig10()[("two_of_four", "truth")].receiver.search
     return replace(paper.honest_search(), half_width_m=grid.half_width_m, bias_half_width_m=grid.bias_half_width_m)
 
 
@@ -100,7 +101,7 @@ def fig9_blind_readings(n_trials: int = paper.READING_TRIALS) -> Experiment:
     return fig9_blind(n_trials).replace(name="fig09-blind-readings", snrs_db=paper.READING_SNRS_DB)
 
 
-def experiments() -> list[Experiment]:
+def all_experiments() -> list[Experiment]:
     """Every experiment of the NLoS-bias chapter, at the trial counts it reads."""
     out = []
     for median in scenario.NLOS_EXCESS_MEDIANS_S[1:]:

@@ -37,6 +37,9 @@ TOA_METHODS = ("peak", "first_path")
 TIGHTNESS_TOL_M = 0.5
 #: a Gauss–Newton polish that moves the fix farther than this (m) from the convex solution is rejected and flagged
 MAX_POLISH_MOVE_M = 100.0
+#: the Gauss-Newton polish stops once its step is shorter than this (m): the fix then depends on where the convex
+#: solve left it by up to about this much, and the convex solver's last digits differ between CPUs
+POLISH_STOP_STEP_M = 1e-6
 
 
 # ---- ToA ------------------------------------------------------------------------------------------------------------
@@ -285,7 +288,7 @@ def gauss_newton(bs_xyz, toa_s, ue_z, xy0, iters: int = 10) -> np.ndarray:
         else:
             break
         xy, cost = xy + step, new
-        if np.linalg.norm(step) < 1e-6:
+        if np.linalg.norm(step) < POLISH_STOP_STEP_M:
             break
     return xy
 

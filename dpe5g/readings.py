@@ -65,6 +65,9 @@ def honest_runs(kw: dict, n_trials: int | None) -> tuple[Experiment, Experiment,
     kw = dict(kw)
     n = lambda default: default if n_trials is None else n_trials
     reuse, excess = kw.pop("prs_reuse", 0), kw.pop("nlos_excess_median_s", 0.0)
+    if (reuse and excess) or kw:
+        raise ValueError(f"an honest reading changes prs_reuse or nlos_excess_median_s (not both: they are not "
+                         f"modelled together), got prs_reuse {reuse}, nlos_excess_median_s {excess}, and {sorted(kw)}")
     if reuse:
         e10 = paper.fig10_reuse(n(paper.REUSE_FIG10_TRIALS), reuse)["two_of_four"]
         return paper.fig9_power(n(paper.READING_TRIALS), reuse), e10, e10
@@ -84,10 +87,13 @@ def truth_centred_runs(kw: dict, n_trials: int | None) -> tuple[Experiment, Expe
     kw = dict(kw)
     n = lambda default: default if n_trials is None else n_trials
     f10 = paper.fig10(n(paper.FIG10_TRIALS))
-    if kw.pop("los_mode", None) == "nearest_two_los":  # Fig. 10's LoS case only: Fig. 9 is as read
+    los, method = kw.pop("los_mode", None), kw.pop("search_method", None)
+    if (los or method) and kw:
+        raise ValueError(f"a reading that sets los_mode or search_method changes nothing else, got also {sorted(kw)}")
+    if los == "nearest_two_los":  # Fig. 10's LoS case only: Fig. 9 is as read
         near = nlos_study.fig10_nearest_los(n(paper.FIG10_TRIALS))
         return paper.fig9_truth(n(paper.FIG9_TRUTH_TRIALS)), near["truth"], near["otdoa"]
-    if kw.pop("search_method", None) == "bnb":  # the certified search in the truth-centred grid's window
+    if method == "bnb":  # the certified search in the truth-centred grid's window
         e10 = nlos_study.fig10_window_confound(n(paper.FIG10_TRIALS))[("two_of_four", "certified ±10 m")]
         e9 = paper.fig9_truth(n(paper.READING_TRIALS)).replace(
             name="fig09-readings-bnb10", snrs_db=paper.READING_SNRS_DB, search=nlos_study.certified_in_paper_window())

@@ -132,7 +132,7 @@ def fig10_rows(experiments: dict, n_boot: int = 1000) -> list[dict]:
     return rows
 
 
-def crossings(xs, values, level: float) -> list[tuple]:
+def rising_crossings(xs, values, level: float) -> list[tuple]:
     """The consecutive pairs (xs[i], xs[i + 1]) between which ``values`` rises through ``level``: values[i] < level
     ≤ values[i + 1] (e.g. the SNR offsets between which a receiver's 90 % error passes the paper's 42 m)."""
     xs, values = list(xs), [float(v) for v in values]
@@ -150,3 +150,19 @@ def paired_rmse_ratio(err_a, err_b, n_boot: int = 2000, seed: int = 0) -> tuple[
     ratio = lambda idx: float(np.sqrt(np.mean(a[idx] ** 2) / np.mean(b[idx] ** 2)))
     lo, hi = results.bootstrap_interval(np.arange(a.size), lambda i: ratio(i.astype(int)), n_boot=n_boot, seed=seed)
     return ratio(np.arange(a.size)), lo, hi
+
+
+def window_misses(blind, reference, margin_m: float = 1.0) -> dict:
+    """Where a receiver whose window is centred on each trial's OTDoA fix (``blind``, Results) does worse than one
+    on the same trials centred elsewhere (``reference``, Results): per (SNR, M), (S, J) integer counts of the trials
+    whose fix is more than ``margin_m`` m worse ("worse"), of those whose window does not contain the UE (its centre
+    more than the search's half-width off in x or y: "outside") and of both ("worse_outside"), and the (T, S, J)
+    boolean mask of the worse trials ("worse_mask")."""
+    if blind.error_m.shape != reference.error_m.shape:
+        raise ValueError(f"window_misses compares the same trials, SNRs and M: got errors of shape "
+                         f"{blind.error_m.shape} and {reference.error_m.shape}")
+    half = blind.experiment.receiver_search().half_width_m
+    worse = blind.error_m - reference.error_m > margin_m  # (T, S, J)
+    outside = np.max(np.abs(blind.center_xyz[..., :2] - blind.ue_xyz[:, None, None, :2]), axis=-1) > half
+    return {"worse": worse.sum(axis=0), "outside": outside.sum(axis=0), "worse_outside": (worse & outside).sum(axis=0),
+            "worse_mask": worse}

@@ -54,13 +54,17 @@ def test_readings_are_experiments_that_differ_in_their_reading_only():
     assert reuse["fig10_dpe"] is reuse["fig10_otdoa"] and reuse["fig10_dpe"].run.n_trials >= paper.READING_TRIALS
     with pytest.raises(ValueError, match="reading must be one of"):
         readings.experiments("literal")
+    with pytest.raises(ValueError, match="not both"):
+        readings.honest_runs({"prs_reuse": paper.REUSE, "nlos_excess_median_s": 30e-9}, 2)
+    with pytest.raises(ValueError, match="changes nothing else"):
+        readings.truth_centred_runs({"los_mode": "nearest_two_los", "snr_convention": "total"}, 2)
     assert set(channel.DELAY_SPREAD_DEFS) == {"rms", "span"}
     assert signal.per_sample_snr_db(40.0, "total") == pytest.approx(40 - 10 * np.log10(4096))
     with pytest.raises(ValueError, match="convention"):
         signal.per_sample_snr_db(40.0, "after_correlation")
 
 
-def test_the_nlos_chapters_readings_change_one_setting_each():
+def test_the_nlos_chapters_readings_change_what_they_name():
     as_read, f10 = readings.experiments("as_read"), paper.fig10()
     # the certified search in the paper's window: only the optimiser differs from the truth-centred grid
     cert = readings.experiments("certified_window")
@@ -84,6 +88,8 @@ def test_the_nlos_chapters_readings_change_one_setting_each():
     for m in scenario.NLOS_EXCESS_MEDIANS_S[1:]:
         ex = readings.experiments(f"excess{m * 1e9:g}")
         assert ex["fig9"].scenario.nlos_excess_median_s == ex["fig10_dpe"].scenario.nlos_excess_median_s == m
+        assert ex["fig9"].scenario.nlos_excess_sigma_lg == ex["fig10_dpe"].scenario.nlos_excess_sigma_lg \
+            == nlos_study.NLOS_EXCESS_SIGMA_LG
         assert ex["fig9"].replace(name=honest["fig9"].run.name, nlos_excess_median_s=0.0,
                                   nlos_excess_sigma_lg=0.0) == honest["fig9"]
         e10 = honest["fig10_dpe"].replace(n_trials=ex["fig10_dpe"].run.n_trials)
@@ -105,3 +111,7 @@ def test_store_experiments_one_entry_per_run_at_its_largest_count():
     for e in (paper.fig9_honest(), paper.fig9_truth(), paper.fig10()[("pr_los", "truth")], readings.fig9_honest_readings(),
               paper.fig9_all_los(*paper.ALL_LOS_CASES[-1])):
         assert by_dir[store.cache_dir(e).name].run.n_trials >= e.run.n_trials
+    # the NLoS chapter's runs and the readings built on them are all listed
+    for e in (*nlos_study.all_experiments(), nlos_study.fig9_blind_readings(),
+              *(readings.experiments(n)["fig9"] for n in readings.READINGS)):
+        assert store.cache_dir(e).name in by_dir, e.run.name

@@ -79,6 +79,26 @@ def test_a_gap_is_compared_absolutely_other_floats_relatively():
     assert [(m.trial, m.field) for m in found] == [(1, "error_m"), (1, "gap")]
 
 
+def test_an_otdoa_experiments_positions_may_differ_by_the_polish_stop_step():
+    """Where the OTDoA fix enters (``verify.position_atol``), positions and distances may differ by the Gauss-Newton
+    polish's stopping step absolutely (the convex solver's last digits differ between CPUs); elsewhere they may not,
+    and no other field gets that tolerance."""
+    from dpe5g import otdoa, paper
+
+    step = otdoa.POLISH_STOP_STEP_M
+    assert verify.position_atol(paper.fig10()[("pr_los", "otdoa")]) == step
+    assert verify.position_atol(paper.fig10()[("pr_los", "truth")]) == 0.0  # grid on the truth, no OTDoA
+    stored = {"otdoa_xyz": np.array([23.9385039, 23.9385039]), "error_m": np.array([0.55, 0.55]),
+              "clock_bias_s": np.array([1e-8, 1e-8])}
+    computed = {"otdoa_xyz": np.array([23.9385039 + 0.5 * step, 23.9385039 + 2 * step]),
+                "error_m": np.array([0.55 + 0.5 * step, 0.55]), "clock_bias_s": np.array([1e-8 + 1e-15, 1e-8])}
+    found = verify.differences("x", [0, 1], stored, computed, position_atol_m=step)
+    assert [(m.trial, m.field) for m in found] == [(0, "clock_bias_s"), (1, "otdoa_xyz")]
+    found = verify.differences("x", [0, 1], stored, computed)
+    assert [(m.trial, m.field) for m in found] == [(0, "clock_bias_s"), (0, "error_m"), (0, "otdoa_xyz"),
+                                                    (1, "otdoa_xyz")]
+
+
 def test_reproduce_reports_and_rewrites(small, capsys):
     e, _, entry = small
     arrays = dict(np.load(entry.npz))
