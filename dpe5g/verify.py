@@ -29,11 +29,13 @@ VERIFY_RTOL = 1e-9
 #: within VERIFY_RTOL absolute (a gap of 1e-7 recomputed on an AVX-512 CPU differs from the store by 1.4e-16)
 ABSOLUTE_FIELDS = ("gap",)
 #: a position or distance (fields ending in _m or _xyz) of an experiment that computes OTDoA fixes may differ by
-#: ``otdoa.POLISH_STOP_STEP_M`` absolutely: the OTDoA fix's polish stops at a 1 µm step, so its last digits follow the
-#: convex solver's, which differ between CPUs (measured: 3e-8 m in fig10-pr-los-otdoa's trial 1188 between the machine
-#: that computed the store and another, the DPE fix centred on it moving with it); 1 µm is 10,000 times below the
-#: book's centimetres
+#: ``OTDOA_POSITION_ATOL_M`` absolutely: the OTDoA fix's Gauss-Newton polish stops at a step of
+#: ``otdoa.POLISH_STOP_STEP_M`` (1 µm), so its end follows where the convex solve left it, whose last digits differ
+#: between CPUs (measured: 3e-8 m in fig10-pr-los-otdoa's trial 1188 between the machine that computed the store and
+#: another, the DPE fix centred on it moving with it).  Moving the polish's start by 3e-8 m moved its end by up to
+#: 2.7 µm over 1000 simulated 4-BS fixes (median 4e-14 m), hence 10 µm: still 1000 times below the book's centimetres
 OTDOA_POSITION_FIELDS = ("_m", "_xyz")
+OTDOA_POSITION_ATOL_M = 10 * otdoa.POLISH_STOP_STEP_M
 #: the sample ``make test`` recomputes (``tests/test_store.py``, ``dpe5g verify``): two trials of every experiment in
 #: three random families; the compiles of a family are its cost (book/running.md, "The results store")
 SAMPLE_FAMILIES, SAMPLE_TRIALS = 3, 2
@@ -111,9 +113,9 @@ def differences(name: str, rows, stored: dict, computed: dict, position_atol_m: 
 
 
 def position_atol(e: Experiment) -> float:
-    """The absolute tolerance (m) of ``e``'s positions and distances: ``otdoa.POLISH_STOP_STEP_M`` where it computes
+    """The absolute tolerance (m) of ``e``'s positions and distances: ``OTDOA_POSITION_ATOL_M`` where it computes
     OTDoA fixes or centres its window on them, else 0 (relative ``VERIFY_RTOL`` only)."""
-    return otdoa.POLISH_STOP_STEP_M if e.receiver.otdoa or e.receiver.centring == "otdoa" else 0.0
+    return OTDOA_POSITION_ATOL_M if e.receiver.otdoa or e.receiver.centring == "otdoa" else 0.0
 
 
 def recompute(e: Experiment, picked) -> dict:

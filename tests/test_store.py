@@ -79,13 +79,13 @@ def test_a_gap_is_compared_absolutely_other_floats_relatively():
     assert [(m.trial, m.field) for m in found] == [(1, "error_m"), (1, "gap")]
 
 
-def test_an_otdoa_experiments_positions_may_differ_by_the_polish_stop_step():
-    """Where the OTDoA fix enters (``verify.position_atol``), positions and distances may differ by the Gauss-Newton
-    polish's stopping step absolutely (the convex solver's last digits differ between CPUs); elsewhere they may not,
-    and no other field gets that tolerance."""
-    from dpe5g import otdoa, paper
+def test_an_otdoa_experiments_positions_may_differ_by_the_polishs_precision():
+    """Where the OTDoA fix enters (``verify.position_atol``), positions and distances may differ by
+    ``verify.OTDOA_POSITION_ATOL_M`` absolutely (the convex solver's last digits differ between CPUs, and the
+    Gauss-Newton polish stops at 1 µm steps); elsewhere they may not, and no other field gets that tolerance."""
+    from dpe5g import paper
 
-    step = otdoa.POLISH_STOP_STEP_M
+    step = verify.OTDOA_POSITION_ATOL_M
     assert verify.position_atol(paper.fig10()[("pr_los", "otdoa")]) == step
     assert verify.position_atol(paper.fig10()[("pr_los", "truth")]) == 0.0  # grid on the truth, no OTDoA
     stored = {"otdoa_xyz": np.array([23.9385039, 23.9385039]), "error_m": np.array([0.55, 0.55]),
