@@ -56,14 +56,17 @@ def _cli_starting() -> bool:
 
 
 def _interrupted_while_starting(signum, frame):
-    """Ctrl-C while the command line starts (importing JAX takes a second or two), before ``cli.main`` installs
-    its own handling: one line and exit code 130, as at any later moment; nothing has been written yet."""
-    sys.stderr.write("dpe5g: interrupted while starting; nothing was written\n")
-    os._exit(130)
+    """Ctrl-C or SIGTERM while the command line starts (importing JAX takes a second or two), before ``cli.main``
+    installs its own handling: one line and exit code 130 (143 for SIGTERM), as at any later moment; nothing has
+    been written yet."""
+    word = "terminated" if signum == _signal.SIGTERM else "interrupted"
+    sys.stderr.write(f"dpe5g: {word} while starting; nothing was written\n")
+    os._exit(128 + int(signum))
 
 
 if _cli_starting():
     _signal.signal(_signal.SIGINT, _interrupted_while_starting)
+    _signal.signal(_signal.SIGTERM, _interrupted_while_starting)
 
 try:
     os.environ["XLA_FLAGS"] = xla_flags(os.environ.get("XLA_FLAGS", ""), os.environ.get("DPE5G_XLA_OPT_LEVEL"))

@@ -92,3 +92,24 @@ def require_x64() -> None:
     if not jax.config.jax_enable_x64:
         raise RuntimeError("dpe5g needs JAX float64 (jax_enable_x64), which is off: ToAs and phases lose their "
                            "precision in float32.  `import dpe5g` turns it on; do not turn it off afterwards.")
+
+
+def plain(value):
+    """``value`` as the plain Python a config holds: a NumPy scalar as its Python number (``np.float64(10)`` → 10.0,
+    ``np.int64(6)`` → 6, ``np.bool_`` → bool), a list, tuple or array as a tuple of plain values; anything else as
+    it is.  So settings given as lists or NumPy values hash (``Experiment.config_key``) as the same plain numbers."""
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return tuple(plain(v) for v in value)
+    return value
+
+
+def plain_fields(obj) -> None:
+    """Replace each field of the frozen dataclass ``obj`` by its ``plain`` value (in ``__post_init__``)."""
+    import dataclasses
+
+    for f in dataclasses.fields(obj):
+        v = getattr(obj, f.name)
+        if isinstance(v, (np.generic, list, tuple, np.ndarray)):
+            object.__setattr__(obj, f.name, plain(v))

@@ -77,8 +77,9 @@ def remove_in_flight() -> None:
 def atomic_target(path, exclusive: bool = False):
     """Yield a temporary path beside ``path`` (``.<name>.<pid>.…tmp``, pid the writing process) to write to; on
     success give it the mode a new file gets (0666 less the umask; ``mkstemp`` makes it 0600) and move it to
-    ``path``, so a reader never sees a partial file and an existing file is never left half-overwritten; on failure
-    (an interrupt included) remove it.
+    ``path``, so a reader never sees a partial file and an existing file is never left half-overwritten; the file is
+    flushed to disk (``fsync``) before the move and the folder after it, so a power loss leaves the old file or the
+    whole new one; on failure (an interrupt included) remove it.
 
     exclusive : fail with ``FileExistsError`` if ``path`` exists when the file is moved there (a hard link, which
     the filesystem creates only where no file is: of two writers started at once, the second fails and the first's
@@ -91,17 +92,33 @@ def atomic_target(path, exclusive: bool = False):
     try:
         yield Path(tmp)
         os.chmod(tmp, 0o666 & ~umask())
+        fsync(tmp)  # the bytes on disk before the name that publishes them
         if exclusive:
             _link_new(tmp, path)
             os.unlink(tmp)
         else:
             os.replace(tmp, path)
+        fsync(path.parent)  # and the rename itself
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
     finally:
         _IN_FLIGHT.discard(tmp)
+
+
+def fsync(path) -> None:
+    """Flush the file or folder ``path`` to disk (a no-op where the filesystem refuses, as some do for folders)."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
 
 
 def _link_new(tmp, path: Path) -> None:

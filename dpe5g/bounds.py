@@ -32,7 +32,6 @@ Units: frequencies Hz, delays and ToAs s, positions m, SNR dB (per subcarrier), 
 
 from __future__ import annotations
 
-import io
 from pathlib import Path
 
 import numpy as np
@@ -215,14 +214,13 @@ def link_information(e, n_trials: int) -> dict:
     Carlo results (``store.cache_dir``, whose key covers the engine's code and the experiment) in a file keyed
     by this module's code; a later call with at most as many trials reads them."""
     from . import experiment, store, trials  # the engine's draws; they do not import this module
-    from ._io import atomic_write
 
     n_trials = _checks.integer("n_trials", n_trials, 1, e.run.n_trials)
     path = store.cache_dir(e) / f"link-information-{experiment.code_digest(Path(__file__)).hex()[:16]}.npz"
-    if path.exists():
-        with np.load(path) as z:
-            if z["info_0db"].shape[0] >= n_trials:
-                return {k: z[k][:n_trials] for k in z.files}
+    origin = {"link_information_of": e.config_key()}
+    held = store.read_cached(path, origin)  # (a damaged file is named, set aside and computed again)
+    if held is not None and held["info_0db"].shape[0] >= n_trials:
+        return {k: v[:n_trials] for k, v in held.items()}
     f = subcarrier_frequencies_hz("full")
     out = {"ue": [], "bs": [], "info_0db": [], "link_snr_db": []}
     for t in range(n_trials):
@@ -232,10 +230,7 @@ def link_information(e, n_trials: int) -> dict:
         out["info_0db"].append([toa_fisher(f, 0.0, ex.gains[i], ex.delays_s[i]) for i in range(ex.bs_xyz.shape[0])])
         out["link_snr_db"].append(np.asarray(ex.link_snr_db))
     out = {k: np.asarray(v, dtype=np.float64) for k, v in out.items()}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    buf = io.BytesIO()
-    np.savez(buf, **out)
-    atomic_write(path, buf.getvalue())
+    store.write_cached(path, out, origin)
     return out
 
 

@@ -5,12 +5,13 @@ store from today's code, or check a sample of it), ``dpe5g profile`` (print a sc
 ``reproduce`` take ``--scheduler`` / ``--workers`` to run on a Dask cluster (``cluster``).
 
 Bad input, including a file that cannot be read or written, ends with one line on stderr that names the parameter
-and exit code 2, never a traceback.
+and exit code 2, never a traceback; a failure that is not the input's (a damaged results store, a Dask cluster that
+lost work or runs other code: ``errors.Failure``) with one line and exit code 1; Ctrl-C and SIGTERM with one line and
+exit code 130 and 143, removing any file half-written.
 """
 
 from __future__ import annotations
 
-import argparse
 import math
 import os
 import re
@@ -22,10 +23,8 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from ._io import output_file, writable_dir
+from .cli_parser import BASELINE_DIR, UsageError, build_parser, numbers_as_values
 
-#: the committed figure baselines (``figures/`` of the repository); ``dpe5g figures`` writes here only with
-#: ``--update-baselines``
-BASELINE_DIR = Path(__file__).resolve().parent.parent / "figures"
 
 #: library parameter → the ``dpe5g run`` option that sets it, so an error raised by the library names the option
 RUN_OPTIONS = {"n_trials": "--trials", "snr_db": "--snr", "snrs_db": "--snr", "m_values": "--m", "n_taps": "--taps",
@@ -33,43 +32,11 @@ RUN_OPTIONS = {"n_trials": "--trials", "snr_db": "--snr", "snrs_db": "--snr", "m
                "seed": "--seed", "deployment file": "--deployment", "prs_reuse": "--reuse"}
 
 
-class UsageError(Exception):
-    """A command-line syntax error (argparse's), reported as one line: ``<prog>: error: <message>``."""
-
-    def __init__(self, prog: str, message: str):
-        super().__init__(message)
-        self.prog = prog
-
-
-class Parser(argparse.ArgumentParser):
-    """argparse's parser with its errors raised as ``UsageError`` (``main`` prints them on one line, exit 2)
-    instead of a usage block."""
-
-    def error(self, message):
-        raise UsageError(self.prog, f"{message} (see {self.prog} --help)")
-
-
 # ---- shared checks --------------------------------------------------------------------------------------------------
 
 def _in_baselines(folder: Path) -> bool:
     """Whether ``folder`` (resolved) is the committed baselines folder or inside it."""
     return folder.resolve().is_relative_to(BASELINE_DIR.resolve())
-
-
-def _numbers_as_values(argv: list[str]) -> list[str]:
-    """argparse takes ``-65e-9`` or ``-inf`` for an option (only ``-12`` and ``-1.5`` look like numbers to it), so
-    ``--delay-spread -65e-9`` would fail with a misleading "expected one argument".  Every token that is a negative
-    number gets a leading space, which makes argparse read it as a value; ``float`` and ``int`` ignore the space."""
-    out = []
-    for tok in argv:
-        if tok.startswith("-") and len(tok) > 1 and not re.fullmatch(r"-\d+|-\d*\.\d+", tok):
-            try:
-                float(tok)
-                tok = " " + tok
-            except ValueError:
-                pass
-        out.append(tok)
-    return out
 
 
 # ---- dpe5g run ------------------------------------------------------------------------------------------------------
@@ -152,7 +119,7 @@ def _run(args) -> int:
 # ---- dpe5g figures --------------------------------------------------------------------------------------------------
 
 def _figures(args) -> int:
-    from . import _checks, figures
+    from . import _checks, figures, store
 
     ids = args.only or list(figures.REGISTRY)
     for fig_id in ids:
@@ -182,6 +149,8 @@ def _figures(args) -> int:
             raise ValueError(f"--out {args.out} is in the committed baselines folder {BASELINE_DIR}; give another "
                              f"folder, or --update-baselines (without --out) to regenerate the baselines")
     writable_dir("--out", out)
+    if any(figures.takes_trials(f) for f in ids) and (damaged := store.check_store()):
+        raise damaged[0]  # before any figure is written (one line, exit 1)
     for fig_id in ids:
         t0 = time.perf_counter()
         trials = args.trials if args.trials is not None and figures.takes_trials(fig_id) else None
@@ -226,20 +195,25 @@ def _reproduce(args) -> int:
 def _verify(args) -> int:
     import random
 
-    from . import _checks, verify
+    from . import _checks, store, verify
 
     seed = args.seed if args.seed is not None else random.SystemRandom().randrange(2**31)
     _checks.integer("--seed", seed, 0, 2**31 - 1)
     families = verify.SAMPLE_FAMILIES if args.families is None else args.families
     n_trials = _checks.integer("--trials", verify.SAMPLE_TRIALS if args.trials is None else args.trials, 1, 10_000)
     n = len(verify.store_experiments()) if args.all else _checks.integer("--families", families, 1, 10_000)
+    damaged = store.check_store()  # every entry's checksum and row count: cheap, unlike recomputing its trials
+    for err in damaged:
+        print(err, file=sys.stderr)
+    print(f"verify: every entry of the results store read, {len(damaged)} damaged", flush=True)
     print(f"verify: seed {seed} (dpe5g verify --seed {seed} repeats this sample)", flush=True)
     found, done = verify.verify_sample(seed, n, n_trials)
     for m in found:
-        print(m, file=sys.stderr)
+        if m.field != "entry" or m.stored != "damaged":  # (named above)
+            print(m, file=sys.stderr)
     total = sum(len(t) for _, t in done)
     print(f"verify: {total} trials of {len(done)} experiments recomputed, {len(found)} mismatches", flush=True)
-    return 1 if found else 0
+    return 1 if found or damaged else 0
 
 
 @contextmanager
@@ -253,14 +227,6 @@ def _cluster(args):
         yield client
     finally:
         cluster.close(client)
-
-
-def _add_cluster_options(p) -> None:
-    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                   help="run the Monte Carlo chunks as tasks on the Dask scheduler at ADDRESS (tcp://host:8786; "
-                        "default: DPE5G_SCHEDULER if set, else this process)")
-    p.add_argument("--workers", type=int, default=None, metavar="N",
-                   help="start a Dask LocalCluster of N single-threaded worker processes on this machine")
 
 
 # ---- dpe5g profile, deployment, scene -------------------------------------------------------------------------------
@@ -311,170 +277,59 @@ def _scene(args) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The ``dpe5g`` parser: one subcommand each for run, figures, warm, profile, deployment and scene."""
-    p = Parser(prog="dpe5g", description=__doc__)
-    sub = p.add_subparsers(dest="command", required=True)
-    _add_run(sub)
-    _add_other_commands(sub)
-    return p
-
-
-def _add_run(sub) -> None:
-    """``dpe5g run``: its options, with the paper's Fig. 9 set-up as defaults."""
-    from . import paper, search_config
-    from .experiment import Experiment
-
-    paper_e = Experiment()
-    r = sub.add_parser(
-        "run", help="run a Monte Carlo DPE study (RMSE vs SNR and M) and write its per-trial results",
-        description="Run a Monte Carlo DPE study on a deployment: per trial a UE in the region, its M nearest BSs, "
-                    "LoS from eq. (11), TDL-D / TDL-C, a clock bias, then a DPE fix per SNR and M (defaults: Fig. 9 "
-                    "with the honest receiver).  Results are cached (.cache/montecarlo, or DPE5G_CACHE): a rerun, or "
-                    "an interrupted run restarted, computes only the missing trials.  Prints an RMSE table.",
-        epilog=f"Cost: a truth-centred fix is a few ms per (SNR, M); an honest one (prior, otdoa) tens of ms "
-               f"(certified search), plus a compile of 10-60 s per run.  The paper's Fig. 9 uses "
-               f"{paper.FIG9_HONEST_TRIALS} (honest) and {paper.FIG9_TRUTH_TRIALS} (truth) trials; with exactly "
-               f"those settings the figure's cached results are reused.")
-    r.add_argument("--trials", type=int, required=True, metavar="N",
-                   help="Monte Carlo trials (required; trial t's draws depend only on --seed and t)")
-    r.add_argument("--out", required=True, metavar="FILE",
-                   help="results file, .csv (tidy table, one row per trial, SNR and M) or .json (the same rows and "
-                        "the experiment's config); an existing file is kept unless --force")
-    r.add_argument("--force", action="store_true", help="overwrite --out if it exists")
-    r.add_argument("--deployment", default="tst", metavar="FILE",
-                   help="deployment file, JSON or CSV (see `dpe5g deployment`), or a packaged one: 'tst' (the "
-                        "default; our Tsim Sha Tsui-like layout), 'ring' or 'ring-wide' (the DPE chapter's rings)")
-    r.add_argument("--snr", type=float, nargs="+", default=list(paper_e.links.snrs_db), metavar="DB",
-                   help=f"per-sample SNRs in dB, in [-50, 100] (default: the paper's "
-                        f"{' '.join(f'{s:g}' for s in paper_e.links.snrs_db)})")
-    r.add_argument("--m", type=int, nargs="+", default=list(paper_e.receiver.m_values), metavar="M",
-                   help=f"numbers of nearest BSs used by the DPE, increasing, each >= 3 (x, y and the clock bias "
-                        f"are unknown) and <= the deployment's BS count (default: "
-                        f"{' '.join(map(str, paper_e.receiver.m_values))})")
-    r.add_argument("--taps", type=int, default=search_config.DEFAULT_TAPS, metavar="L",
-                   help=f"receiver window L in taps, 1 to the FFT size (default: {search_config.DEFAULT_TAPS}, chosen in "
-                        f"the Fig. 9 chapter)")
-    r.add_argument("--delay-spread", type=float, default=paper_e.scenario.delay_spread_s, metavar="S",
-                   help=f"RMS delay spread of the TDL channels in SECONDS (default: "
-                        f"{paper_e.scenario.delay_spread_s * 1e9:g}e-9, TR 38.901 UMi short)")
-    r.add_argument("--centring", default="prior", metavar="{truth,prior,otdoa}",
-                   help="where the search window is centred: 'prior' (default; the honest receiver of Fig. 9: "
-                        "truth + a Gaussian error of --prior-sigma per axis, certified search), 'otdoa' (on the "
-                        "trial's OTDoA first-path fix, certified search; the OTDoA errors are written too) or "
-                        "'truth' (the paper's own set-up, a labelled comparison: grid centred on the true position "
-                        "and clock bias)")
-    r.add_argument("--prior-sigma", type=float, default=None, metavar="M",
-                   help=f"σ per axis of the prior's error in metres, in (0, 1000], centring 'prior' only (default: "
-                        f"{paper.PRIOR_SIGMA_M:g})")
-    r.add_argument("--seed", type=int, default=paper.URBAN_SEED, help=f"seed (default: {paper.URBAN_SEED}, Fig. 9's)")
-    r.add_argument("--reuse", type=int, default=0, metavar="R",
-                   help="PRS frequency reuse factor: 0 (default) the paper's model, every BS's PRS on all bins and "
-                        "received alone; 2, 4, 6 or 12 (Table I: 6) the TS 38.211 comb R over R symbols with every BS "
-                        "of the deployment transmitting and co-channel interference; --snr is then the SNR of the "
-                        "nearest link, every other BS at its power from the path loss (the Fig. 9 chapter)")
-    _add_cluster_options(r)
-    r.set_defaults(func=_run)
-
-
-def _add_other_commands(sub) -> None:
-    """``dpe5g figures``, ``warm``, ``profile``, ``deployment`` and ``scene``."""
-    f = sub.add_parser("figures", help="regenerate figures: <out>/<id>.png and <out>/data/<id>.json",
-                       description="Regenerate figures into --out DIR, or the committed baselines (figures/ of the "
-                                   "repository) with --update-baselines; nothing is written into figures/ otherwise.")
-    f.add_argument("--out", default=None, metavar="DIR",
-                   help="output folder (required unless --update-baselines; must not be in figures/)")
-    f.add_argument("--update-baselines", action="store_true",
-                   help=f"write the committed baselines ({BASELINE_DIR}) with the paper's trial counts (make figures)")
-    f.add_argument("--only", nargs="+", metavar="ID", help="figure ids (default: all registered)")
-    f.add_argument("--trials", type=int, default=None, metavar="N",
-                   help="Monte Carlo trials per experiment of Figs. 9-10 (default: the committed figures' counts); "
-                        "not with --update-baselines")
-    f.set_defaults(func=_figures)
-
-    w = sub.add_parser("warm", help="fill the Monte Carlo cache with every experiment the book runs",
-                       description="Run (or load) every experiment of dpe5g.verify.store_experiments into the cache, "
-                                   "last first, so that a book build running at the same time meets it in the middle. "
-                                   "The results are the book's own to the bit (trial t depends on the seed and t).")
-    w.add_argument("--forward", action="store_true", help="run in the book's order instead")
-    w.add_argument("--progress", action="store_true", help="a progress bar per experiment on stderr")
-    _add_cluster_options(w)
-    w.set_defaults(func=_warm)
-
-    rp = sub.add_parser("reproduce", help="recompute every experiment of the results store and rewrite it",
-                        description="Recompute every Monte Carlo experiment the results store (figures/trials) holds "
-                                    "from its seeds, report every stored trial that differs from what today's code "
-                                    "computes, and rewrite the store.  `make reproduce` runs it, then regenerates "
-                                    "the figure baselines.  Run it after a change that `make test`'s verification "
-                                    "fails on.")
-    rp.add_argument("--progress", action="store_true", help="a progress bar per experiment on stderr")
-    _add_cluster_options(rp)
-    rp.set_defaults(func=_reproduce)
-
-    v = sub.add_parser("verify", help="recompute a random sample of stored trials and compare them with the store",
-                       description="Recompute --trials random trials of every experiment in --families random "
-                                   "families of the results store (experiments that share their compiled programs) "
-                                   "and compare every stored field; exit 1 naming each mismatch.")
-    v.add_argument("--seed", type=int, default=None, help="the sample's seed (default: a new one, printed)")
-    v.add_argument("--families", type=int, default=None, metavar="N",
-                   help="families to sample (default: make test's sample, dpe5g.verify.SAMPLE_FAMILIES)")
-    v.add_argument("--trials", type=int, default=None, metavar="N",
-                   help="trials per experiment (default: dpe5g.verify.SAMPLE_TRIALS)")
-    v.add_argument("--all", action="store_true", help="every family (--trials of each stored experiment)")
-    v.set_defaults(func=_verify)
-
-    t = sub.add_parser("profile", help="print a TR 38.901 TDL profile scaled to a delay spread")
-    t.add_argument("name", help="A, B, C, D or E")
-    t.add_argument("--delay-spread", type=float, default=65e-9, metavar="S",
-                   help="desired RMS delay spread in SECONDS (65e-9)")
-    t.add_argument("--k-factor-db", type=float, default=None, help="K-factor override for D/E, dB")
-    t.set_defaults(func=_profile)
-
-    d = sub.add_parser("deployment", help="check a deployment file (JSON or CSV) and print a summary")
-    d.add_argument("path", nargs="?", default="tst",
-                   help="path, or a packaged deployment: 'tst' (default), 'ring', 'ring-wide'")
-    d.set_defaults(func=_deployment)
-
-    s = sub.add_parser("scene", help="export the meshcat 3-D scene of the urban example as a static HTML file")
-    s.add_argument("--out", default="urban_scene.html", metavar="FILE.html",
-                   help="output HTML file (default: urban_scene.html); an existing file is kept unless --force")
-    s.add_argument("--force", action="store_true", help="overwrite --out if it exists")
-    s.set_defaults(func=_scene)
-
+#: each subcommand's handler (``cli_parser.build_parser`` defines their options)
+COMMANDS = {"run": _run, "figures": _figures, "warm": _warm, "reproduce": _reproduce, "verify": _verify,
+            "profile": _profile, "deployment": _deployment, "scene": _scene}
 
 _one_line = lambda text: " ".join(str(text).split())  # noqa: E731  (a message on one line)
 
 
-def _interrupted(prog: str):
-    """Ctrl-C, at any moment of a command: the files being written are removed (every finished file is whole:
-    ``_io.atomic_target``), one line, exit code 130 at once.  Not a KeyboardInterrupt: raised inside a callback
-    (JAX's garbage collection hook) or while threads finish, it was swallowed or ended the process unexplained."""
+#: the signals a command ends on at once, each with its exit code (128 + its number) and the word for it
+STOP_SIGNALS = {os_signal.SIGINT: (130, "interrupted"), os_signal.SIGTERM: (143, "terminated")}
+
+
+def _interrupted(prog: str, signum: int = os_signal.SIGINT):
+    """Ctrl-C (SIGINT) or SIGTERM, at any moment of a command: the files being written are removed (every finished
+    file is whole: ``_io.atomic_target``), one line, exit code 130 (143 for SIGTERM) at once.  Not a
+    KeyboardInterrupt: raised inside a callback (JAX's garbage collection hook) or while threads finish, it was
+    swallowed or ended the process unexplained."""
     from ._io import remove_in_flight
 
+    code, word = STOP_SIGNALS.get(signum, STOP_SIGNALS[os_signal.SIGINT])
     remove_in_flight()
     sys.stdout.flush()
     bars = getattr(getattr(sys.modules.get("tqdm"), "tqdm", None), "_instances", None)  # a progress bar is drawn:
     sys.stderr.write("\n" if bars else "")  # end its line first
-    sys.stderr.write(f"{prog}: interrupted (finished Monte Carlo chunks are cached; the same command resumes)\n")
+    sys.stderr.write(f"{prog}: {word} (finished Monte Carlo chunks are cached; the same command resumes)\n")
     sys.stderr.flush()
-    os._exit(130)
+    os._exit(code)
 
 
 def main(argv=None) -> int:
-    """Run the command line; returns the exit code (0, or 2 after one line on stderr for bad input)."""
+    """Run the command line; returns the exit code (0; 2 after one line on stderr for bad input; 1 after one line
+    for a failure that is not the input's, ``errors.Failure``: a damaged results store, a Dask cluster that lost
+    work or runs other code)."""
+    from .errors import Failure
+
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser()
     prog = "dpe5g"
     on_main = threading.current_thread() is threading.main_thread()
-    previous = os_signal.signal(os_signal.SIGINT, lambda signum, frame: _interrupted(prog)) if on_main else None
+    previous = {}
+    if on_main:
+        for signum in STOP_SIGNALS:
+            previous[signum] = os_signal.signal(signum, lambda n, frame: _interrupted(prog, n))
     try:
-        args = parser.parse_args(_numbers_as_values(argv))
+        args = parser.parse_args(numbers_as_values(argv))
         prog = f"dpe5g {args.command}"
-        return args.func(args)
+        return COMMANDS[args.command](args)
     except UsageError as e:
         print(f"{e.prog}: error: {_one_line(e)}", file=sys.stderr)
     except ValueError as e:
         print(f"{prog}: error: {_one_line(e)}", file=sys.stderr)
+    except Failure as e:
+        print(f"{prog}: error: {_one_line(e)}", file=sys.stderr)
+        return 1
     except OSError as e:
         where = f": {e.filename}" if e.filename else ""
         print(f"{prog}: error: {_one_line(e.strerror or e)}{where}", file=sys.stderr)
@@ -482,15 +337,21 @@ def main(argv=None) -> int:
         print(f"{prog}: interrupted (finished Monte Carlo chunks are cached; the same command resumes)",
               file=sys.stderr)
         return 130
-    finally:  # give a caller in this process its handler back; the command line's start-up handler stays replaced
-        if on_main and getattr(previous, "__module__", None) != "dpe5g":
-            os_signal.signal(os_signal.SIGINT, previous)
+    finally:  # give a caller in this process its handlers back; the command line's start-up handler stays replaced
+        for signum, handler in previous.items():
+            if getattr(handler, "__module__", None) != "dpe5g":
+                os_signal.signal(signum, handler)
     return 2
 
 
 def entry() -> None:
-    """The ``dpe5g`` script and ``python -m dpe5g``: ``main``, then exit at once (output flushed, files closed),
-    skipping the interpreter's shutdown, where a Ctrl-C would end the process with no word."""
+    """The ``dpe5g`` script and ``python -m dpe5g``: ``main``, its output in UTF-8 whatever the terminal's encoding
+    (an ASCII locale no longer fails on the first σ after the results are written), then exit at once (output
+    flushed, files closed), skipping the interpreter's shutdown, where a Ctrl-C would end the process with no
+    word."""
+    for stream in (sys.stdout, sys.stderr):  # the same bytes whatever the terminal's encoding (σ, µ, ±, ≥)
+        if hasattr(stream, "reconfigure"):
+            stream.reconfigure(encoding="utf-8", errors="replace")
     code = main()
     sys.stdout.flush(), sys.stderr.flush()
     os._exit(code)

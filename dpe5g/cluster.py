@@ -9,6 +9,12 @@ do not pickle, an ``Experiment`` does.  The task returns the chunk's arrays; the
 its cache atomically, so workers need no shared filesystem.  Trial t depends only on the seed and t, so results are
 the same bits whatever the cluster (``tests/test_cluster.py``).
 
+A worker must run the client's code: each task first compares its process's ``experiment.code_version`` with the
+client's and refuses before any work (``OtherCode``), and the client checks the version each chunk comes back with
+(``gather``): a worker started from another checkout, or with other library versions, ends the run in one line
+naming it, and none of its chunks is kept.  A worker killed too often or a lost scheduler ends it in one line too
+(``errors.ClusterFailed``); the chunks finished before are in the cache, and the same command resumes.
+
 Each worker process runs one task at a time (``threads_per_worker=1``), the chunk's batches in that one thread;
 XLA still uses the process's cores for the operations it parallelises, so on a machine of C cores start about C/2
 to C workers.  Memory: a worker holds its compiled programs and one chunk (``Experiment.run.chunk_trials`` trials),
@@ -18,33 +24,86 @@ a few hundred MB (``benchmarks/bench_cluster.py`` measures it).
 from __future__ import annotations
 
 import os
+import re
+
+from .errors import ClusterFailed
+
+
+#: the scheduler addresses ``connect`` takes: TCP only (TLS, UCX and in-process addresses need set-up this package
+#: does not do), a host name, IPv4 or [IPv6] address, and a port
+SCHEDULER_ADDRESS = re.compile(r"tcp://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9][A-Za-z0-9.\-]*):([0-9]{1,5})")
 
 
 def connect(scheduler: str | None = None, workers: int | None = None, timeout_s: float = 20.0):
     """A ``distributed.Client``: of the scheduler at ``scheduler`` (else DPE5G_SCHEDULER), or of a new
     ``LocalCluster`` of ``workers`` single-threaded processes; None when neither is given (run in this process).
-    timeout_s : how long to wait for the scheduler to answer.
-    ValueError when both are given or ``workers`` is not in [1, 256]."""
+    timeout_s : how long the whole connection may take (``check_scheduler``: TCP connect, Dask's handshake and the
+    scheduler's answer).  ValueError when both are given, ``workers`` is not in [1, 256], the address is not
+    ``tcp://host:port`` or no Dask scheduler answers there in time."""
     from . import _checks
 
-    scheduler = scheduler or os.environ.get("DPE5G_SCHEDULER") or None
+    source = "--scheduler"
+    if not scheduler and os.environ.get("DPE5G_SCHEDULER"):
+        scheduler, source = os.environ["DPE5G_SCHEDULER"], "DPE5G_SCHEDULER"
+    scheduler = scheduler or None
     if scheduler is not None and workers is not None:
-        raise ValueError(f"--scheduler {scheduler} and --workers {workers} exclude each other: --workers starts a "
+        raise ValueError(f"{source} {scheduler} and --workers {workers} exclude each other: --workers starts a "
                          f"cluster on this machine, --scheduler (or DPE5G_SCHEDULER) uses an existing one")
     if scheduler is None and workers is None:
         return None
     from distributed import Client, LocalCluster
 
     if scheduler is not None:
-        if not scheduler.startswith(("tcp://", "tls://", "inproc://", "ucx://")):
-            raise ValueError(f"--scheduler must be a scheduler address such as tcp://host:8786, got {scheduler!r}")
+        check_scheduler(scheduler, timeout_s, source)
         try:
             return Client(scheduler, timeout=f"{timeout_s}s")
-        except OSError as exc:
-            raise ValueError(f"--scheduler {scheduler}: no Dask scheduler answers there ({exc})") from None
+        except (OSError, TimeoutError) as exc:
+            raise ValueError(f"{source} {scheduler}: no Dask scheduler answers there ({exc})") from None
     workers = _checks.integer("--workers", workers, 1, 256)
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
     return Client(cluster)
+
+
+def check_scheduler(address: str, timeout_s: float, source: str = "--scheduler") -> None:
+    """Check that a Dask scheduler answers at ``address`` (``SCHEDULER_ADDRESS``) within ``timeout_s`` seconds in
+    all: the TCP connect, Dask's handshake and its answer to an "identity" request.  ``distributed.Client``'s own
+    timeout covers the connect only, so a port where something else listens (a web server, the dashboard's 8787)
+    would hang it for good.  ValueError naming ``source`` and what was found otherwise."""
+    import asyncio
+
+    from distributed.comm import connect as comm_connect
+
+    m = SCHEDULER_ADDRESS.fullmatch(address)
+    if m is None or not 1 <= int(m.group(2)) <= 65535:
+        raise ValueError(f"{source} must be a Dask scheduler address tcp://host:port (port 1-65535; the "
+                         f"scheduler's default is 8786; tls://, ucx:// and inproc:// are not supported), got "
+                         f"{address!r}")
+
+    async def identity():
+        comm = await comm_connect(address, timeout=timeout_s)
+        try:
+            await comm.write({"op": "identity"})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    async def within():
+        return await asyncio.wait_for(identity(), timeout_s)
+
+    try:
+        answer = asyncio.run(within())
+    except (TimeoutError, asyncio.TimeoutError):
+        raise ValueError(f"{source} {address}: no Dask scheduler answered within {timeout_s:g} s (something may "
+                         f"listen there that is not one: the dashboard is on 8787, the scheduler on 8786 by "
+                         f"default)") from None
+    except OSError as exc:
+        raise ValueError(f"{source} {address}: no Dask scheduler answers there ({' '.join(str(exc).split())})") from None
+    except Exception as exc:  # noqa: BLE001  (a peer that answers but not in Dask's protocol)
+        raise ValueError(f"{source} {address}: what answers there is not a Dask scheduler "
+                         f"({type(exc).__name__})") from None
+    if not isinstance(answer, dict) or answer.get("type") != "Scheduler":
+        raise ValueError(f"{source} {address}: what answers there is not a Dask scheduler (it said "
+                         f"{str(answer)[:80]!r})")
 
 
 def close(client) -> None:
@@ -55,3 +114,71 @@ def close(client) -> None:
     client.close()
     if cluster is not None:
         cluster.close()
+
+
+class OtherCode(Exception):
+    """Raised by ``engine.chunk_task`` on a worker whose code version is not the client's, before any work; it
+    travels back to the client, which ``gather`` turns into an ``errors.ClusterFailed``."""
+
+    def __init__(self, worker: str, theirs: str, ours: str):
+        super().__init__(worker, theirs, ours)
+        self.worker, self.theirs, self.ours = worker, theirs, ours
+
+
+def worker_address() -> str:
+    """The address of the Dask worker running this call ("this process" outside a worker)."""
+    try:
+        from distributed import get_worker
+
+        return get_worker().address
+    except (ImportError, ValueError):
+        return "this process"
+
+
+def gather(futures: dict, chunks, bar=None) -> None:
+    """Write each chunk a Dask task (``engine.chunk_task``) returns into ``chunks`` (``store.ChunkCache``), as it arrives ({future: (start, stop)}), after checking
+    that its worker ran this process's code.  A chunk from other code, a worker killed too often or a lost scheduler
+    is an ``errors.ClusterFailed`` saying so in one line; the chunks written before it stay in the cache."""
+    if not futures:
+        return
+    from distributed import as_completed
+
+    from .experiment import code_version
+
+    mine = code_version()
+    for fut in as_completed(futures):
+        start, stop = futures[fut]
+        try:
+            arrays, origin = fut.result()
+        except OtherCode as err:
+            raise ClusterFailed(other_code_message(err.worker, err.theirs, mine)) from None
+        except Exception as err:  # noqa: BLE001  (distributed's errors, named in the message)
+            raise ClusterFailed(cluster_lost_message(err, start, stop, chunks)) from None
+        if origin["code_version"] != mine:
+            raise ClusterFailed(other_code_message(origin["worker"], origin["code_version"], mine))
+        chunks.save(start, stop, arrays, computed_by=f"Dask worker {origin['worker']}")
+        if bar is not None:
+            bar.update(stop - start)
+
+
+def other_code_message(worker: str, theirs: str, mine: str) -> str:
+    """``gather``'s line for a worker that runs other code."""
+    return (f"Dask worker {worker} runs other dpe5g code (code version {theirs}, this checkout's {mine}: another "
+            f"checkout, or other library versions); its chunks were refused, none kept: start every worker from "
+            f"this checkout's environment")
+
+
+def cluster_lost_message(err: Exception, start: int, stop: int, chunks) -> str:
+    """``gather``'s line for a task that failed on the cluster: what happened and that finished chunks are kept."""
+    kind = type(err).__name__
+    if kind == "KilledWorker":
+        what = (f"the workers running trials {start}-{stop - 1} died repeatedly (Dask gave up after "
+                f"distributed.scheduler.allowed-failures; out of memory?)")
+    elif kind in ("CancelledError", "FutureCancelledError", "CommClosedError", "TimeoutError", "OSError",
+                  "ConnectionError", "StreamClosedError"):
+        what = f"the connection to the Dask scheduler was lost ({kind}) while trials {start}-{stop - 1} ran"
+    else:
+        what = f"trials {start}-{stop - 1} failed on a Dask worker: {kind}: {' '.join(str(err).split())}"
+    done = len(chunks.chunks) - len(chunks.missing())
+    return (f"{what}; the {done} finished chunks of {chunks.dir.name} are kept in the cache, so the same command "
+            f"resumes from them")

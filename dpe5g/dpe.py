@@ -46,7 +46,8 @@ def fix(y, prs, bs_xyz, center_m, cfg: SearchConfig = SearchConfig(), num: Numer
         batch_size: int = 8) -> Fix:
     """The DPE fix of eq. (10) in the window ``cfg`` around ``center_m``, batched over trials.
 
-    y, prs : complex (..., M, N) received samples (eq. (5)) and pilots; bs_xyz : (..., M, 3) metres; center_m :
+    y, prs : complex (..., M, N) received samples (eq. (5)) and pilots, M ≥ 3 links (x, y and the clock bias are
+    unknown), no trial's samples all zero; bs_xyz : (..., M, 3) metres; center_m :
     (..., 4) = [x, y, z, c δt] in metres, the window's centre — a prior from a coarse fix, or (the paper's set-up,
     a labelled comparison only) the truth; z is the known UE height (or the centre of the z search when
     ``cfg.z_half_width_m`` > 0), c δt the clock bias times c.
@@ -63,12 +64,18 @@ def fix(y, prs, bs_xyz, center_m, cfg: SearchConfig = SearchConfig(), num: Numer
     if bs_xyz.shape[-2:] != (y.shape[-2], 3) or center_m.shape[-1] != 4:
         raise ValueError(f"bs_xyz must be (..., M, 3) and center_m (..., 4); got {bs_xyz.shape} and "
                          f"{center_m.shape}")
+    if y.shape[-2] < 3:
+        raise ValueError(f"y must hold at least 3 links (M >= 3: x, y and the clock bias are unknown), got "
+                         f"M = {y.shape[-2]}")
     if not bool(jnp.all(jnp.isfinite(center_m))) or not bool(jnp.all(jnp.isfinite(bs_xyz))):
         raise ValueError("center_m and bs_xyz must be finite")
     if not bool(jnp.all(jnp.isfinite(y))) or not bool(jnp.all(jnp.isfinite(prs))):
         raise ValueError("y and prs must be finite (a NaN or inf sample would make every cost NaN)")
     if bool(jnp.any(jnp.all(prs == 0, axis=-1))):
         raise ValueError("prs must not be all zero on a link (its correlogram would be empty)")
+    if bool(jnp.any(jnp.all(y == 0, axis=(-2, -1)))):
+        raise ValueError("y must carry a signal: every received sample of a trial is zero, so eq. (10) is flat and "
+                         "no position can be estimated")
     batch_size = _checks.integer("batch_size", batch_size, 1, 1 << 16)
     fn = partial(_fix_one, cfg=cfg, num=num)
     lead = y.shape[:-2]

@@ -20,7 +20,9 @@ import numpy as np
 
 from . import _checks, otdoa, receiver, trials
 from .draw import trial_keys
-from .experiment import Experiment, deployment_digest
+from .cluster import OtherCode, gather, worker_address
+from .errors import Failure
+from .experiment import Experiment, code_version, deployment_digest
 from .results import Results
 from .store import ChunkCache, sliced_chunk, snr_superset_runs, stored, stored_fields
 
@@ -167,11 +169,18 @@ def _runner(e: Experiment) -> ChunkRunner:
     return ChunkRunner(e)
 
 
-def chunk_task(e: Experiment, start: int, stop: int, batch_size: int) -> dict:
+def chunk_task(e: Experiment, start: int, stop: int, batch_size: int, version: str) -> tuple[dict, dict]:
     """Trials start … stop-1 of ``e``, computed in this process: the task ``run`` submits to a Dask cluster
-    (``cluster``) for each missing chunk.  A worker builds (compiles) the ``ChunkRunner`` of an experiment once and
-    keeps it for the experiment's other chunks."""
-    return _runner(e)(start, stop, batch_size, workers=1)
+    (``cluster``) for each missing chunk.  It first checks that this process runs the client's code
+    (``code_version`` equal to ``version``; ``OtherCode`` otherwise, before any work), then computes; a worker
+    builds (compiles) the ``ChunkRunner`` of an experiment once and keeps it for the experiment's other chunks.
+    Returns (the chunk's arrays, {"code_version": this process's, "worker": its address}), which ``run`` checks
+    again before it keeps the chunk."""
+    mine = code_version()
+    where = worker_address()
+    if mine != version:
+        raise OtherCode(where, mine, version)
+    return _runner(e)(start, stop, batch_size, workers=1), {"code_version": mine, "worker": where}
 
 
 def default_workers() -> int:
@@ -200,7 +209,9 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
     it in the middle instead of repeating its chunks).
     workers : batches of a chunk computed at once, in threads (speed only; results do not depend on it); None:
     ``default_workers()``.  client : a ``distributed.Client`` (``cluster.connect``): the missing chunks run as tasks
-    on its workers (``chunk_task``), this process writes them as they arrive.
+    on its workers (``chunk_task``), this process checks that they ran its code and writes them as they arrive.
+    A cached chunk that is damaged, or records another code version or config, is named on stderr, set aside and
+    computed again (``store.read_cached``).
     """
     _checks.require_x64()
     batch_size = BATCH_SIZE[e.receiver.search.method] if batch_size is None else batch_size
@@ -215,7 +226,19 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
                                 "stored": hit is not None if use_store else None}) + "\n")  # None: not asked
     if hit is not None:
         return Results(e, **hit.load(e.run.n_trials))
-    todo = chunks.missing()
+    for _ in range(2):  # a chunk found damaged when read is set aside, so computed again once
+        fill(e, chunks, chunks.missing(), batch_size, workers, client, progress, reverse, cache)
+        arrays = chunks.load(stored_fields(e))
+        if arrays is not None:
+            return Results(e, **arrays)
+    raise Failure(f"{chunks.dir}: a chunk computed again was damaged again when read back; check the disk "
+                        f"(or point DPE5G_CACHE at another folder)")
+
+
+def fill(e: Experiment, chunks: ChunkCache, todo: list, batch_size: int, workers: int, client, progress: bool,
+         reverse: bool, cache) -> None:
+    """Compute and write the chunks ``todo`` of ``e`` (``run``'s arguments): each from a cached run at more SNRs
+    where one holds it, else in this process or, with a ``client``, as a task on its cluster (``gather``)."""
     bar = None
     if todo and progress:
         from tqdm import tqdm
@@ -229,27 +252,20 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
         for start, stop in (todo[::-1] if reverse else todo):
             if chunks.path(start, stop).exists():  # (another process may have written it since `missing`)
                 pass
-            elif (src := next(((c, ix) for c, ix in supersets if c.path(start, stop).exists()), None)) is not None:
-                chunks.save(start, stop, sliced_chunk(src[0].path(start, stop), src[1]))  # a run at more SNRs
+            elif (sliced := next((z for c, ix in supersets if c.path(start, stop).exists()
+                                  and (z := sliced_chunk(c, start, stop, ix)) is not None), None)) is not None:
+                chunks.save(start, stop, sliced, computed_by="a cached run at more SNRs")
             elif client is not None:
-                futures[client.submit(chunk_task, e, start, stop, batch_size, pure=False)] = (start, stop)
+                futures[client.submit(chunk_task, e, start, stop, batch_size, code_version(), pure=False)] = (start, stop)
                 continue
             else:
                 runner = runner or ChunkRunner(e)
                 chunks.save(start, stop, runner(start, stop, batch_size, workers))
             if bar is not None:
                 bar.update(stop - start)
-        if futures:
-            from distributed import as_completed
-
-            for fut in as_completed(futures):
-                start, stop = futures[fut]
-                chunks.save(start, stop, fut.result())
-                if bar is not None:
-                    bar.update(stop - start)
+        gather(futures, chunks, bar)
     finally:
         for fut in futures:
             fut.cancel()
         if bar is not None:
             bar.close()
-    return Results(e, **chunks.load(stored_fields(e)))

@@ -23,10 +23,8 @@ import numpy as np
 from . import _checks, channel, deployment, nr, otdoa, scenario, search_config, signal
 from .nr import C
 
-#: the modules whose code the results depend on (``Experiment.key`` hashes their syntax trees)
-SOURCES = ("channel.py", "correlogram.py", "deployment.py", "cost.py", "grid_search.py", "certified_search.py",
-           "dpe.py", "experiment.py", "draw.py", "receiver.py", "trials.py", "engine.py", "store.py", "nr.py",
-           "otdoa.py", "scenario.py", "signal.py")
+#: the module whose imports reach every module the Monte Carlo results depend on: ``source_modules`` follows them
+ENGINE_MODULE = "engine.py"
 
 #: settings added after the results store was first filled, with their defaults: at its default such a setting is
 #: left out of ``Experiment.config_key``, so the stored results of every experiment that does not use it keep their key
@@ -90,6 +88,7 @@ class Scenario:
     nlos_excess_sigma_lg: float = 0.0
 
     def __post_init__(self):
+        _checks.plain_fields(self)  # lists and NumPy values as the plain Python they hash as
         _checks.one_of("los_mode", self.los_mode, LOS_MODES)
         _checks.one_of("delay_spread_def", self.delay_spread_def, channel.DELAY_SPREAD_DEFS)
         channel.check_delay_spread(self.delay_spread_s)
@@ -134,6 +133,7 @@ class Links:
     snr_offset_db: float = 0.0
 
     def __post_init__(self):
+        _checks.plain_fields(self)  # lists and NumPy values as the plain Python they hash as
         _checks.one_of("snr_mode", self.snr_mode, SNR_MODES)
         _checks.one_of("snr_convention", self.snr_convention, signal.SNR_CONVENTIONS)
         if self.snr_mode != "link_budget":
@@ -185,6 +185,7 @@ class Receiver:
     toa_method: str = "first_path"
 
     def __post_init__(self):
+        _checks.plain_fields(self)  # lists and NumPy values as the plain Python they hash as
         if len(self.m_values) == 0 or list(self.m_values) != sorted(set(self.m_values)):
             raise ValueError(f"m_values must be a non-empty increasing tuple of BS counts, got {self.m_values!r}")
         for m in self.m_values:
@@ -211,6 +212,7 @@ class Run:
     chunk_trials: int = 100
 
     def __post_init__(self):
+        _checks.plain_fields(self)  # lists and NumPy values as the plain Python they hash as
         _checks.integer("n_trials", self.n_trials, 1, 10_000_000)
         _checks.integer("seed", self.seed, 0, 2**31 - 1)
         _checks.integer("chunk_trials", self.chunk_trials, 1, 100_000)
@@ -316,14 +318,51 @@ class Experiment:
         return h.hexdigest()[:16]
 
 
-def code_version() -> str:
-    """Hash of the code the Monte Carlo results depend on (``SOURCES``, ``code_digest``) and of the numerical
-    libraries' versions (``numerics``): what ``Experiment.key`` adds to the config."""
-    here = Path(__file__).resolve().parent
+def code_version(package: Path | None = None) -> str:
+    """Hash of the code the Monte Carlo results depend on (``source_modules``, each by ``code_digest``) and of the
+    numerical libraries' versions (``numerics``): what ``Experiment.key`` adds to the config.  package : the
+    package's folder (default: this one's)."""
+    here = Path(__file__).resolve().parent if package is None else Path(package)
     h = hashlib.sha256(json.dumps(numerics()).encode())
-    for name in SOURCES:
-        h.update(code_digest(here / name))
+    for name in source_modules(here):
+        h.update(name.encode() + b"\0" + code_digest(here / name))
     return h.hexdigest()[:16]
+
+
+def source_modules(package: Path | None = None) -> tuple[str, ...]:
+    """The package's modules a Monte Carlo result depends on, found from the code instead of a list kept by hand:
+    ``__init__.py`` (it sets JAX's precision) and every module ``ENGINE_MODULE`` imports, directly or through
+    others, at the top or inside a function (``package_imports``).  Sorted file names."""
+    here = Path(__file__).resolve().parent if package is None else Path(package)
+    seen, todo = {"__init__.py"}, [ENGINE_MODULE]
+    while todo:
+        name = todo.pop()
+        if name not in seen:
+            seen.add(name)
+            todo += package_imports(here / name)
+    return tuple(sorted(seen))
+
+
+def package_imports(path: Path) -> list[str]:
+    """The file names of the package's modules that the module at ``path`` imports (``from . import a``,
+    ``from .a import f``, ``from dpe5g.a import f``, ``import dpe5g.a``), anywhere in it."""
+    st = Path(path).stat()
+    return list(_package_imports(str(Path(path).resolve()), st.st_mtime_ns, st.st_size))
+
+
+@lru_cache(maxsize=128)
+def _package_imports(path: str, mtime_ns: int, size: int) -> tuple[str, ...]:
+    here = Path(path).parent
+    found = []
+    for node in ast.walk(ast.parse(Path(path).read_text())):
+        if isinstance(node, ast.ImportFrom) and node.level == 1:  # from . import a / from .a import f
+            found += [node.module.split(".")[0]] if node.module else [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] == "dpe5g":
+            parts = node.module.split(".")
+            found += parts[1:2] if len(parts) > 1 else [a.name for a in node.names]
+        elif isinstance(node, ast.Import):
+            found += [a.name.split(".")[1] for a in node.names if a.name.startswith("dpe5g.")]
+    return tuple(sorted({f"{n}.py" for n in found if (here / f"{n}.py").is_file()}))
 
 
 def code_digest(path: Path) -> bytes:

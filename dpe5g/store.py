@@ -7,6 +7,10 @@
    ``.npz`` per chunk of trials, every file written atomically (temporary file + rename), so an interrupted run
    resumes where it stopped and ends with results identical to an uninterrupted one; the chunks of a run at more
    SNRs, sliced to the SNRs asked for; and the figures' payloads (``payload_path``), keyed by the whole package.
+
+Every file records a checksum of its arrays (``arrays_digest``), checked whenever it is read: a damaged store entry is
+an ``errors.DamagedEntry`` naming the file and ``make reproduce``; a damaged cache file is named on stderr, set aside
+(``*.damaged``) and computed again (``read_cached``).
 """
 
 from __future__ import annotations
@@ -16,6 +20,9 @@ import io
 import json
 import os
 import subprocess
+import sys
+import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,6 +30,7 @@ import jax
 import numpy as np
 
 from ._io import atomic_write, remove_stale_temporaries
+from .errors import DamagedEntry
 from .experiment import Experiment, code_digest, code_version, numerics
 from .results import Results
 
@@ -80,14 +88,92 @@ class ChunkCache:
     def missing(self) -> list[tuple[int, int]]:
         return [c for c in self.chunks if not self.path(*c).exists()]
 
-    def save(self, start: int, stop: int, arrays: dict) -> None:
-        buf = io.BytesIO()
-        np.savez(buf, **arrays)
-        atomic_write(self.path(start, stop), buf.getvalue())
+    def origin(self) -> dict:
+        """What a chunk of this cache must record (``write_cached``): the code version and config key of its key."""
+        return {"code_version": code_version(), "config_key": self.experiment.config_key()}
 
-    def load(self, names) -> dict:
-        parts = [np.load(self.path(*c)) for c in self.chunks]
+    def save(self, start: int, stop: int, arrays: dict, computed_by: str = "this process") -> None:
+        write_cached(self.path(start, stop), arrays, {**self.origin(), "computed_by": computed_by})
+
+    def read(self, start: int, stop: int) -> dict | None:
+        """The chunk's arrays, None if it is missing or damaged (then set aside and named: ``read_cached``)."""
+        return read_cached(self.path(start, stop), self.origin())
+
+    def load(self, names) -> dict | None:
+        """Every chunk's arrays ``names``, concatenated; None when a chunk was damaged (set aside, so ``missing``
+        lists it again)."""
+        parts = [self.read(*c) for c in self.chunks]
+        if any(p is None for p in parts):
+            return None
         return {k: np.concatenate([p[k] for p in parts]) for k in names}
+
+
+#: the ``.npz`` member of a cache file that records where its arrays come from (``write_cached``)
+CACHE_META = "dpe5g_origin"
+
+
+def arrays_digest(arrays: dict) -> str:
+    """SHA-256 of named arrays: each name, dtype, shape and bytes, in name order.  It depends on the values only,
+    not on how a file compresses them."""
+    h = hashlib.sha256()
+    for k in sorted(arrays):
+        a = np.ascontiguousarray(arrays[k])
+        h.update(json.dumps([k, a.dtype.str, list(a.shape)]).encode() + a.tobytes())
+    return h.hexdigest()
+
+
+def read_npz(path) -> dict:
+    """Every array of the ``.npz`` at ``path``, read whole (so the zip's CRC-32 of each is checked); a ValueError
+    saying why when the file is missing, truncated, corrupt or holds objects."""
+    try:
+        with open(path, "rb") as f, np.load(f, allow_pickle=False) as z:  # (our handle: closed even when np.load fails)
+            return {k: z[k] for k in z.files}
+    except FileNotFoundError:
+        raise ValueError("the file is missing") from None
+    except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile, zlib.error) as err:
+        raise ValueError(f"unreadable: {type(err).__name__}: {' '.join(str(err).split()) or 'no detail'}") from None
+
+
+def write_cached(path: Path, arrays: dict, origin: dict) -> None:
+    """A cache file (a Monte Carlo chunk, ``bounds.link_information``'s arrays): ``arrays`` and, in the member
+    ``CACHE_META``, ``origin`` (what computed them) with their ``arrays_digest``; written atomically and flushed."""
+    meta = {**origin, "arrays_sha256": arrays_digest(arrays)}
+    buf = io.BytesIO()
+    np.savez(buf, **arrays, **{CACHE_META: np.array(json.dumps(meta, sort_keys=True))})
+    atomic_write(path, buf.getvalue())
+
+
+def read_cached(path: Path, origin: dict) -> dict | None:
+    """The arrays of a cache file (``write_cached``); None if it is missing.  A file that cannot be read, whose
+    arrays do not match their checksum, or that records another ``origin`` (another code version or config: a
+    worker of another checkout, an old file) is named on stderr, set aside as ``<name>.damaged`` and None returned,
+    so the caller computes it again."""
+    path = Path(path)
+    if not path.exists():
+        return None
+    try:
+        arrays = read_npz(path)
+        if CACHE_META not in arrays:
+            raise ValueError("it records no origin")
+        meta = json.loads(str(arrays.pop(CACHE_META)))
+        if meta.get("arrays_sha256") != arrays_digest(arrays):
+            raise ValueError("its arrays do not match their checksum")
+        other = {k: meta.get(k) for k in origin if meta.get(k) != origin[k]}
+        if other:
+            raise ValueError(f"it was computed with {other} by {meta.get('computed_by', 'an unknown process')}, "
+                             f"not {({k: origin[k] for k in other})}")
+    except ValueError as err:
+        return set_aside(path, str(err))
+    return arrays
+
+
+def set_aside(path: Path, reason: str) -> None:
+    """Move a damaged cache file to ``<name>.damaged`` (kept for a look, never read) and say so on stderr in one
+    line; returns None, what the reader then returns."""
+    aside = path.with_name(path.name + ".damaged")
+    os.replace(path, aside)
+    print(f"dpe5g: cache file {path} is damaged ({reason}); set aside as {aside.name} and computed again",
+          file=sys.stderr, flush=True)
 
 
 #: chunk arrays without an SNR axis (every other array is (T, S, ...)); ``snr_superset_runs`` slices the others
@@ -123,10 +209,13 @@ def snr_superset_runs(e: Experiment, cache: str | os.PathLike | None = None) -> 
     return out
 
 
-def sliced_chunk(path: Path, snr_index: list[int]) -> dict:
-    """A chunk of a run at more SNRs, its (T, S, ...) arrays restricted to the SNRs ``snr_index``."""
-    with np.load(path) as z:
-        return {k: z[k] if k in PER_TRIAL_FIELDS else np.take(z[k], snr_index, axis=1) for k in z.files}
+def sliced_chunk(source: "ChunkCache", start: int, stop: int, snr_index: list[int]) -> dict | None:
+    """A chunk of a run at more SNRs (``source``), its (T, S, ...) arrays restricted to the SNRs ``snr_index``; None
+    if that chunk is damaged (``ChunkCache.read``)."""
+    z = source.read(start, stop)
+    if z is None:
+        return None
+    return {k: v if k in PER_TRIAL_FIELDS else np.take(v, snr_index, axis=1) for k, v in z.items()}
 
 
 def payload_path(fig_id: str, trials: int | None = None, cache=None) -> Path:
@@ -147,9 +236,15 @@ def payload_path(fig_id: str, trials: int | None = None, cache=None) -> Path:
 
 
 def load_payload(fig_id: str, trials: int | None = None, cache=None) -> dict | None:
-    """The stored payload of ``fig_id`` (``payload_path``), None when this code has not computed it."""
+    """The stored payload of ``fig_id`` (``payload_path``), None when this code has not computed it, or when its
+    file is damaged (named on stderr and set aside as ``<name>.damaged``, so it is computed again)."""
     path = payload_path(fig_id, trials, cache)
-    return json.loads(path.read_text()) if path.exists() else None
+    if not path.exists():
+        return None
+    try:
+        return json.loads(path.read_text())
+    except ValueError as err:  # (UnicodeDecodeError included)
+        return set_aside(path, f"not valid JSON: {err}")
 
 
 def save_payload(fig_id: str, trials: int | None, payload: dict, cache=None) -> dict:
@@ -208,8 +303,8 @@ def stored_fields(e: Experiment) -> tuple[str, ...]:
 @dataclass(frozen=True)
 class StoredRun:
     """One entry of the results store: ``<name>-<config key>.npz`` (the arrays as computed, float64 included,
-    trials on the leading axis; compressed) and ``.json`` beside it (``meta``: name, config, n_trials, fields, code
-    version and commit)."""
+    trials on the leading axis; compressed) and ``.json`` beside it (``meta``: name, config, n_trials, fields, the
+    arrays' checksum ``arrays_sha256``, code version and commit)."""
 
     npz: Path
     meta: dict
@@ -219,31 +314,85 @@ class StoredRun:
         return int(self.meta["n_trials"])
 
     def load(self, n_trials: int | None = None, trials=None) -> dict:
-        """The stored arrays of trials 0 … n_trials-1 (or of the trial indices ``trials``)."""
+        """The stored arrays of trials 0 … n_trials-1 (or of the trial indices ``trials``), after ``check``."""
         idx = slice(0, n_trials) if trials is None else np.asarray(trials)
-        with np.load(self.npz) as z:
-            return {k: z[k][idx] for k in z.files}
+        return {k: v[idx] for k, v in self.check().items()}
+
+    def check(self) -> dict:
+        """All the entry's arrays, read whole and checked against its ``.json``: the fields it lists, ``n_trials``
+        rows each, and the checksum ``arrays_sha256`` (``arrays_digest``).  ``errors.DamagedEntry`` naming the file
+        otherwise."""
+        try:
+            arrays = read_npz(self.npz)
+        except ValueError as err:
+            raise DamagedEntry(self.npz, str(err)) from None
+        if sorted(arrays) != sorted(self.meta["fields"]):
+            raise DamagedEntry(self.npz, f"it holds the fields {sorted(arrays)}, its .json lists "
+                                         f"{sorted(self.meta['fields'])}")
+        rows = {k: v.shape[0] if v.ndim else 0 for k, v in arrays.items()}
+        if set(rows.values()) != {self.n_trials}:
+            raise DamagedEntry(self.npz, f"its .json records {self.n_trials} trials, its arrays hold "
+                                         f"{sorted(set(rows.values()))} rows")
+        if arrays_digest(arrays) != self.meta["arrays_sha256"]:
+            raise DamagedEntry(self.npz, "its arrays do not match the checksum its .json records")
+        return arrays
+
+
+#: what an entry's ``.json`` must hold (``read_entry_meta``)
+ENTRY_KEYS = {"name": str, "config_key": str, "n_trials": int, "fields": dict, "arrays_sha256": str}
+
+
+def read_entry_meta(meta_path: Path) -> dict:
+    """An entry's ``.json``, checked to hold ``ENTRY_KEYS`` with their types and to have its ``.npz`` beside it;
+    ``errors.DamagedEntry`` naming the file otherwise."""
+    try:
+        meta = json.loads(Path(meta_path).read_text())
+    except (OSError, ValueError) as err:  # (UnicodeDecodeError included)
+        raise DamagedEntry(meta_path, f"not readable JSON: {' '.join(str(err).split())}") from None
+    bad = [k for k, t in ENTRY_KEYS.items() if not isinstance(meta, dict) or not isinstance(meta.get(k), t)
+           or isinstance(meta.get(k), bool)]
+    if bad:
+        raise DamagedEntry(meta_path, f"it lacks {', '.join(bad)} or has the wrong type there")
+    if not Path(meta_path).with_suffix(".npz").exists():
+        raise DamagedEntry(meta_path, f"its arrays, {Path(meta_path).with_suffix('.npz').name}, are missing")
+    return meta
 
 
 def stored(e: Experiment, root: Path | None = None) -> StoredRun | None:
     """The store's entry for ``e`` (same config key, at least ``e.run.n_trials`` trials), None if it holds none
     or the store is off.  Trial t depends only on the config, the seed and t, so an entry of N trials serves
-    any run of n ≤ N."""
+    any run of n ≤ N.  A damaged ``.json`` is an ``errors.DamagedEntry`` (its arrays are checked when read:
+    ``StoredRun.load``)."""
     root = store_root() if root is None else root
     if root is None or not root.is_dir():
         return None
     for meta_path in sorted(root.glob(f"*-{e.config_key()}.json")):
-        meta = json.loads(meta_path.read_text())
-        npz = meta_path.with_suffix(".npz")
-        if npz.exists() and int(meta["n_trials"]) >= e.run.n_trials:
-            return StoredRun(npz, meta)
+        meta = read_entry_meta(meta_path)
+        if meta["n_trials"] >= e.run.n_trials:
+            return StoredRun(meta_path.with_suffix(".npz"), meta)
     return None
 
 
+def check_store(root: Path | None = None) -> list[DamagedEntry]:
+    """Every entry of the store read and checked (``read_entry_meta``, ``StoredRun.check``): the damaged ones, and
+    any ``.npz`` without its ``.json``."""
+    root = store_root() if root is None else root
+    found = []
+    for npz in sorted(root.glob("*.npz")) if root is not None and root.is_dir() else []:
+        if not npz.with_suffix(".json").exists():
+            found.append(DamagedEntry(npz, f"its .json, {npz.with_suffix('.json').name}, is missing"))
+    for meta_path in sorted(root.glob("*.json")) if root is not None and root.is_dir() else []:
+        try:
+            StoredRun(meta_path.with_suffix(".npz"), read_entry_meta(meta_path)).check()
+        except DamagedEntry as err:
+            found.append(err)
+    return found
+
+
 def write_stored(e: Experiment, arrays: dict, root: Path | None = None, code: dict | None = None) -> StoredRun:
-    """Store ``e``'s results (``stored_fields``, as computed, compressed) with its config and the code version that
-    computed them (``code`` overrides ``{"code_version": …, "commit": …}``); the ``.npz`` first, then the ``.json``
-    that makes the entry visible, each atomically."""
+    """Store ``e``'s results (``stored_fields``, as computed, compressed) with its config, their checksum
+    (``arrays_digest``) and the code version that computed them (``code`` overrides ``{"code_version": …,
+    "commit": …}``); the ``.npz`` first, then the ``.json`` that makes the entry visible, each atomically."""
     root = store_root() if root is None else root
     if root is None:
         raise ValueError("DPE5G_STORE is 'off': there is no results store to write")
@@ -253,7 +402,8 @@ def write_stored(e: Experiment, arrays: dict, root: Path | None = None, code: di
         config.pop(k)
     meta = {"name": e.run.name, "config_key": e.config_key(), "config": jsonable(config), "n_trials": e.run.n_trials,
             "fields": {k: [str(v.dtype), list(v.shape[1:])] for k, v in data.items()},
-            **(code or {"code_version": code_version(), "commit": git_commit()}), "numerics": numerics()}
+            **(code or {"code_version": code_version(), "commit": git_commit()}), "numerics": numerics(),
+            "arrays_sha256": arrays_digest(data)}
     stem = f"{e.run.name}-{e.config_key()}"  # (names may hold dots: no with_suffix)
     buf = io.BytesIO()
     np.savez_compressed(buf, **data)

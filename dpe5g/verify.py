@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import engine, nlos_study, otdoa, paper, readings, store, trials
+from .errors import DamagedEntry
 from .experiment import Experiment
 
 #: a recomputed float agrees with the stored one within this relative difference: about 4.5 million float64 steps,
@@ -81,10 +82,12 @@ class Mismatch:
     field: str
     stored: str
     computed: str
+    message: str = ""  # the whole line, where the entry itself is at fault (damaged)
 
     def __str__(self) -> str:
-        return (f"results store: {self.experiment}, trial {self.trial}, field {self.field}: stored {self.stored}, "
-                f"computed {self.computed}; run `make reproduce` to recompute the store from today's code")
+        return self.message or (
+            f"results store: {self.experiment}, trial {self.trial}, field {self.field}: stored {self.stored}, "
+            f"computed {self.computed}; run `make reproduce` to recompute the store from today's code")
 
 
 def differences(name: str, rows, stored: dict, computed: dict, position_atol_m: float = 0.0) -> list[Mismatch]:
@@ -157,16 +160,21 @@ def sample(seed: int, n_families: int, n_trials: int, experiments=None) -> list[
 def verify_sample(seed: int, n_families: int = SAMPLE_FAMILIES, n_trials: int = SAMPLE_TRIALS, experiments=None,
                   log=sys.stderr) -> tuple[list[Mismatch], list[tuple[str, list[int]]]]:
     """Recompute ``sample(seed, n_families, n_trials, experiments)`` and compare it with the store; log: where to
-    print each experiment's time (None: nowhere).  An experiment the store lacks is itself a mismatch (field
-    "entry").  Returns (mismatches, [(experiment name, trials recomputed)])."""
+    print each experiment's time (None: nowhere).  An experiment the store lacks, or whose entry is damaged
+    (``errors.DamagedEntry``), is itself a mismatch (field "entry").  Returns (mismatches, [(experiment name, trials recomputed)])."""
     out, done = [], []
     for e, picked in sample(seed, n_families, n_trials, experiments):
         t0 = time.perf_counter()
-        hit = store.stored(e)
+        try:
+            hit = store.stored(e)
+            held = None if hit is None else hit.load(trials=picked)
+        except DamagedEntry as err:
+            out.append(Mismatch(e.run.name, -1, "entry", "damaged", err.reason, str(err)))
+            continue
         if hit is None:
             out.append(Mismatch(e.run.name, -1, "entry", "none", f"{e.run.n_trials} trials asked"))
             continue
-        out += differences(e.run.name, picked, hit.load(trials=picked), recompute(e, picked), position_atol(e))
+        out += differences(e.run.name, picked, held, recompute(e, picked), position_atol(e))
         done.append((e.run.name, picked))
         if log is not None:
             print(f"verify: {e.run.name} trials {picked} recomputed ({time.perf_counter() - t0:.1f} s)", file=log)
@@ -210,12 +218,16 @@ def reproduce(experiments=None, progress: bool = True, client=None, log=sys.stdo
         t0 = time.perf_counter()
         res = engine.run(e, progress=progress, use_store=False, client=client)
         arrays = {k: getattr(res, k) for k in store.stored_fields(e)}
-        old = store.stored(e)
-        diffs = [] if old is None else differences(e.run.name, range(e.run.n_trials), old.load(e.run.n_trials),
-                                                    arrays, position_atol(e))
+        try:  # (a damaged entry is replaced, never read)
+            old = store.stored(e)
+            held = None if old is None else old.load(e.run.n_trials)
+            state = "new entry" if old is None else None
+        except DamagedEntry as err:
+            held, state = None, f"replaces a damaged entry ({err.reason})"
+        diffs = [] if held is None else differences(e.run.name, range(e.run.n_trials), held, arrays, position_atol(e))
         found += diffs
         store.write_stored(e, arrays)
-        state = "new entry" if old is None else f"{len(diffs)} differences from the store"
+        state = state or f"{len(diffs)} differences from the store"
         print(f"[{i}/{len(exps)}] {e.run.name}: {e.run.n_trials} trials, {state} "
               f"({time.perf_counter() - t0:.1f} s)", file=log, flush=True)
         for d in diffs[:5]:

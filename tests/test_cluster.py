@@ -33,8 +33,33 @@ def test_bad_cluster_options_are_named(monkeypatch):
         cluster.connect("tcp://127.0.0.1:1", 2)
     with pytest.raises(ValueError, match="--workers must be"):
         cluster.connect(workers=0)
-    with pytest.raises(ValueError, match="--scheduler must be a scheduler address"):
-        cluster.connect("localhost:8786")
+    for address in ("localhost:8786", "tls://127.0.0.1:8786", "ucx://127.0.0.1:8786", "inproc://127.0.0.1/1/2",
+                    "tcp://127.0.0.1", "tcp://127.0.0.1:0", "tcp://127.0.0.1:70000", "tcp://:8786", "tcp://a b:1"):
+        with pytest.raises(ValueError, match="--scheduler must be a Dask scheduler address tcp://host:port"):
+            cluster.connect(address)
     monkeypatch.setenv("DPE5G_SCHEDULER", "tcp://127.0.0.1:1")
-    with pytest.raises(ValueError, match="no Dask scheduler answers there"):
+    with pytest.raises(ValueError, match="DPE5G_SCHEDULER tcp://127.0.0.1:1: no Dask scheduler answers there"):
         cluster.connect(timeout_s=1.0)
+    monkeypatch.setenv("DPE5G_SCHEDULER", "ucx://127.0.0.1:8786")
+    with pytest.raises(ValueError, match="DPE5G_SCHEDULER must be a Dask scheduler address"):
+        cluster.connect()
+
+
+def test_a_port_where_no_scheduler_speaks_is_named_within_the_timeout(monkeypatch):
+    """An HTTP server (or the dashboard's 8787) accepts the TCP connection and never answers Dask's handshake:
+    distributed's own timeout covers the connect only and hung for good; ``check_scheduler`` covers it all."""
+    import http.server
+    import threading
+    import time
+
+    monkeypatch.delenv("DPE5G_SCHEDULER", raising=False)
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), http.server.SimpleHTTPRequestHandler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        t0 = time.monotonic()
+        with pytest.raises(ValueError, match="no Dask scheduler answered within 1 s .*8786"):
+            cluster.connect(f"tcp://127.0.0.1:{server.server_address[1]}", timeout_s=1.0)
+        assert time.monotonic() - t0 < 10
+    finally:
+        server.shutdown()
+        server.server_close()

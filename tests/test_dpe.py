@@ -149,7 +149,14 @@ def test_bad_inputs():
     with pytest.raises(ValueError, match="final_step_m"):
         search_config.SearchConfig(final_step_m=5.0)
     with pytest.raises(ValueError, match="finite"):
-        dpe.fix(np.zeros((2, 4096), complex), nr.prs_matrix([1, 2]), _geometry(2), [np.nan, 0, 2, 0])
+        dpe.fix(np.ones((3, 4096), complex), nr.prs_matrix([1, 2, 3]), _geometry(3), [np.nan, 0, 2, 0])
+    with pytest.raises(ValueError, match="at least 3 links .* got M = 2"):  # x, y and the clock bias: 3 unknowns
+        dpe.fix(np.ones((2, 4096), complex), nr.prs_matrix([1, 2]), _geometry(2), [0, 0, 2, 0])
+    y = np.ones((2, 3, 4096), complex)
+    y[1] = 0  # the second trial received nothing
+    with pytest.raises(ValueError, match="every received sample of a trial is zero"):
+        dpe.fix(y, np.broadcast_to(nr.prs_matrix([1, 2, 3]), y.shape), np.broadcast_to(_geometry(3), (2, 3, 3)),
+                np.zeros((2, 4)))
 
 
 def test_ls_estimate_recovers_the_channel():

@@ -2,6 +2,7 @@
 budget; the engine serves them from it without computing; and a random sample of its trials, recomputed today,
 equals what it holds (a new sample each run: the seed is printed in the test header, DPE5G_VERIFY_SEED repeats it)."""
 
+import json
 import os
 
 import numpy as np
@@ -54,6 +55,11 @@ def test_a_stored_run_is_read_not_computed(small, monkeypatch):
         engine.run(e.replace(n_trials=7), progress=False)  # more trials than stored: computed
 
 
+def restore(e, entry, arrays):
+    """Write ``arrays`` as ``e``'s entry with a checksum of their own, as an entry computed by other code is."""
+    store.write_stored(e, arrays, root=entry.npz.parent, code={"code_version": "other", "commit": None})
+
+
 def test_a_changed_stored_value_is_named_with_the_remedy(small):
     e, _, entry = small
     arrays = dict(np.load(entry.npz))
@@ -61,7 +67,7 @@ def test_a_changed_stored_value_is_named_with_the_remedy(small):
     arrays["error_m"][4, 1, 0] *= 1.0 + 1e-8  # 10 times the verification's tolerance
     arrays["los"] = arrays["los"].copy()
     arrays["los"][1, 0] = ~arrays["los"][1, 0]
-    np.savez_compressed(entry.npz, **arrays)
+    restore(e, entry, arrays)
     found, done = verify.verify_sample(0, 1, 6, experiments=[e])
     assert done == [("small", [0, 1, 2, 3, 4, 5])]
     assert [(m.trial, m.field) for m in found] == [(4, "error_m"), (1, "los")]
@@ -103,7 +109,7 @@ def test_reproduce_reports_and_rewrites(small, capsys):
     e, _, entry = small
     arrays = dict(np.load(entry.npz))
     arrays["ue_xyz"] = arrays["ue_xyz"] + 1.0
-    np.savez_compressed(entry.npz, **arrays)
+    restore(e, entry, arrays)
     found = verify.reproduce([e], progress=False)
     assert {m.trial for m in found} == set(range(6)) and {m.field for m in found} == {"ue_xyz"}
     assert verify.reproduce([e], progress=False) == []  # rewritten: now what the code computes
@@ -137,9 +143,13 @@ def test_verify_command_prints_its_seed_and_names_mismatches(small, monkeypatch,
     assert "verify: seed 5 (dpe5g verify --seed 5 repeats this sample)" in capsys.readouterr().out
     arrays = dict(np.load(entry.npz))
     arrays["edge"] = ~arrays["edge"]
-    np.savez_compressed(entry.npz, **arrays)
+    restore(e, entry, arrays)
     assert cli.main(["verify", "--seed", "5", "--families", "1", "--trials", "2"]) == 1
     assert "field edge" in capsys.readouterr().err
+    np.savez_compressed(entry.npz, **{**arrays, "edge": ~arrays["edge"]})  # damaged: another checksum
+    assert cli.main(["verify", "--seed", "5", "--families", "1", "--trials", "2"]) == 1
+    out, err = capsys.readouterr()
+    assert "1 damaged" in out and err.count("is damaged") == 1 and "make reproduce" in err, (out, err)
     assert cli.main(["verify", "--families", "0"]) == 2
     assert "--families must be an integer in [1, 10000], got 0" in capsys.readouterr().err
 
@@ -151,3 +161,60 @@ def test_coverage_runs_stays_exact_for_many_families():
     runs = simulated_coverage_runs(85, 3, 400, seed=1)
     mean, q95 = verify.coverage_runs(85, 3)
     assert abs(mean - np.mean(runs)) < 6 and abs(q95 - np.quantile(runs, 0.95)) < 15
+
+
+def damage(kind: str, entry) -> None:
+    """Damage a store entry as a disk, an editor or a bad merge would."""
+    npz, meta_path = entry.npz, entry.npz.with_suffix(".json")
+    if kind == "edited value":  # a valid file, one value changed
+        arrays = dict(np.load(npz))
+        arrays["error_m"] = arrays["error_m"] * np.where(np.arange(arrays["error_m"].size) == 7, 1.01, 1.0).reshape(
+            arrays["error_m"].shape)
+        np.savez_compressed(npz, **arrays)
+    elif kind == "more trials claimed":
+        meta = json.loads(meta_path.read_text())
+        meta_path.write_text(json.dumps({**meta, "n_trials": 2 * meta["n_trials"]}))
+    elif kind == "truncated":
+        npz.write_bytes(npz.read_bytes()[: npz.stat().st_size // 2])
+    elif kind == "bit flipped":
+        data = bytearray(npz.read_bytes())
+        data[len(data) // 2] ^= 0x10
+        npz.write_bytes(bytes(data))
+    elif kind == "invalid JSON":
+        meta_path.write_text(meta_path.read_text()[:-40])
+    elif kind == "arrays missing":
+        npz.unlink()
+
+
+DAMAGES = ("edited value", "more trials claimed", "truncated", "bit flipped", "invalid JSON", "arrays missing")
+
+
+def test_a_damaged_entry_is_named_and_make_reproduce_repairs_it(small, tmp_path, monkeypatch, capsys):
+    """Each kind of damage: reading the entry (a run, the CLI, the store check) is one line naming the file and
+    `make reproduce`, never a number; `reproduce` then rewrites the entry without reading it, to the same bits."""
+    from dpe5g import cli
+    from dpe5g.errors import DamagedEntry
+
+    e, res, entry = small
+    monkeypatch.setenv("DPE5G_CACHE", str(tmp_path / "cache"))  # the fixture's chunks: reproduce computes nothing
+    monkeypatch.chdir(tmp_path)
+    for kind in DAMAGES:
+        damage(kind, entry)
+        with pytest.raises(DamagedEntry, match=f"{entry.npz.stem}.* is damaged .*make reproduce") as err:
+            engine.run(e.replace(n_trials=4), progress=False)
+        assert [str(d) for d in store.check_store()] == [str(err.value)], kind
+        args = ["run", "--trials", "6", "--centring", "truth", "--out", f"{kind}.csv"]  # the entry's experiment
+        assert cli.main(args) == 1, kind
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert len(lines) == 1 and "is damaged" in lines[0] and not (tmp_path / f"{kind}.csv").exists(), lines
+        assert verify.reproduce([e], progress=False, log=None) == []  # no trial compared: the entry was damaged
+        got = engine.run(e, progress=False)
+        for k in store.stored_fields(e):
+            np.testing.assert_array_equal(getattr(got, k), getattr(res, k), err_msg=f"{kind}: {k}")
+        assert store.check_store() == []
+
+
+def test_every_committed_entry_matches_its_checksum():
+    assert [str(d) for d in store.check_store(store.STORE_DIR)] == []
+    for meta in store.STORE_DIR.glob("*.json"):
+        assert len(json.loads(meta.read_text())["arrays_sha256"]) == 64, meta
