@@ -180,5 +180,5 @@ def cluster_lost_message(err: Exception, start: int, stop: int, chunks) -> str:
     else:
         what = f"trials {start}-{stop - 1} failed on a Dask worker: {kind}: {' '.join(str(err).split())}"
     done = len(chunks.chunks) - len(chunks.missing())
-    return (f"{what}; the {done} finished chunks of {chunks.dir.name} are kept in the cache, so the same command "
-            f"resumes from them")
+    return (f"{what}; {done} of the run's {len(chunks.chunks)} chunks are finished and kept in the cache "
+            f"({chunks.dir}), and the same command resumes from them")

@@ -421,6 +421,41 @@ def test_ctrl_c_is_one_line_and_exit_130_at_any_moment(workdir):
     assert all(c.stat().st_mtime_ns == done[c.name] for c in chunks() if c.name in done)  # resumed, not redone
 
 
+def test_sigterm_is_one_line_and_exit_143_like_ctrl_c(workdir):
+    """SIGTERM (a job scheduler's stop, `kill`) in the middle of a run: as Ctrl-C, one line, exit 143, no --out file
+    and no temporary file; the same command resumes from the cached chunks."""
+    import signal
+    import time
+
+    args = [sys.executable, "-m", "dpe5g", "run", "--trials", "400", "--snr", "20", "--m", "6", "--centring",
+            "truth", "--out", "r.csv"]
+    chunks = lambda: sorted((workdir / "cache").glob("run-*/trials-*.npz"))
+    p = subprocess.Popen(args, cwd=workdir, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    t0 = time.monotonic()
+    while not chunks() and p.poll() is None and time.monotonic() - t0 < 300:
+        time.sleep(0.005)
+    p.send_signal(signal.SIGTERM)
+    _, err = p.communicate(timeout=300)
+    lines = [ln for ln in err.splitlines() if ln.strip() and ("trials" not in ln or "terminated" in ln)]
+    assert p.returncode == 143 and "Traceback" not in err, err
+    assert len(lines) == 1 and lines[0].startswith("dpe5g run: terminated"), err
+    assert not (workdir / "r.csv").exists() and not list(workdir.rglob("*.tmp"))
+    r = subprocess.run(args, cwd=workdir, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0 and (workdir / "r.csv").exists(), r.stderr
+
+
+def test_output_does_not_depend_on_the_terminals_encoding(workdir):
+    """An ASCII terminal (PYTHONIOENCODING=ascii) once failed on the first σ, after the results were written: the
+    command line writes UTF-8 whatever the terminal's encoding."""
+    env = {**os.environ, "PYTHONIOENCODING": "ascii", "LC_ALL": "C"}
+    r = subprocess.run([sys.executable, "-m", "dpe5g", "run", "--help"], cwd=workdir, env=env, capture_output=True,
+                       timeout=120)
+    assert r.returncode == 0 and "σ per axis".encode() in r.stdout, r.stderr.decode(errors="replace")
+    utf8 = subprocess.run([sys.executable, "-m", "dpe5g", "run", "--help"], cwd=workdir, capture_output=True,
+                          timeout=120, env={**os.environ, "PYTHONIOENCODING": "utf-8"})
+    assert r.stdout == utf8.stdout
+
+
 def test_a_cache_that_is_not_a_folder_is_named(workdir, monkeypatch, capsys):
     """DPE5G_CACHE pointing at a file: one line naming the variable, exit 2, no result file."""
     monkeypatch.setenv("DPE5G_CACHE", str(workdir / "afile"))

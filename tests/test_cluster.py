@@ -63,3 +63,66 @@ def test_a_port_where_no_scheduler_speaks_is_named_within_the_timeout(monkeypatc
     finally:
         server.shutdown()
         server.server_close()
+
+
+def test_a_worker_running_other_code_is_refused(tmp_path):
+    """A worker started from another checkout (here a copy of the package with one function added to the grid
+    search's config, so another ``code_version``) refuses every chunk before any work, the run ends in one line
+    naming it, and no chunk of it is kept."""
+    import os
+    import shutil
+    import subprocess
+    import sys
+
+    from distributed import LocalCluster
+
+    from dpe5g.errors import ClusterFailed
+
+    other = tmp_path / "other"
+    shutil.copytree(os.path.dirname(experiment.__file__), other / "dpe5g",
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    sc = other / "dpe5g" / "search_config.py"
+    sc.write_text(sc.read_text() + "\n\ndef levels_of_another_checkout():\n    return 3\n")
+    e = experiment.Experiment.build(name="dask", **SMALL)
+    with LocalCluster(n_workers=0, processes=False, protocol="tcp", dashboard_address=None) as lc, \
+            cluster.connect(lc.scheduler_address) as client:
+        env = {**os.environ, "PYTHONPATH": str(other), "DPE5G_JAX_CACHE": "off"}
+        worker = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", lc.scheduler_address,
+                                   "--nthreads", "1", "--no-nanny", "--no-dashboard"], cwd=other, env=env,
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            client.wait_for_workers(1, timeout=120)
+            address = next(iter(client.scheduler_info()["workers"]))
+            with pytest.raises(ClusterFailed, match=f"Dask worker {address} runs other dpe5g code .*none kept"):
+                engine.run(e, cache=tmp_path / "cache", progress=False, use_store=False, client=client)
+        finally:
+            worker.kill()
+            worker.wait()
+    assert not list(store.cache_dir(e, tmp_path / "cache").glob("*.npz"))
+
+
+def test_a_worker_killed_repeatedly_or_a_lost_scheduler_is_one_line(tmp_path):
+    """distributed's KilledWorker and FutureCancelledError become one ``ClusterFailed`` line saying what happened
+    and that the finished chunks are kept (``cluster.gather``)."""
+    import os
+    import threading
+    import time
+
+    import dask
+    from distributed import Client, LocalCluster
+
+    from dpe5g.errors import ClusterFailed
+
+    chunks = store.ChunkCache(experiment.Experiment.build(name="dask", **SMALL), tmp_path).open()
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+        with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as lc, \
+                Client(lc) as client:
+            with pytest.raises(ClusterFailed, match="trials 0-1 died repeatedly .*0 of the run's 3 chunks are "
+                                                    "finished and kept in the cache"):
+                cluster.gather({client.submit(os._exit, 1, pure=False): (0, 2)}, chunks)
+    lc = LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None)
+    with Client(lc) as client:
+        sleeping = client.submit(time.sleep, 60, pure=False)
+        threading.Timer(1.0, lc.close).start()
+        with pytest.raises(ClusterFailed, match="connection to the Dask scheduler was lost .*resumes from them"):
+            cluster.gather({sleeping: (2, 4)}, chunks)

@@ -293,6 +293,62 @@ def test_cache_key_follows_code_not_prose(tmp_path):
     assert experiment.code_digest(a) == experiment.code_digest(b) != experiment.code_digest(c)
 
 
+def test_code_version_covers_every_module_the_engine_imports(tmp_path):
+    """No list kept by hand: the modules come from the engine's imports (search_config.py, split out of dpe.py, was
+    once missing from such a list, and a change of the grid's levels kept every cache key).  In a copy of the
+    package, a change of code in search_config.py, or a new module that the engine's modules import, changes the
+    code version; a module nothing imports does not."""
+    import shutil
+
+    pkg = tmp_path / "dpe5g"
+    shutil.copytree(os.path.dirname(experiment.__file__), pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    mods = experiment.source_modules(pkg)
+    assert {"search_config.py", "engine.py", "trials.py", "store.py", "__init__.py"} <= set(mods)
+    assert not {"cli.py", "plots.py", "figures.py", "paper.py"} & set(mods)
+    base = experiment.code_version(pkg)
+    assert base == experiment.code_version()
+    (pkg / "lonely.py").write_text("X = 1\n")
+    assert experiment.code_version(pkg) == base
+    sc = pkg / "search_config.py"
+    sc.write_text(sc.read_text().replace("def steps(self", "def _unused(self):\n        return 0\n\n    def steps(self", 1))
+    changed = experiment.code_version(pkg)
+    assert changed != base
+    (pkg / "helper.py").write_text("def offset():\n    return 0.0\n")
+    tr = pkg / "trials.py"
+    tr.write_text(tr.read_text().replace("from __future__ import annotations\n",
+                                         "from __future__ import annotations\n\nfrom .helper import offset\n", 1))
+    assert "helper.py" in experiment.source_modules(pkg) and experiment.code_version(pkg) != changed
+
+
+def test_settings_as_lists_and_numpy_values_key_as_plain_numbers():
+    plain = experiment.Experiment.build(**SMALL)
+    given = experiment.Experiment.build(**{**SMALL, "snrs_db": [np.float64(15.0), 30.0], "m_values": np.array([4, 6]),
+                                           "seed": np.int64(1), "n_trials": np.int32(6)})
+    assert given == plain and given.key() == plain.key() and given.config_key() == plain.config_key()
+    assert type(given.run.seed) is int and given.receiver.m_values == (4, 6)
+    assert experiment.Experiment.build(m_values=[6, 12]).receiver.m_values == (6, 12)
+
+
+def test_a_damaged_cache_chunk_is_named_set_aside_and_computed_again(tmp_path, capsys):
+    e = experiment.Experiment.build(**{**SMALL, "chunk_trials": 2})
+    good = engine.run(e, cache=tmp_path, progress=False)
+    d = store.cache_dir(e, tmp_path)
+    chunk = d / "trials-0000002-0000004.npz"
+    other = experiment.Experiment.build(**{**SMALL, "seed": 2, "chunk_trials": 2})
+    engine.run(other, cache=tmp_path, progress=False)
+    foreign = (store.cache_dir(other, tmp_path) / chunk.name).read_bytes()  # another experiment's chunk
+    capsys.readouterr()
+    for kind, bad in (("truncated", chunk.read_bytes()[:300]), ("foreign", foreign),
+                      ("bit flipped", bytes(b ^ (i == 900) * 4 for i, b in enumerate(chunk.read_bytes())))):
+        chunk.write_bytes(bad)
+        again = engine.run(e, cache=tmp_path, progress=False)
+        for f in results.Results.FIELDS:
+            np.testing.assert_array_equal(getattr(again, f), getattr(good, f), err_msg=f"{kind}: {f}")
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"cache file {chunk} is damaged" in err[0] and "set aside" in err[0], (kind, err)
+        assert (d / f"{chunk.name}.damaged").read_bytes() == bad, kind
+
+
 def test_nested_grid_fixes_equal_one_fix_per_m():
     """The engine's grid search shares its first level between the M values (``grid_search.nested_grid_fixes``); each M's
     fix must equal ``receiver.fix_in_window`` run on that M's BSs alone, on urban trials at several SNRs and on a shifted centre."""
