@@ -70,6 +70,7 @@ def check_scheduler(address: str, timeout_s: float, source: str = "--scheduler")
     timeout covers the connect only, so a port where something else listens (a web server, the dashboard's 8787)
     would hang it for good.  ValueError naming ``source`` and what was found otherwise."""
     import asyncio
+    import socket
 
     from distributed.comm import connect as comm_connect
 
@@ -78,6 +79,11 @@ def check_scheduler(address: str, timeout_s: float, source: str = "--scheduler")
         raise ValueError(f"{source} must be a Dask scheduler address tcp://host:port (port 1-65535; the "
                          f"scheduler's default is 8786; tls://, ucx:// and inproc:// are not supported), got "
                          f"{address!r}")
+    try:  # first a plain TCP connect: distributed's own retries a refused connection until its timeout
+        socket.create_connection((m.group(1).strip("[]"), int(m.group(2))), timeout=timeout_s).close()
+    except OSError as exc:
+        raise ValueError(f"{source} {address}: no Dask scheduler answers there (nothing accepts a connection: "
+                         f"{' '.join(str(exc.strerror or exc).split())})") from None
 
     async def identity():
         comm = await comm_connect(address, timeout=timeout_s)
@@ -97,7 +103,8 @@ def check_scheduler(address: str, timeout_s: float, source: str = "--scheduler")
                          f"listen there that is not one: the dashboard is on 8787, the scheduler on 8786 by "
                          f"default)") from None
     except OSError as exc:
-        raise ValueError(f"{source} {address}: no Dask scheduler answers there ({' '.join(str(exc).split())})") from None
+        raise ValueError(f"{source} {address}: no Dask scheduler answers there "
+                         f"({' '.join(str(exc).split())})") from None
     except Exception as exc:  # noqa: BLE001  (a peer that answers but not in Dask's protocol)
         raise ValueError(f"{source} {address}: what answers there is not a Dask scheduler "
                          f"({type(exc).__name__})") from None
@@ -136,8 +143,8 @@ def worker_address() -> str:
 
 
 def gather(futures: dict, chunks, bar=None) -> None:
-    """Write each chunk a Dask task (``engine.chunk_task``) returns into ``chunks`` (``store.ChunkCache``), as it arrives ({future: (start, stop)}), after checking
-    that its worker ran this process's code.  A chunk from other code, a worker killed too often or a lost scheduler
+    """Write each chunk a Dask task (``engine.chunk_task``) returns ({future: (start, stop)}) into ``chunks``
+    (``store.ChunkCache``) as it arrives, after checking that its worker ran this process's code.  A chunk from other code, a worker killed too often or a lost scheduler
     is an ``errors.ClusterFailed`` saying so in one line; the chunks written before it stay in the cache."""
     if not futures:
         return

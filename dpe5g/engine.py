@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import pickle
 import sys
 from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache, partial
@@ -169,18 +170,28 @@ def _runner(e: Experiment) -> ChunkRunner:
     return ChunkRunner(e)
 
 
-def chunk_task(e: Experiment, start: int, stop: int, batch_size: int, version: str) -> tuple[dict, dict]:
-    """Trials start … stop-1 of ``e``, computed in this process: the task ``run`` submits to a Dask cluster
+def chunk_task(experiment: bytes, start: int, stop: int, batch_size: int, version: str) -> tuple[dict, dict]:
+    """Trials start … stop-1 of an experiment, computed in this process: the task ``run`` submits to a Dask cluster
     (``cluster``) for each missing chunk.  It first checks that this process runs the client's code
-    (``code_version`` equal to ``version``; ``OtherCode`` otherwise, before any work), then computes; a worker
-    builds (compiles) the ``ChunkRunner`` of an experiment once and keeps it for the experiment's other chunks.
-    Returns (the chunk's arrays, {"code_version": this process's, "worker": its address}), which ``run`` checks
-    again before it keeps the chunk."""
+    (``code_version`` equal to ``version``; ``OtherCode`` otherwise, before any work), then unpickles the experiment
+    (``experiment``: pickled by the client, so that a worker whose ``Experiment`` differs fails the check, not the
+    unpickling) and computes; a worker builds (compiles) the ``ChunkRunner`` of an experiment once and keeps it for
+    the experiment's other chunks.  Returns (the chunk's arrays, {"code_version": this process's, "worker": its
+    address}), which ``cluster.gather`` checks again before it keeps the chunk."""
     mine = code_version()
     where = worker_address()
     if mine != version:
         raise OtherCode(where, mine, version)
-    return _runner(e)(start, stop, batch_size, workers=1), {"code_version": mine, "worker": where}
+    return _runner(pickle.loads(experiment))(start, stop, batch_size, workers=1), {"code_version": mine, "worker": where}
+
+
+def from_supersets(supersets: list, start: int, stop: int) -> dict | None:
+    """Trials start … stop-1 sliced from the first cached run at more SNRs that holds them (``snr_superset_runs``'
+    list), None if none does (or its chunk is damaged: then set aside)."""
+    for source, snr_index in supersets:
+        if source.path(start, stop).exists() and (sliced := sliced_chunk(source, start, stop, snr_index)) is not None:
+            return sliced
+    return None
 
 
 def default_workers() -> int:
@@ -231,8 +242,8 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
         arrays = chunks.load(stored_fields(e))
         if arrays is not None:
             return Results(e, **arrays)
-    raise Failure(f"{chunks.dir}: a chunk computed again was damaged again when read back; check the disk "
-                        f"(or point DPE5G_CACHE at another folder)")
+    raise Failure(f"{chunks.dir}: a chunk computed again was damaged again when read back; check the disk (or "
+                  f"point DPE5G_CACHE at another folder)")
 
 
 def fill(e: Experiment, chunks: ChunkCache, todo: list, batch_size: int, workers: int, client, progress: bool,
@@ -252,11 +263,11 @@ def fill(e: Experiment, chunks: ChunkCache, todo: list, batch_size: int, workers
         for start, stop in (todo[::-1] if reverse else todo):
             if chunks.path(start, stop).exists():  # (another process may have written it since `missing`)
                 pass
-            elif (sliced := next((z for c, ix in supersets if c.path(start, stop).exists()
-                                  and (z := sliced_chunk(c, start, stop, ix)) is not None), None)) is not None:
+            elif (sliced := from_supersets(supersets, start, stop)) is not None:
                 chunks.save(start, stop, sliced, computed_by="a cached run at more SNRs")
             elif client is not None:
-                futures[client.submit(chunk_task, e, start, stop, batch_size, code_version(), pure=False)] = (start, stop)
+                task = client.submit(chunk_task, pickle.dumps(e), start, stop, batch_size, code_version(), pure=False)
+                futures[task] = (start, stop)
                 continue
             else:
                 runner = runner or ChunkRunner(e)

@@ -161,7 +161,8 @@ def verify_sample(seed: int, n_families: int = SAMPLE_FAMILIES, n_trials: int = 
                   log=sys.stderr) -> tuple[list[Mismatch], list[tuple[str, list[int]]]]:
     """Recompute ``sample(seed, n_families, n_trials, experiments)`` and compare it with the store; log: where to
     print each experiment's time (None: nowhere).  An experiment the store lacks, or whose entry is damaged
-    (``errors.DamagedEntry``), is itself a mismatch (field "entry").  Returns (mismatches, [(experiment name, trials recomputed)])."""
+    (``errors.DamagedEntry``), is itself a mismatch (field "entry").  Returns (mismatches, [(experiment name,
+    trials recomputed)])."""
     out, done = [], []
     for e, picked in sample(seed, n_families, n_trials, experiments):
         t0 = time.perf_counter()

@@ -310,7 +310,7 @@ def test_code_version_covers_every_module_the_engine_imports(tmp_path):
     (pkg / "lonely.py").write_text("X = 1\n")
     assert experiment.code_version(pkg) == base
     sc = pkg / "search_config.py"
-    sc.write_text(sc.read_text().replace("def steps(self", "def _unused(self):\n        return 0\n\n    def steps(self", 1))
+    sc.write_text(sc.read_text().replace("def steps(self", "def unused(self):\n        return 0\n\n    def steps(self", 1))
     changed = experiment.code_version(pkg)
     assert changed != base
     (pkg / "helper.py").write_text("def offset():\n    return 0.0\n")
