@@ -105,11 +105,28 @@ def plain(value):
     return value
 
 
+def as_declared(value, declared: str):
+    """A plain value (``plain``) as the type its field declares, so that equal settings hash alike: an int (not a
+    bool) where ``float`` is declared as a float (5 → 5.0), a whole float where ``int`` is declared as an int
+    (9.0 → 9), and so element-wise for ``tuple[float, ...]`` and ``tuple[int, ...]``; anything else as it is (the
+    field's own check then judges it)."""
+    if declared == "float" and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if declared == "int" and isinstance(value, float) and value.is_integer():
+        return int(value)
+    if declared in ("tuple[float, ...]", "tuple[int, ...]") and isinstance(value, tuple):
+        return tuple(as_declared(v, declared[6:-6]) for v in value)
+    return value
+
+
 def plain_fields(obj) -> None:
-    """Replace each field of the frozen dataclass ``obj`` by its ``plain`` value (in ``__post_init__``)."""
+    """Replace each field of the frozen dataclass ``obj`` by its ``plain`` value as its declared type
+    (``as_declared``; in ``__post_init__``), so settings given as lists, NumPy values or ints where floats are
+    declared give the same object and the same key as the plain numbers."""
     import dataclasses
 
     for f in dataclasses.fields(obj):
         v = getattr(obj, f.name)
-        if isinstance(v, (np.generic, list, tuple, np.ndarray)):
-            object.__setattr__(obj, f.name, plain(v))
+        p = as_declared(plain(v), f.type if isinstance(f.type, str) else getattr(f.type, "__name__", ""))
+        if p is not v:
+            object.__setattr__(obj, f.name, p)

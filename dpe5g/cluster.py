@@ -51,7 +51,7 @@ def connect(scheduler: str | None = None, workers: int | None = None, timeout_s:
                          f"cluster on this machine, --scheduler (or DPE5G_SCHEDULER) uses an existing one")
     if scheduler is None and workers is None:
         return None
-    from distributed import Client, LocalCluster
+    from distributed import Client
 
     if scheduler is not None:
         check_scheduler(scheduler, timeout_s, source)
@@ -59,9 +59,18 @@ def connect(scheduler: str | None = None, workers: int | None = None, timeout_s:
             return Client(scheduler, timeout=f"{timeout_s}s")
         except (OSError, TimeoutError) as exc:
             raise ValueError(f"{source} {scheduler}: no Dask scheduler answers there ({exc})") from None
-    workers = _checks.integer("--workers", workers, 1, 256)
-    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
-    return Client(cluster)
+    return Client(local_cluster(_checks.integer("--workers", workers, 1, 256)))
+
+
+def local_cluster(n_workers: int, **options):
+    """A ``distributed.LocalCluster`` of ``n_workers`` single-threaded worker processes with no dashboard and its
+    scheduler's HTTP server on a free port of 127.0.0.1 (distributed binds it to 8787 even without a dashboard, so
+    two clusters on one machine, or a real scheduler's dashboard there, collided); ``options`` go to it as well."""
+    from distributed import LocalCluster
+
+    return LocalCluster(**{"n_workers": n_workers, "threads_per_worker": 1, "processes": True,
+                           "dashboard_address": None,
+                           "scheduler_kwargs": {"dashboard": False, "dashboard_address": "127.0.0.1:0"}, **options})
 
 
 def check_scheduler(address: str, timeout_s: float, source: str = "--scheduler") -> None:

@@ -59,7 +59,7 @@ def fix(y, prs, bs_xyz, center_m, cfg: SearchConfig = SearchConfig(), num: Numer
     prs = jnp.asarray(prs)
     bs_xyz = jnp.asarray(bs_xyz, dtype=jnp.float64)
     center_m = jnp.asarray(center_m, dtype=jnp.float64)
-    if y.shape[-1] != num.n_fft or prs.shape != y.shape:
+    if y.ndim < 2 or y.shape[-1] != num.n_fft or prs.shape != y.shape:
         raise ValueError(f"y and prs must be (..., M, {num.n_fft}) of equal shape, got {y.shape} and {prs.shape}")
     if bs_xyz.shape[-2:] != (y.shape[-2], 3) or center_m.shape[-1] != 4:
         raise ValueError(f"bs_xyz must be (..., M, 3) and center_m (..., 4); got {bs_xyz.shape} and "

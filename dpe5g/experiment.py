@@ -354,7 +354,7 @@ def package_imports(path: Path) -> list[str]:
 def _package_imports(path: str, mtime_ns: int, size: int) -> tuple[str, ...]:
     here = Path(path).parent
     found = []
-    for node in ast.walk(ast.parse(Path(path).read_text())):
+    for node in ast.walk(ast.parse(Path(path).read_text(encoding="utf-8"))):
         if isinstance(node, ast.ImportFrom) and node.level == 1:  # from . import a / from .a import f
             found += [node.module.split(".")[0]] if node.module else [a.name for a in node.names]
         elif isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] == "dpe5g":
@@ -376,7 +376,7 @@ def code_digest(path: Path) -> bytes:
 
 @lru_cache(maxsize=64)
 def _code_digest(path: str, mtime_ns: int, size: int) -> bytes:
-    tree = ast.parse(Path(path).read_text())
+    tree = ast.parse(Path(path).read_text(encoding="utf-8"))
     for node in ast.walk(tree):
         body = getattr(node, "body", None)
         if (isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and body

@@ -78,6 +78,7 @@ class LinkBudget:
     noise_figure_db: float = 9.0
 
     def __post_init__(self):
+        _checks.plain_fields(self)  # NumPy values and ints as the floats they hash as
         _checks.in_range("fc_hz", self.fc_hz, 0.5e9, 100e9, "Hz")
         _checks.in_range("bandwidth_hz", self.bandwidth_hz, 1e6, 1e9, "Hz")
         _checks.in_range("noise_psd_dbm_hz", self.noise_psd_dbm_hz, -200.0, -100.0, "dBm/Hz")

@@ -85,6 +85,7 @@ class SearchConfig:
     window_decay_s: float = 0.0
 
     def __post_init__(self):
+        _checks.plain_fields(self)  # NumPy values and ints as the types they hash as
         _checks.integer("n_taps", self.n_taps, 1, 4096)
         _checks.integer("upsample", self.upsample, 1, 256)
         _checks.in_range("half_width_m", self.half_width_m, 0.1, 1000.0, "m")

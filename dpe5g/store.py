@@ -20,9 +20,8 @@ import io
 import json
 import os
 import subprocess
+import socket
 import sys
-import zipfile
-import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,7 +29,7 @@ import jax
 import numpy as np
 
 from ._io import atomic_write, remove_stale_temporaries
-from .errors import DamagedEntry
+from .errors import DamagedEntry, Failure
 from .experiment import Experiment, code_digest, code_version, numerics
 from .results import Results
 
@@ -88,16 +87,19 @@ class ChunkCache:
     def missing(self) -> list[tuple[int, int]]:
         return [c for c in self.chunks if not self.path(*c).exists()]
 
-    def origin(self) -> dict:
-        """What a chunk of this cache must record (``write_cached``): the code version and config key of its key."""
-        return {"code_version": code_version(), "config_key": self.experiment.config_key()}
+    def origin(self, start: int, stop: int) -> dict:
+        """What chunk start … stop-1 must record (``write_cached``): the code version and config key of this
+        cache's key, and its trials."""
+        return {"code_version": code_version(), "config_key": self.experiment.config_key(), "trials": [start, stop]}
 
-    def save(self, start: int, stop: int, arrays: dict, computed_by: str = "this process") -> None:
-        write_cached(self.path(start, stop), arrays, {**self.origin(), "computed_by": computed_by})
+    def save(self, start: int, stop: int, arrays: dict, computed_by: str | None = None) -> None:
+        """Write a chunk (``write_cached``); computed_by : who computed it (default: this process, by pid and host)."""
+        by = computed_by or f"process {os.getpid()} on {socket.gethostname()}"
+        write_cached(self.path(start, stop), arrays, {**self.origin(start, stop), "computed_by": by})
 
     def read(self, start: int, stop: int) -> dict | None:
         """The chunk's arrays, None if it is missing or damaged (then set aside and named: ``read_cached``)."""
-        return read_cached(self.path(start, stop), self.origin())
+        return read_cached(self.path(start, stop), self.origin(start, stop), rows=stop - start)
 
     def load(self, names) -> dict | None:
         """Every chunk's arrays ``names``, concatenated; None when a chunk was damaged (set aside, so ``missing``
@@ -130,7 +132,8 @@ def read_npz(path) -> dict:
             return {k: z[k] for k in z.files}
     except FileNotFoundError:
         raise ValueError("the file is missing") from None
-    except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile, zlib.error) as err:
+    except Exception as err:  # noqa: BLE001  (a damaged zip or .npy header raises anything from OSError and
+        # BadZipFile to SyntaxError, NotImplementedError or RuntimeError: every one of them is damage)
         raise ValueError(f"unreadable: {type(err).__name__}: {' '.join(str(err).split()) or 'no detail'}") from None
 
 
@@ -143,25 +146,27 @@ def write_cached(path: Path, arrays: dict, origin: dict) -> None:
     atomic_write(path, buf.getvalue())
 
 
-def read_cached(path: Path, origin: dict) -> dict | None:
+def read_cached(path: Path, origin: dict, rows: int | None = None) -> dict | None:
     """The arrays of a cache file (``write_cached``); None if it is missing.  A file that cannot be read, whose
-    arrays do not match their checksum, or that records another ``origin`` (another code version or config: a
-    worker of another checkout, an old file) is named on stderr, set aside as ``<name>.damaged`` and None returned,
-    so the caller computes it again."""
+    arrays do not match their checksum, that records another ``origin`` (another code version, config or trial
+    range: a worker of another checkout, a file copied to another name) or whose arrays do not all hold ``rows``
+    rows is named on stderr, set aside as ``<name>.damaged`` and None returned, so the caller computes it again."""
     path = Path(path)
     if not path.exists():
         return None
     try:
         arrays = read_npz(path)
-        if CACHE_META not in arrays:
+        meta = json.loads(str(arrays.pop(CACHE_META))) if CACHE_META in arrays else None
+        if not isinstance(meta, dict):
             raise ValueError("it records no origin")
-        meta = json.loads(str(arrays.pop(CACHE_META)))
         if meta.get("arrays_sha256") != arrays_digest(arrays):
             raise ValueError("its arrays do not match their checksum")
         other = {k: meta.get(k) for k in origin if meta.get(k) != origin[k]}
         if other:
-            raise ValueError(f"it was computed with {other} by {meta.get('computed_by', 'an unknown process')}, "
+            raise ValueError(f"it records {other} (computed by {meta.get('computed_by', 'an unknown process')}), "
                              f"not {({k: origin[k] for k in other})}")
+        if rows is not None and any(a.ndim == 0 or a.shape[0] != rows for a in arrays.values()):
+            raise ValueError(f"its arrays do not hold {rows} rows each")
     except ValueError as err:
         return set_aside(path, str(err))
     return arrays
@@ -169,11 +174,20 @@ def read_cached(path: Path, origin: dict) -> dict | None:
 
 def set_aside(path: Path, reason: str) -> None:
     """Move a damaged cache file to ``<name>.damaged`` (kept for a look, never read) and say so on stderr in one
-    line; returns None, what the reader then returns."""
+    line (on a line of its own where a progress bar is drawn); returns None, what the reader then returns.  A file
+    that cannot be moved (a read-only cache) is an ``errors.Failure`` saying so."""
     aside = path.with_name(path.name + ".damaged")
-    os.replace(path, aside)
-    print(f"dpe5g: cache file {path} is damaged ({reason}); set aside as {aside.name} and computed again",
-          file=sys.stderr, flush=True)
+    try:
+        os.replace(path, aside)
+    except OSError as err:
+        raise Failure(f"cache file {path} is damaged ({reason}) and cannot be set aside ({err.strerror or err}): "
+                      f"delete it, or point DPE5G_CACHE at a writable folder") from None
+    line = f"dpe5g: cache file {path} is damaged ({reason}); set aside as {aside.name} and computed again"
+    tqdm = sys.modules.get("tqdm")
+    if tqdm is not None and getattr(tqdm.tqdm, "_instances", None):
+        tqdm.tqdm.write(line, file=sys.stderr)
+    else:
+        print(line, file=sys.stderr, flush=True)
 
 
 #: chunk arrays without an SNR axis (every other array is (T, S, ...)); ``snr_superset_runs`` slices the others
@@ -237,20 +251,31 @@ def payload_path(fig_id: str, trials: int | None = None, cache=None) -> Path:
 
 def load_payload(fig_id: str, trials: int | None = None, cache=None) -> dict | None:
     """The stored payload of ``fig_id`` (``payload_path``), None when this code has not computed it, or when its
-    file is damaged (named on stderr and set aside as ``<name>.damaged``, so it is computed again)."""
+    file is damaged or fails its checksum (named on stderr and set aside as ``<name>.damaged``, so it is computed
+    again)."""
     path = payload_path(fig_id, trials, cache)
     if not path.exists():
         return None
     try:
-        return json.loads(path.read_text())
+        held = json.loads(path.read_text(encoding="utf-8"))
     except ValueError as err:  # (UnicodeDecodeError included)
-        return set_aside(path, f"not valid JSON: {err}")
+        return set_aside(path, f"not valid JSON: {' '.join(str(err).split())}")
+    if not isinstance(held, dict) or held.get("sha256") != payload_digest(held.get("payload")):
+        return set_aside(path, "its payload does not match its checksum")
+    return held["payload"]
+
+
+def payload_digest(payload) -> str:
+    """SHA-256 of a payload's JSON (keys sorted): the checksum ``save_payload`` records."""
+    return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
 
 
 def save_payload(fig_id: str, trials: int | None, payload: dict, cache=None) -> dict:
-    """Store a payload (``payload_path``, written atomically) as JSON (``jsonable``); returns what was stored."""
+    """Store a payload (``payload_path``, written atomically) as JSON (``jsonable``) with its checksum
+    (``payload_digest``, checked by ``load_payload``); returns what was stored."""
     payload = jsonable(payload)
-    atomic_write(payload_path(fig_id, trials, cache), json.dumps(payload).encode())
+    held = {"sha256": payload_digest(payload), "payload": payload}
+    atomic_write(payload_path(fig_id, trials, cache), json.dumps(held).encode())
     return payload
 
 
@@ -280,6 +305,8 @@ def store_root() -> Path | None:
     env = os.environ.get("DPE5G_STORE")
     if env == "off":
         return None
+    if env and Path(env).exists() and not Path(env).is_dir():
+        raise ValueError(f"DPE5G_STORE={env}: is not a folder (name a results store's folder, or 'off')")
     return Path(env) if env else STORE_DIR
 
 
@@ -361,15 +388,20 @@ def read_entry_meta(meta_path: Path) -> dict:
 def stored(e: Experiment, root: Path | None = None) -> StoredRun | None:
     """The store's entry for ``e`` (same config key, at least ``e.run.n_trials`` trials), None if it holds none
     or the store is off.  Trial t depends only on the config, the seed and t, so an entry of N trials serves
-    any run of n ≤ N.  A damaged ``.json`` is an ``errors.DamagedEntry`` (its arrays are checked when read:
-    ``StoredRun.load``)."""
+    any run of n ≤ N.  A damaged ``.json``, an ``.npz`` without its ``.json`` and a shorter entry that fails its
+    check are an ``errors.DamagedEntry`` (the entry returned is checked when read: ``StoredRun.load``)."""
     root = store_root() if root is None else root
     if root is None or not root.is_dir():
         return None
-    for meta_path in sorted(root.glob(f"*-{e.config_key()}.json")):
-        meta = read_entry_meta(meta_path)
-        if meta["n_trials"] >= e.run.n_trials:
-            return StoredRun(meta_path.with_suffix(".npz"), meta)
+    key = e.config_key()
+    for npz in sorted(root.glob(f"*-{key}.npz")):
+        if not npz.with_suffix(".json").exists():
+            raise DamagedEntry(npz, f"its .json, {npz.with_suffix('.json').name}, is missing")
+    for meta_path in sorted(root.glob(f"*-{key}.json")):
+        entry = StoredRun(meta_path.with_suffix(".npz"), read_entry_meta(meta_path))
+        if entry.n_trials >= e.run.n_trials:
+            return entry
+        entry.check()  # too short to serve: read anyway, so that a .json that understates its arrays is named
     return None
 
 

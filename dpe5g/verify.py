@@ -15,6 +15,7 @@ import random
 import sys
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -211,7 +212,9 @@ def coverage_runs(n_stored: int, n_per_run: int, quantile: float = 0.95) -> tupl
 def reproduce(experiments=None, progress: bool = True, client=None, log=sys.stdout) -> list[Mismatch]:
     """Recompute every stored experiment from its seeds (the cache's chunks of today's code are reused: they are
     what this code computes; client: a Dask client, ``cluster``), report the trials that differ from the store,
-    then rewrite the store.  Returns the mismatches found (before rewriting)."""
+    then rewrite the store.  A damaged entry is replaced without being read, and a damaged file that is no stored
+    experiment's entry (a stray or stale file, which would stop every later read of the store) is removed.  Returns
+    the mismatches found (before rewriting)."""
     exps = store_experiments() if experiments is None else list(experiments)
     found = []
     t_all = time.perf_counter()
@@ -233,6 +236,15 @@ def reproduce(experiments=None, progress: bool = True, client=None, log=sys.stdo
               f"({time.perf_counter() - t0:.1f} s)", file=log, flush=True)
         for d in diffs[:5]:
             print(f"    {d.experiment} trial {d.trial} {d.field}: stored {d.stored}, computed {d.computed}", file=log)
+    known = {f"{e.run.name}-{e.config_key()}" for e in [*store_experiments(), *exps]}
+    for err in store.check_store():  # damaged files of no experiment (a stray or stale entry): nothing could read them
+        path = Path(err.path)
+        if path.name[: -len(path.suffix)] in known:
+            continue
+        for p in (path, path.with_suffix(".npz" if path.suffix == ".json" else ".json")):
+            p.unlink(missing_ok=True)
+        print(f"reproduce: removed {path.name} and its partner, damaged and of no stored experiment ({err.reason})",
+              file=log, flush=True)
     print(f"reproduce: {len(exps)} experiments recomputed and stored, {len(found)} (trial, field) differences "
           f"({time.perf_counter() - t_all:.1f} s)", file=log, flush=True)
     return found

@@ -74,8 +74,6 @@ def test_a_worker_running_other_code_is_refused(tmp_path):
     import subprocess
     import sys
 
-    from distributed import LocalCluster
-
     from dpe5g.errors import ClusterFailed
 
     other = tmp_path / "other"
@@ -84,8 +82,7 @@ def test_a_worker_running_other_code_is_refused(tmp_path):
     sc = other / "dpe5g" / "search_config.py"
     sc.write_text(sc.read_text() + "\n\ndef levels_of_another_checkout():\n    return 3\n")
     e = experiment.Experiment.build(name="dask", **SMALL)
-    with LocalCluster(n_workers=0, processes=False, protocol="tcp", dashboard_address=None) as lc, \
-            cluster.connect(lc.scheduler_address) as client:
+    with cluster.local_cluster(0, processes=False, protocol="tcp") as lc, cluster.connect(lc.scheduler_address) as client:
         env = {**os.environ, "PYTHONPATH": str(other), "DPE5G_JAX_CACHE": "off"}
         worker = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", lc.scheduler_address,
                                    "--nthreads", "1", "--no-nanny", "--no-dashboard"], cwd=other, env=env,
@@ -109,18 +106,17 @@ def test_a_worker_killed_repeatedly_or_a_lost_scheduler_is_one_line(tmp_path):
     import time
 
     import dask
-    from distributed import Client, LocalCluster
+    from distributed import Client
 
     from dpe5g.errors import ClusterFailed
 
     chunks = store.ChunkCache(experiment.Experiment.build(name="dask", **SMALL), tmp_path).open()
     with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
-        with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as lc, \
-                Client(lc) as client:
+        with cluster.local_cluster(1) as lc, Client(lc) as client:
             with pytest.raises(ClusterFailed, match="trials 0-1 died repeatedly .*0 of the run's 3 chunks are "
                                                     "finished and kept in the cache"):
                 cluster.gather({client.submit(os._exit, 1, pure=False): (0, 2)}, chunks)
-    lc = LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None)
+    lc = cluster.local_cluster(1)
     with Client(lc) as client:
         sleeping = client.submit(time.sleep, 60, pure=False)
         threading.Timer(1.0, lc.close).start()

@@ -150,6 +150,8 @@ def test_bad_inputs():
         search_config.SearchConfig(final_step_m=5.0)
     with pytest.raises(ValueError, match="finite"):
         dpe.fix(np.ones((3, 4096), complex), nr.prs_matrix([1, 2, 3]), _geometry(3), [np.nan, 0, 2, 0])
+    with pytest.raises(ValueError, match="y and prs must be"):  # one link's samples, no link axis
+        dpe.fix(np.ones(4096, complex), nr.prs_matrix([1])[0], _geometry(1)[0], [0, 0, 2, 0])
     with pytest.raises(ValueError, match="at least 3 links .* got M = 2"):  # x, y and the clock bias: 3 unknowns
         dpe.fix(np.ones((2, 4096), complex), nr.prs_matrix([1, 2]), _geometry(2), [0, 0, 2, 0])
     y = np.ones((2, 3, 4096), complex)

@@ -322,11 +322,33 @@ def test_code_version_covers_every_module_the_engine_imports(tmp_path):
 
 def test_settings_as_lists_and_numpy_values_key_as_plain_numbers():
     plain = experiment.Experiment.build(**SMALL)
-    given = experiment.Experiment.build(**{**SMALL, "snrs_db": [np.float64(15.0), 30.0], "m_values": np.array([4, 6]),
+    given = experiment.Experiment.build(**{**SMALL, "snrs_db": [np.float64(15.0), 30], "m_values": np.array([4, 6]),
                                            "seed": np.int64(1), "n_trials": np.int32(6)})
     assert given == plain and given.key() == plain.key() and given.config_key() == plain.config_key()
     assert type(given.run.seed) is int and given.receiver.m_values == (4, 6)
     assert experiment.Experiment.build(m_values=[6, 12]).receiver.m_values == (6, 12)
+    # an int where a float is declared, a whole float where an int is: the same experiment and key
+    ints = experiment.Experiment.build(**{**SMALL, "seed": 1.0, "m_values": (4.0, 6),
+                                          "search": search_config.SearchConfig(half_width_m=3, bias_half_width_m=3)})
+    assert ints == plain and ints.config_key() == plain.config_key() and type(ints.run.seed) is int
+    assert type(ints.receiver.search.half_width_m) is float
+    assert experiment.Experiment.build(prior_scale_m=5).config_key() == experiment.Experiment.build(
+        prior_scale_m=5.0).config_key()
+    with pytest.raises(ValueError, match="seed must be an integer"):
+        experiment.Experiment.build(seed=1.5)
+
+
+def test_code_version_does_not_depend_on_the_locale():
+    """The sources are read as UTF-8 whatever the locale (an ASCII locale failed on the first non-ASCII byte, and
+    another 8-bit one would have given another code version, so workers of one checkout would have disagreed)."""
+    env = {**os.environ, "LC_ALL": "C", "LANG": "C", "PYTHONUTF8": "0", "PYTHONCOERCECLOCALE": "0",
+           "PYTHONIOENCODING": "ascii"}
+    r = subprocess.run([sys.executable, "-c", "import locale; from dpe5g import experiment; "
+                        "print(locale.getpreferredencoding(), experiment.code_version())"],
+                       env=env, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    encoding, version = r.stdout.split()
+    assert encoding.lower() not in ("utf-8", "utf8") and version == experiment.code_version()
 
 
 def test_a_damaged_cache_chunk_is_named_set_aside_and_computed_again(tmp_path, capsys):
@@ -338,7 +360,8 @@ def test_a_damaged_cache_chunk_is_named_set_aside_and_computed_again(tmp_path, c
     engine.run(other, cache=tmp_path, progress=False)
     foreign = (store.cache_dir(other, tmp_path) / chunk.name).read_bytes()  # another experiment's chunk
     capsys.readouterr()
-    for kind, bad in (("truncated", chunk.read_bytes()[:300]), ("foreign", foreign),
+    moved = (d / "trials-0000000-0000002.npz").read_bytes()  # this experiment's chunk of other trials
+    for kind, bad in (("truncated", chunk.read_bytes()[:300]), ("foreign", foreign), ("moved", moved),
                       ("bit flipped", bytes(b ^ (i == 900) * 4 for i, b in enumerate(chunk.read_bytes())))):
         chunk.write_bytes(bad)
         again = engine.run(e, cache=tmp_path, progress=False)
@@ -347,6 +370,24 @@ def test_a_damaged_cache_chunk_is_named_set_aside_and_computed_again(tmp_path, c
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and f"cache file {chunk} is damaged" in err[0] and "set aside" in err[0], (kind, err)
         assert (d / f"{chunk.name}.damaged").read_bytes() == bad, kind
+
+
+def test_a_damaged_chunk_that_cannot_be_set_aside_says_so(tmp_path, monkeypatch):
+    """A read-only cache: the damaged chunk cannot be moved, and the run says that, not only "Read-only file
+    system"."""
+    from dpe5g.errors import Failure
+
+    e = experiment.Experiment.build(**{**SMALL, "chunk_trials": 2})
+    engine.run(e, cache=tmp_path, progress=False)
+    chunk = store.cache_dir(e, tmp_path) / "trials-0000002-0000004.npz"
+    chunk.write_bytes(chunk.read_bytes()[:300])
+
+    def read_only(*args):
+        raise OSError(30, "Read-only file system")
+
+    monkeypatch.setattr(store.os, "replace", read_only)
+    with pytest.raises(Failure, match=f"cache file {chunk} is damaged .* cannot be set aside .*Read-only file system"):
+        engine.run(e, cache=tmp_path, progress=False)
 
 
 def test_nested_grid_fixes_equal_one_fix_per_m():

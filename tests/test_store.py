@@ -171,9 +171,10 @@ def damage(kind: str, entry) -> None:
         arrays["error_m"] = arrays["error_m"] * np.where(np.arange(arrays["error_m"].size) == 7, 1.01, 1.0).reshape(
             arrays["error_m"].shape)
         np.savez_compressed(npz, **arrays)
-    elif kind == "more trials claimed":
+    elif kind in ("more trials claimed", "fewer trials claimed"):
         meta = json.loads(meta_path.read_text())
-        meta_path.write_text(json.dumps({**meta, "n_trials": 2 * meta["n_trials"]}))
+        claimed = 2 * meta["n_trials"] if kind.startswith("more") else meta["n_trials"] // 2
+        meta_path.write_text(json.dumps({**meta, "n_trials": claimed}))
     elif kind == "truncated":
         npz.write_bytes(npz.read_bytes()[: npz.stat().st_size // 2])
     elif kind == "bit flipped":
@@ -184,9 +185,12 @@ def damage(kind: str, entry) -> None:
         meta_path.write_text(meta_path.read_text()[:-40])
     elif kind == "arrays missing":
         npz.unlink()
+    elif kind == ".json missing":
+        meta_path.unlink()
 
 
-DAMAGES = ("edited value", "more trials claimed", "truncated", "bit flipped", "invalid JSON", "arrays missing")
+DAMAGES = ("edited value", "more trials claimed", "fewer trials claimed", "truncated", "bit flipped", "invalid JSON",
+           "arrays missing", ".json missing")
 
 
 def test_a_damaged_entry_is_named_and_make_reproduce_repairs_it(small, tmp_path, monkeypatch, capsys):
@@ -218,3 +222,58 @@ def test_every_committed_entry_matches_its_checksum():
     assert [str(d) for d in store.check_store(store.STORE_DIR)] == []
     for meta in store.STORE_DIR.glob("*.json"):
         assert len(json.loads(meta.read_text())["arrays_sha256"]) == 64, meta
+
+
+def test_no_bit_flip_of_an_entry_escapes_as_another_error(small):
+    """A flipped bit in a zip's or an .npy header's bytes raises anything from BadZipFile to SyntaxError,
+    NotImplementedError or RuntimeError inside NumPy and zipfile; each is an ``errors.DamagedEntry`` naming the file,
+    or (a bit of zip metadata nothing reads) the arrays as stored.  Every byte of the entry, one bit each."""
+    from dpe5g.errors import DamagedEntry
+
+    _, _, entry = small
+    data = entry.npz.read_bytes()
+    good = entry.check()
+    outcomes = set()
+    for i in range(len(data)):
+        entry.npz.write_bytes(data[:i] + bytes([data[i] ^ (1 << (i % 8))]) + data[i + 1:])
+        try:
+            held = entry.check()
+        except DamagedEntry as err:
+            assert str(entry.npz) in str(err) and "make reproduce" in str(err)
+            outcomes.add("damaged")
+            continue
+        assert sorted(held) == sorted(good) and all(np.array_equal(held[k], good[k], equal_nan=True) for k in good)
+        outcomes.add("intact")
+    assert "damaged" in outcomes
+
+
+def test_reproduce_removes_a_damaged_file_of_no_experiment(small, tmp_path, monkeypatch):
+    """A stray or stale damaged file stops every read of the store (``check_store``); reproduce removes it, and
+    leaves an undamaged stranger alone."""
+    e, _, entry = small
+    monkeypatch.setenv("DPE5G_CACHE", str(tmp_path / "cache"))
+    root = entry.npz.parent
+    (root / "stray-0123456789abcdef.json").write_text("{}")
+    (root / "orphan-0123456789abcdef.npz").write_bytes(b"not a zip")
+    assert len(store.check_store()) == 2
+    verify.reproduce([e], progress=False, log=None)
+    assert store.check_store() == [] and sorted(p.name for p in root.iterdir()) == sorted(
+        [entry.npz.name, entry.npz.with_suffix(".json").name])
+
+
+def test_a_payload_is_checked_against_its_checksum(tmp_path, capsys):
+    store.save_payload("fig_x", None, {"rmse_m": [1.25, 2.5]}, cache=tmp_path)
+    assert store.load_payload("fig_x", None, cache=tmp_path) == {"rmse_m": [1.25, 2.5]}
+    path = store.payload_path("fig_x", None, cache=tmp_path)
+    for bad in (path.read_text().replace("1.25", "12.5"), "[]", path.read_text()[:20]):
+        path.write_text(bad)
+        assert store.load_payload("fig_x", None, cache=tmp_path) is None
+        assert "is damaged" in capsys.readouterr().err and not path.exists()
+        assert path.with_name(path.name + ".damaged").read_text() == bad
+
+
+def test_a_store_variable_naming_a_file_is_named(tmp_path, monkeypatch):
+    (tmp_path / "afile").write_text("x")
+    monkeypatch.setenv("DPE5G_STORE", str(tmp_path / "afile"))
+    with pytest.raises(ValueError, match="DPE5G_STORE=.*afile: is not a folder"):
+        store.stored(paper.fig9_truth(6))
