@@ -179,10 +179,10 @@ def test_payload_is_computed_once_per_state_of_the_code(tmp_path, monkeypatch):
     path = store.payload_path("fig01_tdl_a")
     assert path.parent == tmp_path / "payloads" and not path.exists()
     first = figures.compute("fig01_tdl_a")
-    assert path.exists() and json.loads(path.read_text()) == first
-    stored = json.loads(path.read_text())
-    stored["data"]["pdp_db"][0] = 123.0  # a marker: a second compute must return the stored payload
-    path.write_text(json.dumps(stored))
+    assert path.exists() and store.load_payload("fig01_tdl_a") == first
+    marked = json.loads(json.dumps(first))
+    marked["data"]["pdp_db"][0] = 123.0  # a marker: a second compute must return the stored payload
+    store.save_payload("fig01_tdl_a", None, marked)
     assert figures.compute("fig01_tdl_a")["data"]["pdp_db"][0] == 123.0
     others = {store.payload_path("fig02_tdl_b"), store.payload_path("fig09_rmse_vs_snr", 50),
               store.payload_path("fig09_rmse_vs_snr", 60), path}
