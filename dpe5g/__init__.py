@@ -28,9 +28,14 @@ anything leaves the level as it was.
 """
 
 import os
-import signal as _signal  # (not ``signal``: that name is the package's module dpe5g.signal)
+import signal as _signal
+import time as _time  # (not ``signal``: that name is the package's module dpe5g.signal)
 import sys
 from pathlib import Path
+
+#: when this process imported dpe5g (ns since the epoch): a source file changed later is not the code it runs
+#: (``experiment.changed_since_import``)
+IMPORTED_AT_NS = _time.time_ns()
 
 #: the XLA backend optimisation level importing dpe5g asks for (see the module docstring); DPE5G_XLA_OPT_LEVEL overrides
 XLA_OPT_LEVEL = 1

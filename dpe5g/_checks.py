@@ -98,7 +98,7 @@ def plain(value):
     """``value`` as the plain Python a config holds: a NumPy scalar as its Python number (``np.float64(10)`` → 10.0,
     ``np.int64(6)`` → 6, ``np.bool_`` → bool), a list, tuple or array as a tuple of plain values; anything else as
     it is.  So settings given as lists or NumPy values hash (``Experiment.config_key``) as the same plain numbers."""
-    if isinstance(value, np.generic):
+    if isinstance(value, np.generic) or (isinstance(value, np.ndarray) and value.ndim == 0):
         return value.item()
     if isinstance(value, (list, tuple, np.ndarray)):
         return tuple(plain(v) for v in value)
@@ -127,6 +127,9 @@ def plain_fields(obj) -> None:
 
     for f in dataclasses.fields(obj):
         v = getattr(obj, f.name)
-        p = as_declared(plain(v), f.type if isinstance(f.type, str) else getattr(f.type, "__name__", ""))
+        declared = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", "")
+        p = as_declared(plain(v), declared)
+        if declared.startswith("tuple[") and not isinstance(p, tuple):
+            raise ValueError(f"{f.name} must be a tuple (or list) of values, got {v!r}")
         if p is not v:
             object.__setattr__(obj, f.name, p)

@@ -3,6 +3,7 @@ output file or folder before any work."""
 
 from __future__ import annotations
 
+import errno
 import os
 import tempfile
 from contextlib import contextmanager
@@ -108,15 +109,20 @@ def atomic_target(path, exclusive: bool = False):
 
 
 def fsync(path) -> None:
-    """Flush the file or folder ``path`` to disk (a no-op where the filesystem refuses, as some do for folders)."""
+    """Flush the file or folder ``path`` to disk.  A file's error (EIO: the disk fault this guards against) is
+    raised; a folder that cannot be opened or flushed (some filesystems refuse) is left as it is."""
+    folder = os.path.isdir(path)
     try:
         fd = os.open(path, os.O_RDONLY)
     except OSError:
-        return
+        if folder:
+            return
+        raise
     try:
         os.fsync(fd)
-    except OSError:
-        pass
+    except OSError as err:
+        if not (folder and err.errno in (errno.EINVAL, errno.EBADF, errno.ENOTSUP, errno.EACCES)):
+            raise
     finally:
         os.close(fd)
 
@@ -132,6 +138,8 @@ def _link_new(tmp, path: Path) -> None:
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         with os.fdopen(fd, "wb") as f, open(tmp, "rb") as src:
             f.write(src.read())
+            f.flush()
+            os.fsync(f.fileno())
 
 
 def atomic_write(path, data: bytes, exclusive: bool = False) -> None:

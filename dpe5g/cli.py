@@ -120,6 +120,7 @@ def _run(args) -> int:
 
 def _figures(args) -> int:
     from . import _checks, figures, store
+    from .errors import Failure
 
     ids = args.only or list(figures.REGISTRY)
     for fig_id in ids:
@@ -149,8 +150,9 @@ def _figures(args) -> int:
             raise ValueError(f"--out {args.out} is in the committed baselines folder {BASELINE_DIR}; give another "
                              f"folder, or --update-baselines (without --out) to regenerate the baselines")
     writable_dir("--out", out)
-    if any(figures.takes_trials(f) for f in ids) and (damaged := store.check_store()):
-        raise damaged[0]  # before any figure is written (one line, exit 1)
+    if any(figures.takes_trials(f) for f in ids) and (damaged := store.check_store()):  # before any figure
+        more = f" ({len(damaged) - 1} more entries are damaged: `dpe5g verify` names them all)" if damaged[1:] else ""
+        raise Failure(f"{damaged[0]}{more}")
     for fig_id in ids:
         t0 = time.perf_counter()
         trials = args.trials if args.trials is not None and figures.takes_trials(fig_id) else None
@@ -219,14 +221,23 @@ def _verify(args) -> int:
 @contextmanager
 def _cluster(args):
     """The Dask client of --scheduler / DPE5G_SCHEDULER / --workers (``cluster.connect``), closed on exit; None
-    (this process) without them."""
+    (this process) without them.  While it runs, distributed's client logs only what is critical: a lost scheduler
+    is told in the command's one line (``cluster.gather``), not also in the client's traceback of its reconnect."""
+    import logging
+
     from . import cluster
 
     client = cluster.connect(args.scheduler, args.workers)
+    log = logging.getLogger("distributed.client")
+    level = log.level
+    log.setLevel(logging.CRITICAL)
     try:
         yield client
     finally:
-        cluster.close(client)
+        try:
+            cluster.close(client)
+        finally:
+            log.setLevel(level)
 
 
 # ---- dpe5g profile, deployment, scene -------------------------------------------------------------------------------

@@ -53,8 +53,11 @@ def add_cluster_options(p) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The ``dpe5g`` parser: one subcommand each for run, figures, warm, profile, deployment and scene."""
-    p = Parser(prog="dpe5g", description=__doc__)
+    """The ``dpe5g`` parser: one subcommand each for run, figures, warm, profile, deployment and scene; its
+    description is the command line's own (``cli``'s docstring)."""
+    from . import cli
+
+    p = Parser(prog="dpe5g", description=cli.__doc__)
     sub = p.add_subparsers(dest="command", required=True)
     add_run(sub)
     add_other_commands(sub)

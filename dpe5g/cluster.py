@@ -30,8 +30,8 @@ from .errors import ClusterFailed
 
 
 #: the scheduler addresses ``connect`` takes: TCP only (TLS, UCX and in-process addresses need set-up this package
-#: does not do), a host name, IPv4 or [IPv6] address, and a port
-SCHEDULER_ADDRESS = re.compile(r"tcp://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9][A-Za-z0-9.\-]*):([0-9]{1,5})")
+#: does not do), a host name (Docker's service names with "_" too), IPv4 or [IPv6] address, and a port
+SCHEDULER_ADDRESS = re.compile(r"tcp://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9][A-Za-z0-9._\-]*):([0-9]{1,5})")
 
 
 def connect(scheduler: str | None = None, workers: int | None = None, timeout_s: float = 20.0):
@@ -54,9 +54,9 @@ def connect(scheduler: str | None = None, workers: int | None = None, timeout_s:
     from distributed import Client
 
     if scheduler is not None:
-        check_scheduler(scheduler, timeout_s, source)
+        left = check_scheduler(scheduler, timeout_s, source)
         try:
-            return Client(scheduler, timeout=f"{timeout_s}s")
+            return Client(scheduler, timeout=f"{max(left, 1.0)}s")
         except (OSError, TimeoutError) as exc:
             raise ValueError(f"{source} {scheduler}: no Dask scheduler answers there ({exc})") from None
     return Client(local_cluster(_checks.integer("--workers", workers, 1, 256)))
@@ -73,13 +73,17 @@ def local_cluster(n_workers: int, **options):
                            "scheduler_kwargs": {"dashboard": False, "dashboard_address": "127.0.0.1:0"}, **options})
 
 
-def check_scheduler(address: str, timeout_s: float, source: str = "--scheduler") -> None:
+def check_scheduler(address: str, timeout_s: float, source: str = "--scheduler") -> float:
     """Check that a Dask scheduler answers at ``address`` (``SCHEDULER_ADDRESS``) within ``timeout_s`` seconds in
-    all: the TCP connect, Dask's handshake and its answer to an "identity" request.  ``distributed.Client``'s own
-    timeout covers the connect only, so a port where something else listens (a web server, the dashboard's 8787)
-    would hang it for good.  ValueError naming ``source`` and what was found otherwise."""
+    all: the TCP connect, Dask's handshake and its answer to an "identity" request, under one deadline.
+    ``distributed.Client``'s own timeout covers the connect only, so a port where something else listens (a web
+    server, the dashboard's 8787) would hang it for good.  Runs in a thread of its own, so it works inside a running
+    event loop (Jupyter) too.  Returns the seconds left of ``timeout_s``; ValueError naming ``source`` and what was
+    found otherwise."""
     import asyncio
     import socket
+    import time
+    from concurrent.futures import ThreadPoolExecutor
 
     from distributed.comm import connect as comm_connect
 
@@ -88,14 +92,16 @@ def check_scheduler(address: str, timeout_s: float, source: str = "--scheduler")
         raise ValueError(f"{source} must be a Dask scheduler address tcp://host:port (port 1-65535; the "
                          f"scheduler's default is 8786; tls://, ucx:// and inproc:// are not supported), got "
                          f"{address!r}")
+    deadline = time.monotonic() + timeout_s
+    left = lambda: max(deadline - time.monotonic(), 0.001)  # noqa: E731
     try:  # first a plain TCP connect: distributed's own retries a refused connection until its timeout
-        socket.create_connection((m.group(1).strip("[]"), int(m.group(2))), timeout=timeout_s).close()
+        socket.create_connection((m.group(1).strip("[]"), int(m.group(2))), timeout=left()).close()
     except OSError as exc:
         raise ValueError(f"{source} {address}: no Dask scheduler answers there (nothing accepts a connection: "
                          f"{' '.join(str(exc.strerror or exc).split())})") from None
 
     async def identity():
-        comm = await comm_connect(address, timeout=timeout_s)
+        comm = await comm_connect(address, timeout=left())
         try:
             await comm.write({"op": "identity"})
             return await comm.read()
@@ -103,10 +109,11 @@ def check_scheduler(address: str, timeout_s: float, source: str = "--scheduler")
             comm.abort()
 
     async def within():
-        return await asyncio.wait_for(identity(), timeout_s)
+        return await asyncio.wait_for(identity(), left())
 
     try:
-        answer = asyncio.run(within())
+        with ThreadPoolExecutor(1) as pool:
+            answer = pool.submit(asyncio.run, within()).result()
     except (TimeoutError, asyncio.TimeoutError):
         raise ValueError(f"{source} {address}: no Dask scheduler answered within {timeout_s:g} s (something may "
                          f"listen there that is not one: the dashboard is on 8787, the scheduler on 8786 by "
@@ -114,12 +121,13 @@ def check_scheduler(address: str, timeout_s: float, source: str = "--scheduler")
     except OSError as exc:
         raise ValueError(f"{source} {address}: no Dask scheduler answers there "
                          f"({' '.join(str(exc).split())})") from None
-    except Exception as exc:  # noqa: BLE001  (a peer that answers but not in Dask's protocol)
+    except Exception as exc:  # noqa: BLE001  (a peer that answers, but not in Dask's protocol)
         raise ValueError(f"{source} {address}: what answers there is not a Dask scheduler "
                          f"({type(exc).__name__})") from None
     if not isinstance(answer, dict) or answer.get("type") != "Scheduler":
         raise ValueError(f"{source} {address}: what answers there is not a Dask scheduler (it said "
                          f"{str(answer)[:80]!r})")
+    return left()
 
 
 def close(client) -> None:
@@ -133,12 +141,13 @@ def close(client) -> None:
 
 
 class OtherCode(Exception):
-    """Raised by ``engine.chunk_task`` on a worker whose code version is not the client's, before any work; it
-    travels back to the client, which ``gather`` turns into an ``errors.ClusterFailed``."""
+    """Raised by ``engine.chunk_task`` on a worker whose code version is not the client's, or whose sources changed
+    after it imported them (``stale``: their names), before any work; it travels back to the client, which
+    ``gather`` turns into an ``errors.ClusterFailed``."""
 
-    def __init__(self, worker: str, theirs: str, ours: str):
-        super().__init__(worker, theirs, ours)
-        self.worker, self.theirs, self.ours = worker, theirs, ours
+    def __init__(self, worker: str, theirs: str, ours: str, stale: tuple[str, ...] = ()):
+        super().__init__(worker, theirs, ours, tuple(stale))
+        self.worker, self.theirs, self.ours, self.stale = worker, theirs, ours, tuple(stale)
 
 
 def worker_address() -> str:
@@ -159,15 +168,13 @@ def gather(futures: dict, chunks, bar=None) -> None:
         return
     from distributed import as_completed
 
-    from .experiment import code_version
-
-    mine = code_version()
+    mine = chunks.code_version
     for fut in as_completed(futures):
         start, stop = futures[fut]
         try:
             arrays, origin = fut.result()
         except OtherCode as err:
-            raise ClusterFailed(other_code_message(err.worker, err.theirs, mine)) from None
+            raise ClusterFailed(other_code_message(err.worker, err.theirs, mine, err.stale)) from None
         except Exception as err:  # noqa: BLE001  (distributed's errors, named in the message)
             raise ClusterFailed(cluster_lost_message(err, start, stop, chunks)) from None
         if origin["code_version"] != mine:
@@ -177,8 +184,11 @@ def gather(futures: dict, chunks, bar=None) -> None:
             bar.update(stop - start)
 
 
-def other_code_message(worker: str, theirs: str, mine: str) -> str:
-    """``gather``'s line for a worker that runs other code."""
+def other_code_message(worker: str, theirs: str, mine: str, stale: tuple[str, ...] = ()) -> str:
+    """``gather``'s line for a worker that runs other code (or code older than its files: ``stale``)."""
+    if stale:
+        return (f"Dask worker {worker} runs dpe5g code older than its files ({', '.join(stale)} changed after it "
+                f"imported them); its chunks were refused, none kept: restart the worker")
     return (f"Dask worker {worker} runs other dpe5g code (code version {theirs}, this checkout's {mine}: another "
             f"checkout, or other library versions); its chunks were refused, none kept: start every worker from "
             f"this checkout's environment")
@@ -194,7 +204,8 @@ def cluster_lost_message(err: Exception, start: int, stop: int, chunks) -> str:
                   "ConnectionError", "StreamClosedError"):
         what = f"the connection to the Dask scheduler was lost ({kind}) while trials {start}-{stop - 1} ran"
     else:
-        what = f"trials {start}-{stop - 1} failed on a Dask worker: {kind}: {' '.join(str(err).split())}"
+        hint = " (a worker of an older dpe5g checkout?)" if kind == "TypeError" and "chunk_task" in str(err) else ""
+        what = f"trials {start}-{stop - 1} failed on a Dask worker: {kind}: {' '.join(str(err).split())}{hint}"
     done = len(chunks.chunks) - len(chunks.missing())
     return (f"{what}; {done} of the run's {len(chunks.chunks)} chunks are finished and kept in the cache "
             f"({chunks.dir}), and the same command resumes from them")

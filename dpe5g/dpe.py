@@ -47,7 +47,7 @@ def fix(y, prs, bs_xyz, center_m, cfg: SearchConfig = SearchConfig(), num: Numer
     """The DPE fix of eq. (10) in the window ``cfg`` around ``center_m``, batched over trials.
 
     y, prs : complex (..., M, N) received samples (eq. (5)) and pilots, M ≥ 3 links (x, y and the clock bias are
-    unknown), no trial's samples all zero; bs_xyz : (..., M, 3) metres; center_m :
+    unknown), at least 3 of them with samples not all zero in each trial; bs_xyz : (..., M, 3) metres; center_m :
     (..., 4) = [x, y, z, c δt] in metres, the window's centre — a prior from a coarse fix, or (the paper's set-up,
     a labelled comparison only) the truth; z is the known UE height (or the centre of the z search when
     ``cfg.z_half_width_m`` > 0), c δt the clock bias times c.
@@ -73,9 +73,10 @@ def fix(y, prs, bs_xyz, center_m, cfg: SearchConfig = SearchConfig(), num: Numer
         raise ValueError("y and prs must be finite (a NaN or inf sample would make every cost NaN)")
     if bool(jnp.any(jnp.all(prs == 0, axis=-1))):
         raise ValueError("prs must not be all zero on a link (its correlogram would be empty)")
-    if bool(jnp.any(jnp.all(y == 0, axis=(-2, -1)))):
-        raise ValueError("y must carry a signal: every received sample of a trial is zero, so eq. (10) is flat and "
-                         "no position can be estimated")
+    live = jnp.sum(jnp.any(y != 0, axis=-1), axis=-1)  # links of each trial whose samples are not all zero
+    if bool(jnp.any(live < 3)):
+        raise ValueError(f"y must carry a signal on at least 3 links of each trial (x, y and the clock bias are "
+                         f"unknown); a trial has {int(jnp.min(live))} (every other link's samples are zero)")
     batch_size = _checks.integer("batch_size", batch_size, 1, 1 << 16)
     fn = partial(_fix_one, cfg=cfg, num=num)
     lead = y.shape[:-2]

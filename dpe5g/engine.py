@@ -23,7 +23,7 @@ from . import _checks, otdoa, receiver, trials
 from .draw import trial_keys
 from .cluster import OtherCode, gather, worker_address
 from .errors import Failure
-from .experiment import Experiment, code_version, deployment_digest
+from .experiment import Experiment, changed_since_import, code_version, deployment_digest
 from .results import Results
 from .store import ChunkCache, sliced_chunk, snr_superset_runs, stored, stored_fields
 
@@ -173,15 +173,17 @@ def _runner(e: Experiment) -> ChunkRunner:
 def chunk_task(experiment: bytes, start: int, stop: int, batch_size: int, version: str) -> tuple[dict, dict]:
     """Trials start … stop-1 of an experiment, computed in this process: the task ``run`` submits to a Dask cluster
     (``cluster``) for each missing chunk.  It first checks that this process runs the client's code
-    (``code_version`` equal to ``version``; ``OtherCode`` otherwise, before any work), then unpickles the experiment
+    (``code_version`` equal to ``version``, and no source changed since this process imported it:
+    ``experiment.changed_since_import``; ``OtherCode`` otherwise, before any work), then unpickles the experiment
     (``experiment``: pickled by the client, so that a worker whose ``Experiment`` differs fails the check, not the
     unpickling) and computes; a worker builds (compiles) the ``ChunkRunner`` of an experiment once and keeps it for
     the experiment's other chunks.  Returns (the chunk's arrays, {"code_version": this process's, "worker": its
     address}), which ``cluster.gather`` checks again before it keeps the chunk."""
     mine = code_version()
     where = worker_address()
-    if mine != version:
-        raise OtherCode(where, mine, version)
+    stale = changed_since_import()
+    if mine != version or stale:
+        raise OtherCode(where, mine, version, stale)
     return _runner(pickle.loads(experiment))(start, stop, batch_size, workers=1), {"code_version": mine, "worker": where}
 
 
@@ -266,7 +268,8 @@ def fill(e: Experiment, chunks: ChunkCache, todo: list, batch_size: int, workers
             elif (sliced := from_supersets(supersets, start, stop)) is not None:
                 chunks.save(start, stop, sliced, computed_by="a cached run at more SNRs")
             elif client is not None:
-                task = client.submit(chunk_task, pickle.dumps(e), start, stop, batch_size, code_version(), pure=False)
+                task = client.submit(chunk_task, pickle.dumps(e), start, stop, batch_size, chunks.code_version,
+                                     pure=False)
                 futures[task] = (start, stop)
                 continue
             else:

@@ -297,11 +297,13 @@ class Experiment:
         """The settings, flat ({setting: value}, ``SETTINGS``)."""
         return {k: v for part in PARTS for k, v in dataclasses.asdict(getattr(self, part)).items()}
 
-    def key(self) -> str:
+    def key(self, version: str | None = None) -> str:
         """Hash of the name, the config and the deployment file (``config_key``), and of the code and numerical
-        libraries the results depend on (``code_version``).  Leaves out ``n_trials`` and ``chunk_trials``: trial t's
-        result depends on neither, so a longer run reuses a shorter one's chunks."""
-        return hashlib.sha256(json.dumps([self.run.name, self.config_key(), code_version()]).encode()).hexdigest()[:16]
+        libraries the results depend on (``code_version``, or ``version`` where the caller took it already).  Leaves
+        out ``n_trials`` and ``chunk_trials``: trial t's result depends on neither, so a longer run reuses a shorter
+        one's chunks."""
+        version = code_version() if version is None else version
+        return hashlib.sha256(json.dumps([self.run.name, self.config_key(), version]).encode()).hexdigest()[:16]
 
     def config_key(self) -> str:
         """Hash of what trial t's result depends on besides the code: the settings without the name and the trial
@@ -327,6 +329,15 @@ def code_version(package: Path | None = None) -> str:
     for name in source_modules(here):
         h.update(name.encode() + b"\0" + code_digest(here / name))
     return h.hexdigest()[:16]
+
+
+def changed_since_import() -> tuple[str, ...]:
+    """The ``source_modules`` whose files changed after this process imported ``dpe5g`` (``dpe5g.IMPORTED_AT_NS``):
+    the code it runs is then older than ``code_version`` says (a Dask worker left running across a ``git pull``)."""
+    from . import IMPORTED_AT_NS
+
+    here = Path(__file__).resolve().parent
+    return tuple(n for n in source_modules() if (here / n).stat().st_mtime_ns > IMPORTED_AT_NS)
 
 
 def source_modules(package: Path | None = None) -> tuple[str, ...]:

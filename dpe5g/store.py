@@ -56,7 +56,8 @@ class ChunkCache:
 
     def __init__(self, e: Experiment, cache: str | os.PathLike | None = None):
         self.experiment = e
-        self.dir = cache_dir(e, cache)
+        self.code_version = code_version()  # once: a source edited during a long run does not disown its chunks
+        self.dir = cache_root(cache) / f"{e.run.name}-{e.key(self.code_version)}"
         self.chunks = [(s, min(s + e.run.chunk_trials, e.run.n_trials)) for s in range(0, e.run.n_trials, e.run.chunk_trials)]
 
     def path(self, start: int, stop: int) -> Path:
@@ -90,7 +91,7 @@ class ChunkCache:
     def origin(self, start: int, stop: int) -> dict:
         """What chunk start … stop-1 must record (``write_cached``): the code version and config key of this
         cache's key, and its trials."""
-        return {"code_version": code_version(), "config_key": self.experiment.config_key(), "trials": [start, stop]}
+        return {"code_version": self.code_version, "config_key": self.experiment.config_key(), "trials": [start, stop]}
 
     def save(self, start: int, stop: int, arrays: dict, computed_by: str | None = None) -> None:
         """Write a chunk (``write_cached``); computed_by : who computed it (default: this process, by pid and host)."""
@@ -152,7 +153,9 @@ def read_cached(path: Path, origin: dict, rows: int | None = None) -> dict | Non
     range: a worker of another checkout, a file copied to another name) or whose arrays do not all hold ``rows``
     rows is named on stderr, set aside as ``<name>.damaged`` and None returned, so the caller computes it again."""
     path = Path(path)
-    if not path.exists():
+    try:
+        seen = path.stat()  # (set_aside moves the file only if no other process rewrote it since)
+    except FileNotFoundError:
         return None
     try:
         arrays = read_npz(path)
@@ -168,17 +171,25 @@ def read_cached(path: Path, origin: dict, rows: int | None = None) -> dict | Non
         if rows is not None and any(a.ndim == 0 or a.shape[0] != rows for a in arrays.values()):
             raise ValueError(f"its arrays do not hold {rows} rows each")
     except ValueError as err:
-        return set_aside(path, str(err))
+        return set_aside(path, str(err), seen)
     return arrays
 
 
-def set_aside(path: Path, reason: str) -> None:
+def set_aside(path: Path, reason: str, seen: os.stat_result | None = None) -> None:
     """Move a damaged cache file to ``<name>.damaged`` (kept for a look, never read) and say so on stderr in one
-    line (on a line of its own where a progress bar is drawn); returns None, what the reader then returns.  A file
-    that cannot be moved (a read-only cache) is an ``errors.Failure`` saying so."""
+    line (on a line of its own where a progress bar is drawn); returns None, what the reader then returns.  Two
+    processes may read one cache: a file gone (another set it aside) or rewritten since the reader's ``seen`` stat
+    (another computed it again) is left alone.  A file that cannot be moved (a read-only cache) is an
+    ``errors.Failure`` saying so."""
     aside = path.with_name(path.name + ".damaged")
     try:
+        now = path.stat()
+        if seen is not None and (now.st_ino, now.st_mtime_ns, now.st_size) != (seen.st_ino, seen.st_mtime_ns,
+                                                                               seen.st_size):
+            return None
         os.replace(path, aside)
+    except FileNotFoundError:
+        return None
     except OSError as err:
         raise Failure(f"cache file {path} is damaged ({reason}) and cannot be set aside ({err.strerror or err}): "
                       f"delete it, or point DPE5G_CACHE at a writable folder") from None
@@ -424,7 +435,8 @@ def check_store(root: Path | None = None) -> list[DamagedEntry]:
 def write_stored(e: Experiment, arrays: dict, root: Path | None = None, code: dict | None = None) -> StoredRun:
     """Store ``e``'s results (``stored_fields``, as computed, compressed) with its config, their checksum
     (``arrays_digest``) and the code version that computed them (``code`` overrides ``{"code_version": …,
-    "commit": …}``); the ``.npz`` first, then the ``.json`` that makes the entry visible, each atomically."""
+    "commit": …}``); the ``.npz`` first, then the ``.json`` that makes the entry whole, each atomically (a reader
+    between the two, or after a kill there, finds a damaged entry, named as such: ``make reproduce`` again)."""
     root = store_root() if root is None else root
     if root is None:
         raise ValueError("DPE5G_STORE is 'off': there is no results store to write")

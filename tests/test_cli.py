@@ -463,3 +463,10 @@ def test_a_cache_that_is_not_a_folder_is_named(workdir, monkeypatch, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"DPE5G_CACHE={workdir / 'afile'}: cannot write there" in err[0], err
     assert not (workdir / "r.csv").exists() and (workdir / "afile").read_text() == FILES["afile"]
+
+
+def test_help_describes_the_command_line(capsys):
+    with pytest.raises(SystemExit):
+        cli.main(["--help"])
+    out = capsys.readouterr().out
+    assert "Command line: ``dpe5g run``" in out and "UsageError" not in out

@@ -122,3 +122,44 @@ def test_a_worker_killed_repeatedly_or_a_lost_scheduler_is_one_line(tmp_path):
         threading.Timer(1.0, lc.close).start()
         with pytest.raises(ClusterFailed, match="connection to the Dask scheduler was lost .*resumes from them"):
             cluster.gather({sleeping: (2, 4)}, chunks)
+
+
+def test_a_worker_whose_files_changed_after_it_imported_them_refuses(monkeypatch):
+    """A worker left running across a `git pull` has this checkout's files but older code in memory: its sources
+    changed after it imported dpe5g, and it refuses the chunk as a worker of other code does."""
+    import pickle
+
+    import dpe5g
+
+    e = experiment.Experiment.build(name="dask", **SMALL)
+    monkeypatch.setattr(dpe5g, "IMPORTED_AT_NS", 0)  # every source file is newer than the import
+    with pytest.raises(cluster.OtherCode) as err:
+        engine.chunk_task(pickle.dumps(e), 0, 2, 2, experiment.code_version())
+    assert "engine.py" in err.value.stale
+    assert "restart the worker" in cluster.other_code_message(err.value.worker, err.value.theirs, "x", err.value.stale)
+
+
+def test_a_lost_scheduler_is_one_line_from_the_command_line(tmp_path, monkeypatch, capfd):
+    """The command line's stderr holds its one line, not also distributed's client traceback of its reconnect;
+    and the scheduler check works inside a running event loop (Jupyter's)."""
+    import asyncio
+    import threading
+
+    from dpe5g import cli
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("DPE5G_CACHE", str(tmp_path / "cache"))
+    lc = cluster.local_cluster(1, protocol="tcp")
+
+    async def in_a_loop():
+        return cluster.check_scheduler(lc.scheduler_address, 10.0)
+
+    assert asyncio.run(in_a_loop()) > 0
+    threading.Timer(3.0, lc.close).start()
+    code = cli.main(["run", "--trials", "4", "--snr", "20", "--m", "6", "--centring", "truth", "--out", "r.csv",
+                     "--scheduler", lc.scheduler_address])
+    err = capfd.readouterr().err
+    ours = [ln for ln in err.splitlines() if ln.startswith("dpe5g")]
+    assert code == 1 and len(ours) == 1 and "connection to the Dask scheduler was lost" in ours[0], err
+    assert "distributed.client" not in err and "Traceback" not in err, err
+    assert not (tmp_path / "r.csv").exists()

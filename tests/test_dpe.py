@@ -156,7 +156,11 @@ def test_bad_inputs():
         dpe.fix(np.ones((2, 4096), complex), nr.prs_matrix([1, 2]), _geometry(2), [0, 0, 2, 0])
     y = np.ones((2, 3, 4096), complex)
     y[1] = 0  # the second trial received nothing
-    with pytest.raises(ValueError, match="every received sample of a trial is zero"):
+    with pytest.raises(ValueError, match="at least 3 links of each trial .* a trial has 0"):
+        dpe.fix(y, np.broadcast_to(nr.prs_matrix([1, 2, 3]), y.shape), np.broadcast_to(_geometry(3), (2, 3, 3)),
+                np.zeros((2, 4)))
+    y[1, :2] = 1.0  # two links carry a signal: still one unknown too many
+    with pytest.raises(ValueError, match="at least 3 links of each trial .* a trial has 2"):
         dpe.fix(y, np.broadcast_to(nr.prs_matrix([1, 2, 3]), y.shape), np.broadcast_to(_geometry(3), (2, 3, 3)),
                 np.zeros((2, 4)))
 

@@ -372,6 +372,19 @@ def test_a_damaged_cache_chunk_is_named_set_aside_and_computed_again(tmp_path, c
         assert (d / f"{chunk.name}.damaged").read_bytes() == bad, kind
 
 
+def test_a_damaged_file_another_process_set_aside_or_rewrote_is_left_alone(tmp_path):
+    """Two processes reading one cache: the second to find a damaged file either finds it gone (set aside by the
+    first) or rewritten since it read it (computed again by the first); neither is an error or moved."""
+    path = tmp_path / "trials-0000000-0000002.npz"
+    assert store.set_aside(path, "gone") is None and not list(tmp_path.iterdir())
+    path.write_bytes(b"damaged")
+    seen = path.stat()
+    time.sleep(0.01)
+    path.write_bytes(b"computed again by another process")
+    assert store.set_aside(path, "read before the rewrite", seen) is None
+    assert path.read_bytes() == b"computed again by another process" and not path.with_name(path.name + ".damaged").exists()
+
+
 def test_a_damaged_chunk_that_cannot_be_set_aside_says_so(tmp_path, monkeypatch):
     """A read-only cache: the damaged chunk cannot be moved, and the run says that, not only "Read-only file
     system"."""
@@ -382,8 +395,12 @@ def test_a_damaged_chunk_that_cannot_be_set_aside_says_so(tmp_path, monkeypatch)
     chunk = store.cache_dir(e, tmp_path) / "trials-0000002-0000004.npz"
     chunk.write_bytes(chunk.read_bytes()[:300])
 
-    def read_only(*args):
-        raise OSError(30, "Read-only file system")
+    real = os.replace
+
+    def read_only(src, dst):  # the move aside fails as on a read-only filesystem; other moves as usual
+        if str(dst).endswith(".damaged"):
+            raise OSError(30, "Read-only file system")
+        return real(src, dst)
 
     monkeypatch.setattr(store.os, "replace", read_only)
     with pytest.raises(Failure, match=f"cache file {chunk} is damaged .* cannot be set aside .*Read-only file system"):
