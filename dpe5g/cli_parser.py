@@ -7,6 +7,17 @@ import argparse
 import re
 from pathlib import Path
 
+#: what ``dpe5g --help`` says first
+DESCRIPTION = (
+    "The command line of dpe5g, the companion of the paper '5G Direct Position Estimation for Precise Localization "
+    "in Dense Urban Area': run (a Monte Carlo DPE study on your deployment), figures (the figure build script), warm "
+    "(fill the Monte Carlo cache), reproduce and verify (rewrite the results store from today's code, or check a "
+    "sample of it), profile (print a scaled TDL table), deployment (check and summarise a deployment file) and "
+    "scene (export the 3-D scene as HTML); run, warm and reproduce take --scheduler or --workers to run on a Dask "
+    "cluster.  Bad input ends with one line naming the parameter and exit code 2; a failure that is not the "
+    "input's (a damaged results store, a Dask cluster that lost work or runs other code) with one line and exit "
+    "code 1; Ctrl-C and SIGTERM with one line and exit codes 130 and 143.")
+
 #: the committed figure baselines (``figures/`` of the repository); ``dpe5g figures`` writes here only with
 #: ``--update-baselines``
 BASELINE_DIR = Path(__file__).resolve().parent.parent / "figures"
@@ -53,11 +64,9 @@ def add_cluster_options(p) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The ``dpe5g`` parser: one subcommand each for run, figures, warm, profile, deployment and scene; its
-    description is the command line's own (``cli``'s docstring)."""
-    from . import cli
-
-    p = Parser(prog="dpe5g", description=cli.__doc__)
+    """The ``dpe5g`` parser: one subcommand each for run, figures, warm, reproduce, verify, profile, deployment and
+    scene, described by ``DESCRIPTION``."""
+    p = Parser(prog="dpe5g", description=DESCRIPTION)
     sub = p.add_subparsers(dest="command", required=True)
     add_run(sub)
     add_other_commands(sub)

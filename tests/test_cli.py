@@ -469,4 +469,4 @@ def test_help_describes_the_command_line(capsys):
     with pytest.raises(SystemExit):
         cli.main(["--help"])
     out = capsys.readouterr().out
-    assert "Command line: ``dpe5g run``" in out and "UsageError" not in out
+    assert "The command line of dpe5g" in out and "exit code 2" in out and "UsageError" not in out
