@@ -423,7 +423,7 @@ def test_ctrl_c_is_one_line_and_exit_130_at_any_moment(workdir):
 
 def test_sigterm_is_one_line_and_exit_143_like_ctrl_c(workdir):
     """SIGTERM (a job scheduler's stop, `kill`) in the middle of a run: as Ctrl-C, one line, exit 143, no --out file
-    and no temporary file; the same command resumes from the cached chunks."""
+    and no temporary file (the resume from the cached chunks is the Ctrl-C test's)."""
     import signal
     import time
 
@@ -440,8 +440,6 @@ def test_sigterm_is_one_line_and_exit_143_like_ctrl_c(workdir):
     assert p.returncode == 143 and "Traceback" not in err, err
     assert len(lines) == 1 and lines[0].startswith("dpe5g run: terminated"), err
     assert not (workdir / "r.csv").exists() and not list(workdir.rglob("*.tmp"))
-    r = subprocess.run(args, cwd=workdir, capture_output=True, text=True, timeout=600)
-    assert r.returncode == 0 and (workdir / "r.csv").exists(), r.stderr
 
 
 def test_output_does_not_depend_on_the_terminals_encoding(workdir):
