@@ -249,7 +249,8 @@ def _profile(args) -> int:
         prof = channel.tdl_profile(args.name, args.delay_spread, args.k_factor_db)
     except ValueError as err:
         raise _with_option(err, {"delay_spread_s": "--delay-spread", "k_factor_db": "--k-factor-db"}) from None
-    print(f"{prof.name} ({prof.table}) scaled to DS = {prof.delay_spread_s * 1e9:g} ns, K = {prof.k_factor_db}")
+    k = "" if prof.k_factor_db is None else f", K = {prof.k_factor_db:g} dB"  # (NLoS profiles have no K-factor)
+    print(f"{prof.name} ({prof.table}) scaled to DS = {prof.delay_spread_s * 1e9:g} ns{k}")
     print(f"{'tap':>3} {'delay (ns)':>11} {'power (dB)':>11} {'kind':>9}")
     for i, (d, p, los) in enumerate(zip(prof.delays_s, prof.powers_db, prof.los)):
         print(f"{i:3d} {d * 1e9:11.3f} {p:11.2f} {'LoS' if los else 'Rayleigh':>9}")
@@ -341,6 +342,9 @@ def main(argv=None) -> int:
     except Failure as e:
         print(f"{prog}: error: {_one_line(e)}", file=sys.stderr)
         return 1
+    except BrokenPipeError:  # the reader of stdout left (`dpe5g profile D | head -1`): end quietly, as Unix tools do
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except OSError as e:
         where = f": {e.filename}" if e.filename else ""
         print(f"{prog}: error: {_one_line(e.strerror or e)}{where}", file=sys.stderr)

@@ -86,9 +86,9 @@ def add_run(sub) -> None:
                     "with the honest receiver).  Results are cached (.cache/montecarlo, or DPE5G_CACHE): a rerun, or "
                     "an interrupted run restarted, computes only the missing trials.  Prints an RMSE table.",
         epilog=f"Cost: a truth-centred fix is a few ms per (SNR, M); an honest one (prior, otdoa) tens of ms "
-               f"(certified search), plus a compile of 10-60 s per run.  The paper's Fig. 9 uses "
-               f"{paper.FIG9_HONEST_TRIALS} (honest) and {paper.FIG9_TRUTH_TRIALS} (truth) trials; with exactly "
-               f"those settings the figure's cached results are reused.")
+               f"(certified search), plus a compile of 10-60 s per run.  The book's Fig. 9 uses "
+               f"{paper.FIG9_HONEST_TRIALS} (honest) and {paper.FIG9_TRUTH_TRIALS} (truth) trials (the paper "
+               f"{paper.URBAN_TRIALS}); with exactly those settings the figure's stored results are reused.")
     r.add_argument("--trials", type=int, required=True, metavar="N",
                    help="Monte Carlo trials (required; trial t's draws depend only on --seed and t)")
     r.add_argument("--out", required=True, metavar="FILE",

@@ -214,7 +214,18 @@ def test_deployment_summary():
 def test_profile_prints_table(capsys):
     assert cli.main(["profile", "D"]) == 0
     out = capsys.readouterr().out
-    assert "TDL-D" in out and "K = 13.3" in out
+    assert "TDL-D" in out and "K = 13.3 dB" in out
+    assert cli.main(["profile", "C"]) == 0
+    out = capsys.readouterr().out
+    assert "TDL-C" in out and "K =" not in out and "None" not in out  # an NLoS profile has no K-factor
+
+
+def test_a_reader_that_leaves_ends_the_output_quietly():
+    """`dpe5g profile D | head -1`: the reader closes the pipe early (here `true`, which reads nothing, so the first
+    write already fails): no "error: Broken pipe", no traceback, exit 141 as a Unix tool killed by SIGPIPE."""
+    r = subprocess.run(["bash", "-c", f"{sys.executable} -m dpe5g profile D | true; echo ${{PIPESTATUS[0]}}"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.stdout.strip() == "141" and r.stderr == "", r.stderr
 
 
 def test_run_help(capsys):
