@@ -42,9 +42,10 @@ def cache_root(cache: str | os.PathLike | None = None) -> Path:
     return Path(cache or os.environ.get("DPE5G_CACHE") or DEFAULT_CACHE)
 
 
-def cache_dir(e: Experiment, cache: str | os.PathLike | None = None) -> Path:
-    """The experiment's cache directory: ``<cache root>/<name>-<key>`` (``cache_root``)."""
-    return cache_root(cache) / f"{e.run.name}-{e.key()}"
+def cache_dir(e: Experiment, cache: str | os.PathLike | None = None, version: str | None = None) -> Path:
+    """The experiment's cache directory: ``<cache root>/<name>-<key>`` (``cache_root``; ``version``: the code
+    version of the key, default today's, ``Experiment.key``)."""
+    return cache_root(cache) / f"{e.run.name}-{e.key(version)}"
 
 
 class ChunkCache:
@@ -57,7 +58,7 @@ class ChunkCache:
     def __init__(self, e: Experiment, cache: str | os.PathLike | None = None):
         self.experiment = e
         self.code_version = code_version()  # once: a source edited during a long run does not disown its chunks
-        self.dir = cache_root(cache) / f"{e.run.name}-{e.key(self.code_version)}"
+        self.dir = cache_dir(e, cache, self.code_version)
         self.chunks = [(s, min(s + e.run.chunk_trials, e.run.n_trials)) for s in range(0, e.run.n_trials, e.run.chunk_trials)]
 
     def path(self, start: int, stop: int) -> Path:
@@ -133,8 +134,7 @@ def read_npz(path) -> dict:
             return {k: z[k] for k in z.files}
     except FileNotFoundError:
         raise ValueError("the file is missing") from None
-    except Exception as err:  # noqa: BLE001  (a damaged zip or .npy header raises anything from OSError and
-        # BadZipFile to SyntaxError, NotImplementedError or RuntimeError: every one of them is damage)
+    except Exception as err:  # noqa: BLE001  (a damaged header raises anything, SyntaxError included: all damage)
         raise ValueError(f"unreadable: {type(err).__name__}: {' '.join(str(err).split()) or 'no detail'}") from None
 
 
@@ -265,10 +265,10 @@ def load_payload(fig_id: str, trials: int | None = None, cache=None) -> dict | N
     file is damaged or fails its checksum (named on stderr and set aside as ``<name>.damaged``, so it is computed
     again)."""
     path = payload_path(fig_id, trials, cache)
-    if not path.exists():
-        return None
     try:
         held = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:  # (never computed, or another process set it aside meanwhile)
+        return None
     except ValueError as err:  # (UnicodeDecodeError included)
         return set_aside(path, f"not valid JSON: {' '.join(str(err).split())}")
     if not isinstance(held, dict) or held.get("sha256") != payload_digest(held.get("payload")):
@@ -405,9 +405,8 @@ def stored(e: Experiment, root: Path | None = None) -> StoredRun | None:
     if root is None or not root.is_dir():
         return None
     key = e.config_key()
-    for npz in sorted(root.glob(f"*-{key}.npz")):
-        if not npz.with_suffix(".json").exists():
-            raise DamagedEntry(npz, f"its .json, {npz.with_suffix('.json').name}, is missing")
+    if missing_json := orphans(root, f"*-{key}.npz"):
+        raise missing_json[0]
     for meta_path in sorted(root.glob(f"*-{key}.json")):
         entry = StoredRun(meta_path.with_suffix(".npz"), read_entry_meta(meta_path))
         if entry.n_trials >= e.run.n_trials:
@@ -416,15 +415,20 @@ def stored(e: Experiment, root: Path | None = None) -> StoredRun | None:
     return None
 
 
+def orphans(root: Path, pattern: str) -> list[DamagedEntry]:
+    """The store's ``.npz`` files matching ``pattern`` whose ``.json`` is missing, each as a ``DamagedEntry``."""
+    return [DamagedEntry(npz, f"its .json, {npz.with_suffix('.json').name}, is missing")
+            for npz in sorted(root.glob(pattern)) if not npz.with_suffix(".json").exists()]
+
+
 def check_store(root: Path | None = None) -> list[DamagedEntry]:
     """Every entry of the store read and checked (``read_entry_meta``, ``StoredRun.check``): the damaged ones, and
     any ``.npz`` without its ``.json``."""
     root = store_root() if root is None else root
-    found = []
-    for npz in sorted(root.glob("*.npz")) if root is not None and root.is_dir() else []:
-        if not npz.with_suffix(".json").exists():
-            found.append(DamagedEntry(npz, f"its .json, {npz.with_suffix('.json').name}, is missing"))
-    for meta_path in sorted(root.glob("*.json")) if root is not None and root.is_dir() else []:
+    if root is None or not root.is_dir():
+        return []
+    found = orphans(root, "*.npz")
+    for meta_path in sorted(root.glob("*.json")):
         try:
             StoredRun(meta_path.with_suffix(".npz"), read_entry_meta(meta_path)).check()
         except DamagedEntry as err:

@@ -136,6 +136,7 @@ def test_a_lost_scheduler_is_one_line_from_the_command_line(tmp_path, monkeypatc
     and the scheduler check works inside a running event loop (Jupyter's)."""
     import asyncio
     import threading
+    import time
 
     from dpe5g import cli
 
@@ -147,8 +148,14 @@ def test_a_lost_scheduler_is_one_line_from_the_command_line(tmp_path, monkeypatc
         return cluster.check_scheduler(lc.scheduler_address, 10.0)
 
     assert asyncio.run(in_a_loop()) > 0
-    threading.Timer(3.0, lc.close).start()
-    code = cli.main(["run", "--trials", "4", "--snr", "20", "--m", "6", "--centring", "truth", "--out", "r.csv",
+
+    def lose_the_scheduler_after_the_first_chunk():  # (a run of 20000 trials cannot end before)
+        while not list((tmp_path / "cache").glob("run-*/trials-*.npz")):
+            time.sleep(0.01)
+        lc.close()
+
+    threading.Thread(target=lose_the_scheduler_after_the_first_chunk, daemon=True).start()
+    code = cli.main(["run", "--trials", "20000", "--snr", "20", "--m", "6", "--centring", "truth", "--out", "r.csv",
                      "--scheduler", lc.scheduler_address])
     err = capfd.readouterr().err
     ours = [ln for ln in err.splitlines() if ln.startswith("dpe5g")]
