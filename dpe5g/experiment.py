@@ -13,6 +13,7 @@ import ast
 import dataclasses
 import hashlib
 import json
+import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -28,7 +29,8 @@ ENGINE_MODULE = "engine.py"
 
 #: settings added after the results store was first filled, with their defaults: at its default such a setting is
 #: left out of ``Experiment.config_key``, so the stored results of every experiment that does not use it keep their key
-LATER_SETTINGS = {"nlos_excess_median_s": 0.0, "nlos_excess_sigma_lg": 0.0, "snr_offset_db": 0.0}
+LATER_SETTINGS = {"nlos_excess_median_s": 0.0, "nlos_excess_sigma_lg": 0.0, "snr_offset_db": 0.0,
+                  "clock_window": "clock"}
 
 LOS_MODES = ("pr_los", "two_of_four", "all_los", "all_nlos", "free_space", "nearest_two_los")
 SNR_MODES = ("fixed", "link_budget", "nearest")
@@ -37,6 +39,11 @@ SNR_MODES = ("fixed", "link_budget", "nearest")
 PRS_REUSES = (0,) + nr.PRS_COMB_SIZES
 CENTRINGS = ("truth", "prior", "otdoa")
 PRIOR_KINDS = ("gaussian", "disc")
+#: the clock-bias window of a receiver not centred on the truth (``Experiment.receiver_search``): "clock" — the clock
+#: model's support; "clock_nlos" — widened by the 99th percentile of the scenario's NLoS excess delay
+CLOCK_WINDOWS = ("clock", "clock_nlos")
+#: the percentile of c·Δτ that the "clock_nlos" window adds to the clock model's support
+CLOCK_NLOS_QUANTILE = 0.99
 #: both OTDoA ToA detectors run on the same signals; the first is the main baseline, the second the naive one
 OTDOA_DETECTORS = ("first_path", "peak")
 
@@ -174,6 +181,9 @@ class Receiver:
     otdoa : also run the OTDoA baseline (``dpe5g.otdoa``) on the same received signals, for every SNR and M, with
         both ToA detectors of ``OTDOA_DETECTORS``;
     toa_method : the detector whose OTDoA fix centres the search in centring "otdoa".
+    clock_window : ``CLOCK_WINDOWS``, the clock-bias window in centrings "prior" and "otdoa": "clock" (default) the
+        clock model's support; "clock_nlos" that support widened on both sides by the ``CLOCK_NLOS_QUANTILE`` point
+        of c·Δτ of the scenario's NLoS excess-delay model (its law, not the drawn delays).
     """
 
     m_values: tuple[int, ...] = (6, 12, 18, 24)
@@ -183,6 +193,7 @@ class Receiver:
     search: search_config.SearchConfig = field(default_factory=search_config.SearchConfig)
     otdoa: bool = False
     toa_method: str = "first_path"
+    clock_window: str = "clock"
 
     def __post_init__(self):
         _checks.plain_fields(self)  # lists and NumPy values as the plain Python they hash as
@@ -196,6 +207,10 @@ class Receiver:
         _checks.one_of("toa_method", self.toa_method, otdoa.TOA_METHODS)
         if self.centring == "otdoa" and not self.otdoa:
             raise ValueError("centring 'otdoa' centres the search on the OTDoA fix; set otdoa=True")
+        _checks.one_of("clock_window", self.clock_window, CLOCK_WINDOWS)
+        if self.clock_window != "clock" and self.centring == "truth":
+            raise ValueError(f"clock_window {self.clock_window!r} sets the window of a receiver not centred on the "
+                             f"truth; centring 'truth' searches its own search.bias_half_width_m")
 
 
 @dataclass(frozen=True)
@@ -274,12 +289,20 @@ class Experiment:
 
     def receiver_search(self) -> search_config.SearchConfig:
         """The search the receiver runs: ``search`` as given for centring "truth"; otherwise with the clock-bias
-        window set from the clock model (± clock_bound_sigmas · clock_sigma_s · c, centred on 0)."""
+        window set from the clock model, ± clock_bound_sigmas · clock_sigma_s · c centred on 0, and with
+        clock_window "clock_nlos" ± that plus the ``CLOCK_NLOS_QUANTILE`` point of c·Δτ
+        (``scenario.excess_quantile_s``), split into boxes of about ``box_m`` in c δt (at least ``bias_boxes``,
+        at most 64)."""
         search = self.receiver.search
         if self.receiver.centring == "truth":
             return search
         sc = self.scenario
-        return dataclasses.replace(search, bias_half_width_m=sc.clock_bound_sigmas * sc.clock_sigma_s * C)
+        half_b = sc.clock_bound_sigmas * sc.clock_sigma_s * C
+        if self.receiver.clock_window == "clock":
+            return dataclasses.replace(search, bias_half_width_m=half_b)
+        half_b += C * scenario.excess_quantile_s(sc.nlos_excess_median_s, sc.nlos_excess_sigma_lg, CLOCK_NLOS_QUANTILE)
+        boxes = min(64, max(search.bias_boxes, math.ceil(2 * half_b / search.box_m)))
+        return dataclasses.replace(search, bias_half_width_m=half_b, bias_boxes=boxes)
 
     @property
     def n_snr(self) -> int:

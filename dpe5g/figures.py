@@ -16,14 +16,14 @@ from __future__ import annotations
 
 import inspect
 import json
-from dataclasses import dataclass
+from dataclasses import astuple, dataclass
 from pathlib import Path
 from typing import Any, Callable
 
 import jax
 import numpy as np
 
-from . import (bounds, channel, cost, dpe, engine, experiment, paper, plots, readings, result_plots, results, scenario,
+from . import (bounds, channel, cost, dpe, engine, experiment, paper, plots, readings, result_plots, results,
                search_config, store, trials)
 from ._io import atomic_target, atomic_write
 from .nr import C, PAPER
@@ -385,22 +385,25 @@ register("fig10_cdf_dpe_vs_otdoa", "Fig. 10",
 # paper).
 
 #: short names of the claims and readings for the table's axes
-CLAIM_SHORT = {"fig9_6m": "Fig. 9: ≤ 6 m\n10 dB, M = 6", "fig9_falls": "Fig. 9: falls\nwith SNR (< ½)",
-               "fig9_submetre": "Fig. 9: < 1 m\n40 dB, M ≥ 18", "fig9_more_hurts": "Fig. 9: more BSs\nhurt (> 1)",
-               "fig9_saturation": "Fig. 9: saturates\n18 → 24 (≤ 10 %)", "fig10_dpe_p90": "Fig. 10: DPE\np90 ≤ 2 m",
-               "fig10_dpe_p99": "Fig. 10: DPE\np99 ≤ 7 m", "fig10_otdoa_p90": "Fig. 10: OTDoA\np90 ≈ 42 m",
-               "fig10_gain": "Fig. 10: gain\n≈ 95.24 %"}
+CLAIM_SHORT = {"fig9_6m": f"Fig. 9: ≤ {paper.PAPER_FIG9_RMSE_M['rmse_m']:g} m\n10 dB, M = 6",
+               "fig9_falls": f"Fig. 9: falls\nwith SNR (< {readings.FALLS_RATIO:g})",
+               "fig9_submetre": f"Fig. 9: < {paper.PAPER_FIG9_SUB_METRE_M:g} m\n40 dB, M ≥ 18",
+               "fig9_more_hurts": "Fig. 9: more BSs\nhurt (> 1)",
+               "fig9_saturation": f"Fig. 9: saturates\n18 → 24 (≤ {100 * readings.SATURATION_TOLERANCE:g} %)",
+               "fig10_dpe_p90": f"Fig. 10: DPE\np90 ≤ {paper.PAPER_FIG10_DPE_M[0.9]:g} m",
+               "fig10_dpe_p99": f"Fig. 10: DPE\np99 ≤ {paper.PAPER_FIG10_DPE_M[0.99]:g} m",
+               "fig10_otdoa_p90": f"Fig. 10: OTDoA\np90 ≈ {paper.PAPER_FIG10_OTDOA_M[0.9]:g} m",
+               "fig10_gain": f"Fig. 10: gain\n≈ {100 * paper.PAPER_FIG10_GAIN:.2f} %"}
 READING_SHORT = {"as_read": "as this book reads it", "peak_otdoa": "… peak-ToA OTDoA", "span": "… DS = span",
                  "total_snr": "… total SNR", "span_total": "… span and total SNR",
                  "certified_window": "… certified search", "nearest_los": "… nearest two LoS",
                  "honest": "honest receiver", "reuse": f"honest, PRS reuse {paper.REUSE}",
-                 **{f"excess{m * 1e9:g}": f"honest, NLoS excess {m * 1e9:g} ns"
-                    for m in scenario.NLOS_EXCESS_MEDIANS_S[1:]}}
+                 "umi": "honest, UMi NLoS delay"}
 
 
 def readings_payload(progress: bool = False, trials: int | None = None) -> dict:
-    """Each reading of ``readings.READINGS`` tested on each claim of ``readings.CLAIMS`` (``readings.claim_values``), from
-    its experiments' results (run or loaded from the cache), with the share (a fraction, 0 to 1) of its DPE fixes on
+    """Each reading of ``readings.READINGS`` tested on each claim of ``readings.CLAIMS``: its value, 95 % bootstrap
+    interval and verdict (``readings.claim_intervals``, ``readings.claim_verdicts``), from its experiments' results (run or loaded from the cache), with the share (a fraction, 0 to 1) of its DPE fixes on
     the search window's edge: in Fig. 9 over every (SNR, M) cell at the readings' SNRs, in Fig. 10 over its trials."""
 
     data = {}
@@ -412,20 +415,24 @@ def readings_payload(progress: bool = False, trials: int | None = None) -> dict:
         r10 = engine.run(ex["fig10_dpe"], progress=progress)
         o10 = engine.run(ex["fig10_otdoa"], progress=progress)
         det = experiment.OTDOA_DETECTORS.index(ex["otdoa_detector"])
-        claims = readings.claim_values(r9.rmse_m()[si], paper.READING_SNRS_DB, e9.receiver.m_values,
-                                       r10.error_m[:, 0, 0], o10.otdoa_error_m[:, 0, det, 0])
+        claims = readings.claim_intervals(r9.error_m[:, si], paper.READING_SNRS_DB, e9.receiver.m_values,
+                                          r10.error_m[:, 0, 0], o10.otdoa_error_m[:, 0, det, 0])
         data[name] = {"label": label, "short": READING_SHORT[name], "changes": changes,
                       "n_trials": {"fig9": e9.run.n_trials, "fig10_dpe": ex["fig10_dpe"].run.n_trials,
                                    "fig10_otdoa": ex["fig10_otdoa"].run.n_trials},
-                      "values": {k: v for k, (v, _) in claims.items()},
-                      "reproduced": {k: ok for k, (_, ok) in claims.items()},
+                      "values": {k: iv.value for k, iv in claims.items()},
+                      "intervals": {k: [iv.lo, iv.hi] for k, iv in claims.items()},
+                      "verdicts": readings.claim_verdicts(claims),
+                      "dpe_minus_otdoa_p90_m": list(astuple(results.quantile_difference(
+                          r10.error_m[:, 0, 0], o10.otdoa_error_m[:, 0, det, 0]))[:3]),
                       "edge_share": {"fig9": float(np.mean(r9.edge[:, si])),
                                      "fig10_dpe": float(np.mean(r10.edge[:, 0, 0]))}}
     return {"seed": {"fig9": paper.URBAN_SEED, "fig10": paper.FIG10_SEED},
             "config": {"snrs_db": paper.READING_SNRS_DB, "claim_order": list(readings.CLAIMS),
                        "reading_order": list(readings.READINGS), "claims": {k: {"claim": c, "paper": v,
-                                                                        "short": CLAIM_SHORT[k]}
-                                                                    for k, (c, v) in readings.CLAIMS.items()}},
+                                                                        "short": CLAIM_SHORT[k],
+                                                                        "range": [None if abs(x) == np.inf else x for x in r]}
+                                                                    for k, (c, v, r) in readings.CLAIMS.items()}},
             "data": data}
 
 

@@ -3,7 +3,7 @@ README) and a run's summary (text, for ``dpe5g run``).  The numbers come from ``
 
 from __future__ import annotations
 
-from . import result_plots
+from . import readings, result_plots
 from .results import Results
 
 
@@ -27,22 +27,51 @@ def run_summary(res: Results) -> str:
 
 
 def readings_summary(p: dict) -> dict:
-    """Counts of a ``readings_payload``: {"counts": {reading: claims reproduced}, "n_claims", "best" (the most
-    reproduced by one reading), "best_readings", "never": the claims no reading reproduces}."""
-    counts = {n: int(sum(p["data"][n]["reproduced"].values())) for n in p["config"]["reading_order"]}
+    """Counts of a ``readings_payload``: {"verdicts": {reading: {verdict: claims}} (``readings.verdict_counts``),
+    "counts": {reading: claims reproduced}, "n_claims", "best" (the most reproduced by one reading),
+    "best_readings", "never": the claims no reading reproduces}."""
+    names = p["config"]["reading_order"]
+    verdicts = {n: readings.verdict_counts(p["data"][n]["verdicts"].values()) for n in names}
+    counts = {n: verdicts[n]["reproduces"] for n in names}
     best = max(counts.values())
-    never = [c for c in p["config"]["claim_order"] if not any(d["reproduced"][c] for d in p["data"].values())]
-    return {"counts": counts, "n_claims": len(p["config"]["claim_order"]), "best": best,
+    never = [c for c in p["config"]["claim_order"]
+             if not any(d["verdicts"][c] == "reproduces" for d in p["data"].values())]
+    return {"verdicts": verdicts, "counts": counts, "n_claims": len(p["config"]["claim_order"]), "best": best,
             "best_readings": [n for n, c in counts.items() if c == best], "never": never}
+
+
+def verdict_text(counts: dict) -> str:
+    """"k reproduce, u unresolved, f fail" of a {verdict: count} (``readings.verdict_counts``)."""
+    return f"{counts['reproduces']} reproduce, {counts['unresolved']} unresolved, {counts['fails']} fail"
+
+
+def claim_text(claim_id: str, iv) -> str:
+    """A claim's value and 95 % interval (``results.Interval``) as the claim tables print it: "value [lo, hi]"."""
+    f = lambda v: result_plots.format_claim(claim_id, v)
+    return f"{f(iv.value)} [{f(iv.lo)}, {f(iv.hi)}]"
+
+
+def claims_markdown(intervals: dict, bracket: dict | None = None) -> str:
+    """A claim table: one row per claim id of ``intervals`` ({id: ``results.Interval``}, from
+    ``readings.claim_intervals`` or a half of it): the claim and its test, the paper's value, ours with its 95 %
+    interval (and ``bracket``'s value in brackets: a labelled comparison), and the verdict (``readings.CLAIMS``'
+    range against the interval)."""
+    verdicts = readings.claim_verdicts(intervals)
+    lines = ["| claim and its test | paper | ours [95 % interval] | verdict |", "|---|---|---|---|"]
+    for c, iv in intervals.items():
+        extra = f" ({result_plots.format_claim(c, bracket[c].value)})" if bracket else ""
+        lines.append(f"| {readings.CLAIMS[c][0]} | {readings.CLAIMS[c][1]} | {claim_text(c, iv)}{extra} | "
+                     f"{result_plots.VERDICT_MARKS[verdicts[c]]} {verdicts[c]} |")
+    return "\n".join(lines)
 
 
 def readings_markdown(p: dict, by_claim: bool = False) -> str:
     """The readings table of a ``readings_payload`` as Markdown: a row per reading, a column per claim, each cell
-    the value and ✓ (reproduced) or ✗ (differs); by_claim: transposed, a row per claim and a column per reading
+    the value and the mark of its verdict (``result_plots.VERDICT_MARKS``); by_claim: transposed, a row per claim and a column per reading
     (narrower: the book's page)."""
     claims, order = p["config"]["claims"], p["config"]["claim_order"]
     cell = lambda n, c: (f"{result_plots.format_claim(c, p['data'][n]['values'][c])} "
-                         f"{'✓' if p['data'][n]['reproduced'][c] else '✗'}")
+                         f"{result_plots.VERDICT_MARKS[p['data'][n]['verdicts'][c]]}")
     if by_claim:
         names = p["config"]["reading_order"]
         lines = ["| claim (paper) | " + " | ".join(p["data"][n]["short"] for n in names) + " |",
@@ -58,8 +87,7 @@ def readings_markdown(p: dict, by_claim: bool = False) -> str:
     for n in p["config"]["reading_order"]:
         d, t = p["data"][n], p["data"][n]["n_trials"]
         lines.append(f"| {d['label']} | {t['fig9']} / {t['fig10_dpe']} | "
-                     + " | ".join(f"{result_plots.format_claim(c, d['values'][c])} {'✓' if d['reproduced'][c] else '✗'}"
-                                  for c in order) + " |")
+                     + " | ".join(cell(n, c) for c in order) + " |")
     return "\n".join(lines)
 
 

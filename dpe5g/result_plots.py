@@ -10,20 +10,12 @@ from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
 from matplotlib.ticker import FixedLocator, FormatStrFormatter, LogLocator, MultipleLocator, NullFormatter
 
+from .paper import PAPER_FIG9_RMSE_M, PAPER_FIG9_SUB_METRE_M, PAPER_FIG10_DPE_M, PAPER_FIG10_OTDOA_M
 from .plots import COLORS, style
 
 
-#: Values the paper states in its text (Section IV), drawn on Figs. 9 and 10 as black-edged stars (``PAPER_MARKER``;
-#: no curve of ours uses a star) labelled "paper (text)".
-#: Only what the sentences say: Fig. 9 gives one point (M = 6, 10 dB, "within 6 m") and "sub-meter" without an SNR or M;
-#: Fig. 10 gives DPE's 90 % and 99 % points and OTDoA's 90 % point.
-PAPER_FIG9_RMSE_M = {"m": 6, "snr_db": 10.0, "rmse_m": 6.0}  # "an overall RMSE constrained within 6 m, even in the
-#   worst simulation scenario where only 6 candidate BSs are used and the SNR is as low as 10 dB"
-PAPER_FIG9_SUB_METRE_M = 1.0  # "As the number of available positioning sources increases, a sub-meter positioning
-#   accuracy can be achieved, particularly when the propagation environment provides a high signal quality"
-PAPER_FIG10_DPE_M = {0.9: 2.0, 0.99: 7.0}  # "the RMSE obtained by 5G DPE can be constrained within 7 m for 99% of the
-#   use cases, with a 90% probability of achieving an RMSE within 2 m"
-PAPER_FIG10_OTDOA_M = {0.9: 42.0}  # "the conventional OTDoA method results in a 42-meter RMSE for 90% of the use cases"
+#: the paper's stated values (``dpe5g.paper``'s PAPER_*) are drawn on Figs. 9 and 10 as black-edged stars
+#: (``PAPER_MARKER``; no curve of ours uses a star) labelled "paper (text)"
 PAPER_MARKER = dict(marker="*", color="k", markersize=13, markerfacecolor="#ffd500", markeredgecolor="k", mew=1.0,
                     ls="none", zorder=6, clip_on=False)
 
@@ -246,6 +238,10 @@ def plot_rmse_and_bound(payload: dict):
     return fig
 
 
+#: the mark of each verdict of ``results.VERDICTS`` in the readings table and its Markdown
+VERDICT_MARKS = {"reproduces": "✓", "unresolved": "?", "fails": "✗"}
+
+
 def format_claim(claim_id: str, value: float) -> str:
     """A claim's value as the readings table prints it: metres, a ratio, or a percentage."""
     if claim_id in ("fig9_falls", "fig9_more_hurts"):
@@ -257,14 +253,16 @@ def format_claim(claim_id: str, value: float) -> str:
 
 def plot_readings(payload: dict):
     """The readings table (the reproduction chapter): one column per reading of the paper, one row per claim of Figs.
-    9–10, each cell its value with ✓ where it meets the claim (blue) and ✗ where it differs (orange): a
-    colour-blind-safe pair, and the mark carries the verdict without the colour.  Two grey rows below give the share
-    of each reading's DPE fixes on its search window's edge (Fig. 9 over its cells, Fig. 10)."""
+    9–10, each cell its value with its verdict (``VERDICT_MARKS``): ✓ blue where the value's 95 % interval meets the
+    claim, ✗ orange where it misses it, ? white where the interval straddles the claim's bound (unresolved); the mark
+    carries the verdict without the colour.  Two grey rows below give the share of each reading's DPE fixes on its
+    search window's edge (Fig. 9 over its cells, Fig. 10)."""
     claims, data = payload["config"]["claims"], payload["data"]
     ids, names = payload["config"]["claim_order"], payload["config"]["reading_order"]
     edge_rows = (("fig9", "Fig. 9: DPE fixes\non the window's edge"), ("fig10_dpe", "Fig. 10: DPE fixes\non the edge"))
-    ok = np.array([[data[n]["reproduced"][c] for n in names] for c in ids] + [[0.5] * len(names)] * len(edge_rows),
-                  dtype=float)  # (claim + edge rows, reading): 1 reproduced, 0 differs, 0.5 no verdict
+    level = {"fails": 0.0, "unresolved": 2 / 3, "reproduces": 1.0}
+    ok = np.array([[level[data[n]["verdicts"][c]] for n in names] for c in ids] + [[1 / 3] * len(names)] * len(edge_rows),
+                  dtype=float)  # (claim + edge rows, reading): colour levels of fails, edge rows, unresolved, reproduces
 
     def two_lines(claim_id, value, mark):  # the number above its unit and mark: narrow columns
         text = format_claim(claim_id, value)
@@ -274,10 +272,11 @@ def plot_readings(payload: dict):
     with style():
         fig = Figure(figsize=(7.5, 0.5 * len(ok) + 2.2), layout="constrained")
         ax = fig.subplots()
-        ax.imshow(ok, cmap=ListedColormap(["#fdd0a2", "#e5e5e5", "#c6dbef"]), vmin=0, vmax=1, aspect="auto")
+        ax.imshow(ok, cmap=ListedColormap(["#fdd0a2", "#e5e5e5", "#ffffff", "#c6dbef"]), vmin=0, vmax=1,
+                  aspect="auto")
         for j, n in enumerate(names):
             for i, c in enumerate(ids):
-                ax.text(j, i, two_lines(c, data[n]["values"][c], "✓" if ok[i, j] else "✗"), ha="center",
+                ax.text(j, i, two_lines(c, data[n]["values"][c], VERDICT_MARKS[data[n]["verdicts"][c]]), ha="center",
                         va="center", fontsize=9)
             for i, (key, _) in enumerate(edge_rows, len(ids)):
                 ax.text(j, i, f"{100 * data[n]['edge_share'][key]:.1f}\n%", ha="center", va="center", fontsize=9)
@@ -292,8 +291,9 @@ def plot_readings(payload: dict):
         ax.grid(which="minor", color="w", lw=2)
         ax.axhline(len(ids) - 0.5, color="k", lw=1)
         ax.tick_params(which="both", length=0)
-        ax.set_xlabel("✓ blue: the claim is reproduced under this reading;  ✗ orange: it differs\ngrey: the share "
-                      "of DPE fixes on the search window's edge", fontsize=9)
+        ax.set_xlabel("✓ blue: the value's 95 % interval meets the claim;  ✗ orange: it misses it;\n? white: "
+                      "unresolved (the interval straddles the claim's bound);\ngrey: the share of DPE fixes on the "
+                      "search window's edge", fontsize=9)
     return fig
 
 

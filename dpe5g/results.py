@@ -1,5 +1,8 @@
 """Per-trial results of an experiment (``Results``), their export as a tidy table (CSV, JSON), and the one home of
-the error statistics every product reads: RMSE, median, 90 % and 99 % points, flagged and certified shares."""
+the error statistics every product reads: RMSE, median, 90 % and 99 % points, flagged and certified shares, and their
+bootstrap intervals — of one receiver, and paired between receivers run on the same trials (``paired_interval``:
+differences, ratios and growths of quantiles, RMSE ratios) with the verdict of a claim against them
+(``Interval.verdict``)."""
 
 from __future__ import annotations
 
@@ -9,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import _checks
 from .experiment import OTDOA_DETECTORS, Experiment
 
 @dataclass(frozen=True)
@@ -140,11 +144,118 @@ def error_stats(res: Results) -> dict:
             "edge_share": edge.mean(axis=0), "certified_share": res.certified.mean(axis=0)}
 
 
+def bootstrap_draws(n_trials: int, n_boot: int = 2000, seed: int = 0) -> np.ndarray:
+    """(n_boot, n_trials) trial indices drawn with replacement, one row per bootstrap draw, from a generator seeded by
+    ``seed`` (so every interval reproduces).  Every bootstrap of this module draws its resamples here."""
+    _checks.integer("n_trials", n_trials, 1, 10**8)
+    _checks.integer("n_boot", n_boot, 10, 10**6)
+    rng = np.random.default_rng(seed)
+    return np.stack([rng.integers(0, n_trials, n_trials) for _ in range(n_boot)])
+
+
 def bootstrap_interval(err, stat=lambda e: np.quantile(e, 0.9), n_boot: int = 2000, seed: int = 0,
                        level: float = 0.95) -> tuple[float, float]:
     """The ``level`` bootstrap interval (percentile method) of ``stat`` (default: the 90 % point) of errors err (T,),
-    resampling the trials ``n_boot`` times with a generator seeded by ``seed`` (so the interval reproduces)."""
+    resampling the trials ``n_boot`` times (``bootstrap_draws``).  One receiver alone; two receivers on the same trials
+    are compared with ``paired_interval`` and the functions built on it."""
     err = np.asarray(err, dtype=float)
-    rng = np.random.default_rng(seed)
-    draws = np.array([stat(err[rng.integers(0, err.size, err.size)]) for _ in range(n_boot)])
+    draws = np.array([stat(err[idx]) for idx in bootstrap_draws(err.size, n_boot, seed)])
     return float(np.quantile(draws, (1 - level) / 2)), float(np.quantile(draws, (1 + level) / 2))
+
+
+#: the verdicts of a claim against the range its statement allows (``Interval.verdict``)
+VERDICTS = ("reproduces", "unresolved", "fails")
+
+
+@dataclass(frozen=True)
+class Interval:
+    """A statistic of per-trial results and its bootstrap interval: ``value`` on all trials, [``lo``, ``hi``] the
+    ``level`` percentile interval over ``n_trials`` resampled trials (in the statistic's unit: m, a ratio, a share)."""
+
+    value: float
+    lo: float
+    hi: float
+    n_trials: int
+    level: float = 0.95
+
+    def verdict(self, low: float = -np.inf, high: float = np.inf) -> str:
+        """A claim that the statistic lies in [low, high]: "reproduces" when the whole interval does, "fails" when none
+        of it does, "unresolved" when the interval straddles a bound (``VERDICTS``)."""
+        if low > high:
+            raise ValueError(f"verdict needs low <= high, got low {low!r} and high {high!r}")
+        if low <= self.lo and self.hi <= high:
+            return "reproduces"
+        if self.hi < low or self.lo > high:
+            return "fails"
+        return "unresolved"
+
+    def below(self, x: float) -> bool:
+        """The whole interval lies below x."""
+        return self.hi < x
+
+    def above(self, x: float) -> bool:
+        """The whole interval lies above x."""
+        return self.lo > x
+
+    def holds(self, x: float) -> bool:
+        """x lies inside the interval (the data cannot tell the statistic from x)."""
+        return self.lo <= x <= self.hi
+
+    def text(self, fmt: str = ".2f") -> str:
+        """"value [lo, hi]", as the book's tables print an interval."""
+        return f"{self.value:{fmt}} [{self.lo:{fmt}}, {self.hi:{fmt}}]"
+
+
+def paired_interval(stat, *arrays, n_boot: int = 2000, seed: int = 0, level: float = 0.95) -> Interval:
+    """The statistic ``stat`` of per-trial arrays on the same trials and its ``level`` bootstrap interval, the trials
+    resampled together so that each keeps its pairs (``bootstrap_draws``).
+
+    arrays : each (T, ...) with trials on the first axis (errors in m of receivers, or of one receiver with and
+    without a change, run on the same trials).  stat(*resampled) → (B,) takes each array as (B, T, ...), B draws at
+    once (e.g. ``lambda a, b: np.quantile(a, 0.9, axis=1) - np.quantile(b, 0.9, axis=1)``)."""
+    arrs = [np.asarray(a, dtype=float) for a in arrays]
+    if not arrs or arrs[0].ndim == 0 or any(a.ndim == 0 or a.shape[0] != arrs[0].shape[0] for a in arrs):
+        raise ValueError(f"paired_interval needs arrays of the same trials (the same first axis), got shapes "
+                         f"{[a.shape for a in arrs]}")
+    _checks.in_range("level", level, 0.01, 0.999)
+    value = float(np.asarray(stat(*(a[None] for a in arrs)))[0])
+    idx = bootstrap_draws(arrs[0].shape[0], n_boot, seed)
+    per_draw = max(1, int(np.prod(arrs[0].shape)) * len(arrs))
+    block = max(1, 4_000_000 // per_draw)  # draws per block: about 4 M resampled values in memory at once
+    draws = np.concatenate([np.asarray(stat(*(a[idx[i:i + block]] for a in arrs)), dtype=float)
+                            for i in range(0, n_boot, block)])
+    lo, hi = np.quantile(draws, [(1 - level) / 2, (1 + level) / 2])
+    return Interval(value, float(lo), float(hi), int(arrs[0].shape[0]), level)
+
+
+def _q(a, q):
+    return np.quantile(a, q, axis=1)
+
+
+def quantile_interval(err, q: float = 0.9, **boot) -> Interval:
+    """The q point of one receiver's errors err (T,) m and its bootstrap interval (``paired_interval``'s options)."""
+    return paired_interval(lambda a: _q(a, q), err, **boot)
+
+
+def quantile_difference(err_a, err_b, q: float = 0.9, **boot) -> Interval:
+    """Q_q(err_a) − Q_q(err_b) (m) of two receivers' errors on the same trials, (T,) each, with its paired interval;
+    the growth a change causes when err_a and err_b are one receiver with and without it on the same trials."""
+    return paired_interval(lambda a, b: _q(a, q) - _q(b, q), err_a, err_b, **boot)
+
+
+def quantile_ratio(err_a, err_b, q: float = 0.9, **boot) -> Interval:
+    """Q_q(err_a) / Q_q(err_b) of two receivers' errors on the same trials, (T,) each, with its paired interval."""
+    return paired_interval(lambda a, b: _q(a, q) / _q(b, q), err_a, err_b, **boot)
+
+
+def growth_difference(a_with, a_without, b_with, b_without, q: float = 0.9, **boot) -> Interval:
+    """How much more a change grows receiver a's q point than receiver b's, all four (T,) on the same trials:
+    (Q_q(a_with) − Q_q(a_without)) − (Q_q(b_with) − Q_q(b_without)) m, with its paired interval."""
+    return paired_interval(lambda a1, a0, b1, b0: (_q(a1, q) - _q(a0, q)) - (_q(b1, q) - _q(b0, q)),
+                           a_with, a_without, b_with, b_without, **boot)
+
+
+def rmse_ratio(err_a, err_b, **boot) -> Interval:
+    """RMSE(err_a) / RMSE(err_b) of two receivers' errors (m) on the same trials, (T,) each, with its paired
+    interval."""
+    return paired_interval(lambda a, b: np.sqrt(np.mean(a**2, axis=1) / np.mean(b**2, axis=1)), err_a, err_b, **boot)

@@ -8,6 +8,7 @@ Units: metres, dB / dBm, seconds, Hz.
 from __future__ import annotations
 
 import math
+from statistics import NormalDist
 from dataclasses import dataclass
 
 import jax
@@ -108,17 +109,44 @@ def clock_bias(key, sigma_s: float, bound_sigmas: float, shape=()) -> jax.Array:
     return sigma_s * jax.random.truncated_normal(key, -bound_sigmas, bound_sigmas, shape, dtype=jnp.float64)
 
 
-#: NLoS excess delay (our option, not the paper's; off by default): the log-normal form of TR 38.901 §7.6.9's
-#: absolute-time-of-arrival model, lg(Δτ / 1 s) ~ N(lg median, σ_lg²).  The standard's parameters for UMi street
-#: canyon were not available to us, so the book sweeps the median over these values (s) instead of quoting one
-NLOS_EXCESS_MEDIANS_S = (0.0, 10e-9, 30e-9, 100e-9)
+@dataclass(frozen=True)
+class ExcessDelayRow:
+    """One row of TR 38.901 (v19.4) Table 7.6.9-1, the NLoS excess delay of §7.6.9's absolute time of arrival:
+    lg(Δτ / 1 s) normal with mean ``mu_lg`` and standard deviation ``sigma_lg`` (decades), drawn independently for the
+    links to different BS sites, the same for every cluster of an NLoS link (eq. 7.6-43), none on a LoS link."""
+
+    mu_lg: float
+    sigma_lg: float
+
+    @property
+    def median_s(self) -> float:
+        """The median excess delay 10^mu_lg, s."""
+        return 10.0**self.mu_lg
+
+    def quantile_s(self, q: float) -> float:
+        """The q-quantile of Δτ (s), q in (0, 1): 10^(mu_lg + sigma_lg · Φ⁻¹(q))."""
+        return excess_quantile_s(self.median_s, self.sigma_lg, q)
+
+
+#: TR 38.901 (v19.4) Table 7.6.9-1, its outdoor rows (unbounded; the indoor rows InH and InF are capped at 2L/c and
+#: not modelled here).  UMi street canyon is the row of the paper's scenario (``NLOS_EXCESS_ROW``)
+TR38901_EXCESS_DELAY = {"UMi": ExcessDelayRow(-7.5, 0.5), "UMa": ExcessDelayRow(-7.4, 0.2),
+                        "RMa": ExcessDelayRow(-8.33, 0.26), "SMa": ExcessDelayRow(-7.702, 0.4)}
+NLOS_EXCESS_ROW = "UMi"
+
+
+def excess_quantile_s(median_s: float, sigma_lg: float, q: float) -> float:
+    """The q-quantile (s) of the log-normal excess delay of ``nlos_excess_delay``: median_s · 10^(sigma_lg Φ⁻¹(q)).
+    q in (0, 1)."""
+    _checks.in_range("q", q, 1e-9, 1 - 1e-9, "(a probability strictly between 0 and 1)")
+    return float(median_s * 10.0 ** (sigma_lg * NormalDist().inv_cdf(q)))
 
 
 def nlos_excess_delay(key, los, median_s: float, sigma_lg: float) -> jax.Array:
     """Excess delay Δτ (s) of each link's paths over the geometric delay: 0 on a LoS link; on an NLoS link
     median_s · 10^(sigma_lg · z), z ~ N(0, 1) per link, i.e. lg Δτ normal with mean lg median_s and standard
-    deviation sigma_lg (the log-normal of TR 38.901 §7.6.9, absolute time of arrival; ``NLOS_EXCESS_MEDIANS_S``
-    says why the book sweeps the median).  Every path of the link arrives Δτ late; the receivers do not know it.
+    deviation sigma_lg: the log-normal of TR 38.901 §7.6.9 (absolute time of arrival), whose parameters per scenario
+    are ``TR38901_EXCESS_DELAY``.  Every path of the link arrives Δτ late; the receivers do not know it.
     los : bool (n,) → (n,) s.  median_s in [0, 1e-6] s (100 ns is 1e-7); sigma_lg in [0, 1]."""
     _checks.values_in_range("median_s", median_s, 0.0, 1e-6, "s (30 ns is 3e-8)")
     _checks.values_in_range("sigma_lg", sigma_lg, 0.0, 1.0, "decades")

@@ -111,25 +111,42 @@ def range_offsets_m(res) -> np.ndarray:
 FIG10_RECEIVERS = ("dpe_otdoa", "dpe_prior", "dpe_truth", "otdoa_first_path", "otdoa_peak")
 
 
+def fig10_errors(by_centring: dict) -> dict:
+    """The per-trial errors of each receiver of Fig. 10-like experiments {centring: Experiment} on the same trials
+    (the "otdoa" one holding both OTDoA detectors' fixes): {receiver of ``FIG10_RECEIVERS``: (error (T,) m, DPE's
+    window-edge flags (T,) or None for OTDoA)}, run or loaded from the store."""
+    out = {}
+    for cen, e in by_centring.items():
+        res = engine.run(e)
+        out[f"dpe_{cen}"] = (res.error_m[:, 0, 0], res.edge[:, 0, 0])
+        if e.receiver.otdoa:
+            out |= {f"otdoa_{det}": (res.otdoa_error_m[:, 0, k, 0], None) for k, det in enumerate(OTDOA_DETECTORS)}
+    return out
+
+
 def fig10_rows(experiments: dict, n_boot: int = 1000) -> list[dict]:
-    """One row per (key, receiver) of Fig. 10-like experiments {key: {centring: Experiment}} (the "otdoa" one holding
-    both OTDoA detectors' fixes): the key, the receiver, its 50 / 90 / 99 % errors (m), the 95 % bootstrap interval
-    of its 90 % error (``results.bootstrap_interval``) and, for DPE, the share of fixes on the window's edge."""
+    """One row per (key, receiver) of Fig. 10-like experiments {key: {centring: Experiment}} (``fig10_errors``): the
+    key, the receiver, its 50 / 90 / 99 % errors (m), the 95 % bootstrap interval of its 90 % error
+    (``results.bootstrap_interval``) and, for DPE, the share of fixes on the window's edge."""
     rows = []
     for key, by_centring in experiments.items():
-        for cen, e in by_centring.items():
-            res = engine.run(e)
-            errs = {f"dpe_{cen}": (res.error_m[:, 0, 0], res.edge[:, 0, 0])}
-            if e.receiver.otdoa:
-                errs |= {f"otdoa_{det}": (res.otdoa_error_m[:, 0, k, 0], None)
-                         for k, det in enumerate(OTDOA_DETECTORS)}
-            for rx, (err, edge) in errs.items():
-                p50, p90, p99 = results.quantiles(err)
-                lo, hi = results.bootstrap_interval(err, n_boot=n_boot)
-                rows.append({"key": key, "receiver": rx, "n_trials": int(err.size), "p50_m": p50, "p90_m": p90,
-                             "p99_m": p99, "p90_lo_m": lo, "p90_hi_m": hi,
-                             "edge_share": None if edge is None else float(np.mean(edge))})
+        for rx, (err, edge) in fig10_errors(by_centring).items():
+            p50, p90, p99 = results.quantiles(err)
+            lo, hi = results.bootstrap_interval(err, n_boot=n_boot)
+            rows.append({"key": key, "receiver": rx, "n_trials": int(err.size), "p50_m": p50, "p90_m": p90,
+                         "p99_m": p99, "p90_lo_m": lo, "p90_hi_m": hi,
+                         "edge_share": None if edge is None else float(np.mean(edge))})
     return rows
+
+
+def clock_edge(res, tol_m: float = 0.1) -> np.ndarray:
+    """(T, S, J) whether each DPE fix's clock bias lies within ``tol_m`` m of its search window's c δt boundary
+    (``Experiment.receiver_search``: ± bias_half_width_m around 0 for a receiver not centred on the truth, around the
+    true bias for one centred on it): the fixes whose clock estimate the window stopped."""
+    e = res.experiment
+    half_b = e.receiver_search().bias_half_width_m
+    centre = res.clock_bias_s[:, None, None] * C if e.receiver.centring == "truth" else 0.0
+    return np.abs(res.est_bias_s * C - centre) >= half_b - tol_m
 
 
 def rising_crossings(xs, values, level: float) -> list[tuple]:
@@ -139,17 +156,6 @@ def rising_crossings(xs, values, level: float) -> list[tuple]:
     if len(xs) != len(values):
         raise ValueError(f"crossings needs one value per x, got {len(xs)} x and {len(values)} values")
     return [(xs[i], xs[i + 1]) for i in range(len(xs) - 1) if values[i] < level <= values[i + 1]]
-
-
-def paired_rmse_ratio(err_a, err_b, n_boot: int = 2000, seed: int = 0) -> tuple[float, float, float]:
-    """RMSE(err_a) / RMSE(err_b) of two receivers' errors (m) on the same trials, (T,) each, and its 95 % bootstrap
-    interval resampling the trials with their pairs kept (``results.bootstrap_interval``): (ratio, low, high)."""
-    a, b = np.asarray(err_a, dtype=float), np.asarray(err_b, dtype=float)
-    if a.shape != b.shape or a.ndim != 1:
-        raise ValueError(f"paired_rmse_ratio needs two (T,) arrays of the same trials, got {a.shape} and {b.shape}")
-    ratio = lambda idx: float(np.sqrt(np.mean(a[idx] ** 2) / np.mean(b[idx] ** 2)))
-    lo, hi = results.bootstrap_interval(np.arange(a.size), lambda i: ratio(i.astype(int)), n_boot=n_boot, seed=seed)
-    return ratio(np.arange(a.size)), lo, hi
 
 
 def window_misses(blind, reference, margin_m: float = 1.0) -> dict:

@@ -237,6 +237,48 @@ def test_nlos_excess_delay_delays_every_path_of_the_nlos_links_only():
         experiment.Scenario(nlos_excess_median_s=30.0)
 
 
+def test_the_excess_delay_table_is_tr38901_table_7_6_9_1_and_its_quantiles_are_the_log_normals():
+    """TR 38.901 Table 7.6.9-1's outdoor rows as transcribed (lg Δτ mean, σ), UMi the scenario's row; the quantile
+    of the drawn law matches the empirical one of scenario.nlos_excess_delay."""
+    import jax
+
+    rows = {k: (r.mu_lg, r.sigma_lg) for k, r in scenario.TR38901_EXCESS_DELAY.items()}
+    assert rows == {"UMi": (-7.5, 0.5), "UMa": (-7.4, 0.2), "RMa": (-8.33, 0.26), "SMa": (-7.702, 0.4)}
+    umi = scenario.TR38901_EXCESS_DELAY[scenario.NLOS_EXCESS_ROW]
+    assert scenario.NLOS_EXCESS_ROW == "UMi" and umi.median_s == pytest.approx(31.62e-9, rel=1e-3)
+    assert nlos_study.NLOS_EXCESS_SIGMA_LG == umi.sigma_lg and umi.median_s in nlos_study.NLOS_EXCESS_MEDIANS_S
+    d = np.asarray(scenario.nlos_excess_delay(jax.random.PRNGKey(0), np.zeros(200000, bool), umi.median_s,
+                                              umi.sigma_lg))
+    for q in (0.1, 0.5, 0.99):
+        assert umi.quantile_s(q) == pytest.approx(np.quantile(d, q), rel=0.02), q
+    assert umi.quantile_s(0.99) == pytest.approx(10 ** (-7.5 + 0.5 * 2.3263479), rel=1e-6)
+    with pytest.raises(ValueError, match="q must be"):
+        umi.quantile_s(1.0)
+
+
+def test_the_clock_nlos_window_adds_the_excess_delays_99th_percentile_to_the_clock_models():
+    """Receiver clock_window "clock_nlos": the c δt window ± (3 σ c + c Δτ₉₉) of the scenario's law, in boxes of
+    about box_m; "clock" keeps ± 3 σ c; the default leaves every stored key as it was; refused when centred on the
+    truth."""
+    from dpe5g import experiment
+    from dpe5g.nr import C
+
+    wide = nlos_study.fig10_clock_nlos(10)["two_of_four"]
+    plain = nlos_study.fig10_nlos_excess(nlos_study.UMI.median_s, 10)[("two_of_four", "otdoa")]
+    clock = 3 * 5e-9 * C
+    assert plain.receiver_search().bias_half_width_m == pytest.approx(clock)
+    s = wide.receiver_search()
+    assert s.bias_half_width_m == pytest.approx(clock + C * nlos_study.UMI.quantile_s(0.99))
+    assert s.bias_boxes == min(64, int(np.ceil(2 * s.bias_half_width_m / s.box_m)))
+    assert wide.replace(name=plain.run.name, clock_window="clock") == plain
+    assert plain.config_key() == plain.replace(clock_window="clock").config_key()
+    assert "clock_window" not in json.dumps(plain.to_dict()) or plain.receiver.clock_window == "clock"
+    with pytest.raises(ValueError, match="clock_window must be one of"):
+        experiment.Receiver(clock_window="wide")
+    with pytest.raises(ValueError, match="centring 'truth' searches its own"):
+        experiment.Receiver(clock_window="clock_nlos")
+
+
 def test_nearest_two_los_and_the_snr_offset_change_only_what_they_say():
     """los_mode "nearest_two_los": the two nearest of the four links LoS, the two farther NLoS, every trial;
     snr_offset_db: every link's SNR moved by exactly that many dB, the other draws unchanged."""

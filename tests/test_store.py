@@ -10,8 +10,8 @@ import pytest
 
 from dpe5g import engine, paper, store, verify
 
-#: the store's size budget (issue 31): 25 MB in all
-STORE_BUDGET_BYTES = 25_000_000
+#: the store's size budget: 25 MB in all (issue 31), 30 MB since the UMi excess-delay runs (issue 41)
+STORE_BUDGET_BYTES = 30_000_000
 
 
 def test_store_holds_every_experiment_the_book_and_figures_read():
@@ -19,7 +19,8 @@ def test_store_holds_every_experiment_the_book_and_figures_read():
     assert not missing, f"the results store lacks {missing}; run `make reproduce`"
     entries = sorted(store.STORE_DIR.glob("*"))
     size = sum(p.stat().st_size for p in entries)
-    assert size <= STORE_BUDGET_BYTES, f"results store is {size / 1e6:.1f} MB, over its 25 MB budget"
+    assert size <= STORE_BUDGET_BYTES, \
+        f"results store is {size / 1e6:.1f} MB, over its {STORE_BUDGET_BYTES / 1e6:g} MB budget"
     for e in verify.store_experiments():
         meta = store.stored(e).meta
         assert meta["config_key"] == e.config_key() and meta["code_version"] and meta["commit"]
