@@ -114,15 +114,16 @@ def glue(name: str, fig) -> None:
 
 
 def write(fig_id: str, out_dir, progress: bool = False, trials: int | None = None) -> tuple[Path, Path]:
-    """Compute and draw ``fig_id``; write ``out_dir/<id>.png`` and ``out_dir/data/<id>.json``."""
+    """Compute and draw ``fig_id``; write ``out_dir/<id>.png`` and ``out_dir/data/<id>.json``.  The figure is drawn
+    and checked (``plots.save_png`` checks its legibility) before either file is written, so a figure that fails
+    leaves both files as they were."""
     out = Path(out_dir)
     payload = compute(fig_id, progress=progress, trials=trials)
-    js = out / "data" / f"{fig_id}.json"
-    atomic_write(js, (json.dumps(payload, indent=1, sort_keys=True) + "\n").encode())
+    js, png = out / "data" / f"{fig_id}.json", out / f"{fig_id}.png"
     fig = render(payload)
-    png = out / f"{fig_id}.png"
     with atomic_target(png) as tmp:
         plots.save_png(fig, tmp)  # format="png" is explicit, so the ".tmp" name does not matter
+        atomic_write(js, (json.dumps(payload, indent=1, sort_keys=True) + "\n").encode())
     return png, js
 
 

@@ -189,3 +189,19 @@ def test_payload_is_computed_once_per_state_of_the_code(tmp_path, monkeypatch):
     assert len(others) == 4
     path.unlink()
     assert figures.compute("fig01_tdl_a") == first
+
+
+def test_a_figure_that_fails_its_check_leaves_both_files_as_they_were(tmp_path, monkeypatch):
+    """figures.write draws and checks the figure before writing either file: a figure too wide for the book's column
+    raises, and the PNG and the data JSON already there are untouched (no new data beside an old image)."""
+    from matplotlib.figure import Figure
+
+    (tmp_path / "data").mkdir()
+    png, js = tmp_path / "fig01_tdl_a.png", tmp_path / "data" / "fig01_tdl_a.json"
+    png.write_bytes(b"old png")
+    js.write_text("old json")
+    monkeypatch.setattr(figures, "render", lambda payload: Figure(figsize=(12, 3)))
+    with pytest.raises(ValueError, match="in wide"):
+        figures.write("fig01_tdl_a", tmp_path)
+    assert png.read_bytes() == b"old png" and js.read_text() == "old json"
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["data", "fig01_tdl_a.json", "fig01_tdl_a.png"]
