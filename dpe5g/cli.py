@@ -209,10 +209,11 @@ def _verify(args) -> int:
         print(err, file=sys.stderr)
     print(f"verify: every entry of the results store read, {len(damaged)} damaged", flush=True)
     print(f"verify: seed {seed} (dpe5g verify --seed {seed} repeats this sample)", flush=True)
-    found, done = verify.verify_sample(seed, n, n_trials)
-    for m in found:
-        if m.field != "entry" or m.stored != "damaged":  # (named above)
-            print(m, file=sys.stderr)
+    def report(m):  # each mismatch as soon as it is found; a damaged entry was named above
+        if m.field != "entry" or m.stored != "damaged":
+            print(m, file=sys.stderr, flush=True)
+
+    found, done = verify.verify_sample(seed, n, n_trials, report=report)
     total = sum(len(t) for _, t in done)
     print(f"verify: {total} trials of {len(done)} experiments recomputed, {len(found)} mismatches", flush=True)
     return 1 if found or damaged else 0

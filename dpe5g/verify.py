@@ -159,11 +159,12 @@ def sample(seed: int, n_families: int, n_trials: int, experiments=None) -> list[
 
 
 def verify_sample(seed: int, n_families: int = SAMPLE_FAMILIES, n_trials: int = SAMPLE_TRIALS, experiments=None,
-                  log=sys.stderr) -> tuple[list[Mismatch], list[tuple[str, list[int]]]]:
+                  log=sys.stderr, report=None) -> tuple[list[Mismatch], list[tuple[str, list[int]]]]:
     """Recompute ``sample(seed, n_families, n_trials, experiments)`` and compare it with the store; log: where to
-    print each experiment's time (None: nowhere).  An experiment the store lacks, or whose entry is damaged
-    (``errors.DamagedEntry``), is itself a mismatch (field "entry").  Returns (mismatches, [(experiment name,
-    trials recomputed)])."""
+    print each experiment's time (None: nowhere); report: called with each ``Mismatch`` as soon as it is found (the
+    command line prints it then, so that a check cut off part-way has still told what it found).  An experiment the
+    store lacks, or whose entry is damaged (``errors.DamagedEntry``), is itself a mismatch (field "entry").  Returns
+    (mismatches, [(experiment name, trials recomputed)])."""
     out, done = [], []
     for e, picked in sample(seed, n_families, n_trials, experiments):
         t0 = time.perf_counter()
@@ -171,12 +172,15 @@ def verify_sample(seed: int, n_families: int = SAMPLE_FAMILIES, n_trials: int = 
             hit = store.stored(e)
             held = None if hit is None else hit.load(trials=picked)
         except DamagedEntry as err:
-            out.append(Mismatch(e.run.name, -1, "entry", "damaged", err.reason, str(err)))
+            hit, found = None, [Mismatch(e.run.name, -1, "entry", "damaged", err.reason, str(err))]
+        else:
+            found = ([Mismatch(e.run.name, -1, "entry", "none", f"{e.run.n_trials} trials asked")] if hit is None
+                     else differences(e.run.name, picked, held, recompute(e, picked), position_atol(e)))
+        out += found
+        for m in found if report is not None else ():
+            report(m)
+        if hit is None:  # nothing recomputed: the entry is missing or damaged
             continue
-        if hit is None:
-            out.append(Mismatch(e.run.name, -1, "entry", "none", f"{e.run.n_trials} trials asked"))
-            continue
-        out += differences(e.run.name, picked, held, recompute(e, picked), position_atol(e))
         done.append((e.run.name, picked))
         if log is not None:
             print(f"verify: {e.run.name} trials {picked} recomputed ({time.perf_counter() - t0:.1f} s)", file=log)

@@ -25,9 +25,9 @@ RUNNING = ROOT / "book" / "running.md"
 #: the book's landing page
 INTRO = ROOT / "book" / "intro.md"
 #: the generated blocks of each file
-README_BLOCKS = ("found", "timing_short")
+README_BLOCKS = ("found", "chapters", "timing_short")
 INTRO_BLOCKS = ("found_book",)
-RUNNING_BLOCKS = ("timing", "fig9", "fig10", "readings", "bench", "engine", "store", "coverage", "cluster")
+RUNNING_BLOCKS = ("timing", "fig9", "fig10", "readings", "gpu", "bench", "engine", "store", "coverage", "cluster")
 
 
 def _load(rel: str) -> dict:
@@ -107,6 +107,38 @@ def bench_table() -> str:
     lines = [f"`benchmarks/bench_dpe.py` on {m['cpus']} CPUs ({m['platform']}, JAX {m['jax']}, float64), medians "
              "after jit:", "", "| quantity | measured | target |", "|---|---|---|"]
     lines += [f"| {a} | {v} | {t} |" for a, v, t in rows]
+    return "\n".join(lines)
+
+
+def gpu_table() -> str:
+    """The running page's GPU measurements (``benchmarks/gpu_h200.json``) beside this machine's CPU benchmarks."""
+    g, cpu_d, cpu_e = (_load(f"benchmarks/{n}.json") for n in ("gpu_h200", "bench_dpe", "bench_engine"))
+    gd, ge = g["bench_dpe"], g["bench_engine"]
+    ms = lambda x: f"{1e3 * x:.3g} ms"
+    h_cpu = cpu_d["seconds"]["honest_fix_m24_rounds"]
+    f9h = cpu_e["fig9_honest"]
+    rows = [
+        ("one honest fix, M = 24, certified search (median of 5 rounds)", ms(gd["seconds"]["honest_fix_m24"]),
+         f"{ms(min(h_cpu))}–{ms(max(h_cpu))}"),
+        ("one grid fix (truth-centred comparison), M = 24", ms(gd["seconds"]["fix_m24"]), ms(cpu_d["seconds"]["fix_m24"])),
+        ("Fig. 9 honest, per trial (7 SNRs × 4 M)", ms(ge["fig9_honest"]["per_trial_s_one_thread"]),
+         f"{ms(f9h['per_trial_s_workers'])}–{ms(f9h['per_trial_s_one_thread'])}"),
+        ("Fig. 9 truth-centred, per trial (7 SNRs)", ms(ge["fig9_empty_cache"]["per_trial_s"]),
+         ms(cpu_e["fig9_empty_cache"]["per_trial_s"])),
+        ("Fig. 9 truth-centred, 5000 trials", f"{ge['fig9_empty_cache']['full_5000_s']:.1f} s (extrapolated)",
+         f"{cpu_e['fig9_empty_cache']['full_5000_s']:.0f} s"),
+        ("per-BS share of a grid fix, in FFTs", f"{gd['ratios']['per_bs_vs_fft']:.1f}",
+         f"{cpu_d['ratios']['per_bs_vs_fft']:.1f}"),
+    ]
+    v = g["verify_all"]
+    lines = [f"Measured on one {g['gpu']} ({ge['machine']['cpus']} CPUs beside it, JAX {ge['machine']['jax']} with CUDA, "
+             f"float64) at commit {g['commit']}, with `benchmarks/bench_dpe.py` and `benchmarks/bench_engine.py` "
+             f"(`benchmarks/gpu_h200.json`); the CPU column is this page's benchmarks on "
+             f"{cpu_d['machine']['cpus']} CPUs:", "", "| quantity | GPU | CPU |", "|---|---|---|"]
+    lines += [f"| {a} | {b} | {c} |" for a, b, c in rows]
+    lines += ["", f"`{v['command']}` on the GPU recomputed {v['experiments_recomputed']} of {v['experiments']} "
+              f"experiments in {v['seconds']} s without finishing: each experiment compiles its own programs, and "
+              "the compiles, not the Monte Carlo, take the time."]
     return "\n".join(lines)
 
 
@@ -310,9 +342,35 @@ def cluster_text() -> str:
     return "\n".join(lines)
 
 
-TABLES = {"found": found_text, "found_book": lambda: found_text(book=True), "timing_short": timing_short,
+def toc_pages() -> list[tuple[str, str]]:
+    """The book's pages in ``book/_toc.yml``'s order, each (path of its source from the repository root, its title: the
+    first ``# `` heading of the file)."""
+    import yaml
+
+    toc = yaml.safe_load((ROOT / "book" / "_toc.yml").read_text())
+    pages = []
+    for entry in [{"file": toc["root"]}] + toc["chapters"]:
+        path = ROOT / f"{entry['file']}.md"
+        title = next(line[2:].strip() for line in path.read_text().splitlines() if line.startswith("# "))
+        pages.append((path.relative_to(ROOT).as_posix(), title))
+    return pages
+
+
+def chapters_text() -> str:
+    """README's list of the book's pages from ``book/_toc.yml``: the numbered chapters (``chapters/``), then the pages
+    after them, each with its source file."""
+    pages = toc_pages()[1:]  # the landing page is the book itself
+    chapters = [(p, t) for p, t in pages if p.startswith("chapters/")]
+    rest = [(p, t) for p, t in pages if not p.startswith("chapters/")]
+    lines = [f"{i}. {t} (`{p}`);" for i, (p, t) in enumerate(chapters, 1)]
+    lines[-1] = lines[-1][:-1] + "."
+    lines += ["", "After them, numbered on: " + "; ".join(f"*{t}* (`{p}`)" for p, t in rest) + "."]
+    return "\n".join(lines)
+
+
+TABLES = {"found": found_text, "chapters": chapters_text, "found_book": lambda: found_text(book=True), "timing_short": timing_short,
           "timing": timing_text, "fig9": fig9_table, "fig10": fig10_table, "bench": bench_table,
-          "engine": engine_table, "readings": readings_table, "store": store_text, "coverage": coverage_text,
+          "engine": engine_table, "readings": readings_table, "gpu": gpu_table, "store": store_text, "coverage": coverage_text,
           "cluster": cluster_text}
 
 

@@ -57,3 +57,21 @@ def test_fresh_check_log_parsing():
     # make test's two pytest runs (without the book, during its build; the "book" tests after it): counts summed
     two = log.replace("fresh-check", "====== 20 passed in 31.50s ======\nfresh-check")
     assert mod.parse(two) == {**rec, "pytest_s": 197.3 + 31.5, "tests_passed": 254, "pytest_runs_s": [197.3, 31.5]}
+
+
+def test_the_landing_page_and_readme_list_every_page_of_the_toc():
+    """book/intro.md's "How to read it" table links every page of book/_toc.yml once, in its order; README's list
+    of pages is generated from the same file (``readme_tables.chapters_text``, kept current by the check above)."""
+    import re
+
+    import yaml
+
+    toc = yaml.safe_load((ROOT / "book" / "_toc.yml").read_text())
+    pages = [entry["file"] for entry in toc["chapters"]]
+    intro = (ROOT / "book" / "intro.md").read_text()
+    table = intro.split("## How to read it", 1)[1].split("\n## ", 1)[0]
+    targets = re.findall(r"^\| \{doc\}`([^`]+)`", table, re.M)
+    linked = [t[3:] if t.startswith("../") else "book/" + t for t in targets]
+    assert linked == pages, (linked, pages)
+    readme = (ROOT / "README.md").read_text()
+    assert all(f"`{p}.md`" in readme for p in pages)

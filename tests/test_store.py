@@ -155,6 +155,32 @@ def test_verify_command_prints_its_seed_and_names_mismatches(small, monkeypatch,
     assert "--families must be an integer in [1, 10000], got 0" in capsys.readouterr().err
 
 
+def test_verify_reports_each_mismatch_as_it_finds_it(small, monkeypatch, capsys):
+    """dpe5g verify prints a mismatch as soon as its experiment is compared: a check stopped part-way (Ctrl-C in the
+    next experiment) has already told what it found."""
+    from dpe5g import cli
+
+    e, _, entry = small
+    other = e.replace(name=e.run.name + "-next")
+    monkeypatch.setattr(verify, "store_experiments", lambda: [e, other])
+    monkeypatch.setattr(verify, "families", lambda exps: [list(exps)])  # one family: e first, then the next
+    arrays = dict(np.load(entry.npz))
+    arrays["edge"] = ~arrays["edge"]
+    restore(e, entry, arrays)
+    real = verify.recompute
+
+    def recompute(exp, picked):
+        if exp is other:
+            raise KeyboardInterrupt
+        return real(exp, picked)
+
+    monkeypatch.setattr(verify, "recompute", recompute)
+    monkeypatch.setattr(store, "stored", lambda exp, _real=store.stored: _real(e) if exp is other else _real(exp))
+    assert cli.main(["verify", "--seed", "5", "--families", "1", "--trials", "2"]) == 130
+    err = capsys.readouterr().err
+    assert "field edge" in err, err
+
+
 def test_coverage_runs_stays_exact_for_many_families():
     """85 families (the store's count once the NLoS study joined it): inclusion–exclusion over the families never
     drawn cancelled catastrophically there (a mean of 571449 runs); the chain of undrawn families agrees with a
