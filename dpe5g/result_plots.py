@@ -140,7 +140,7 @@ def plot_cdf(payload: dict):
     # dashed on top of it, so both stay visible
     curves = [("dpe_otdoa", "DPE centred on OTDoA fix", "#1f77b4", "-", 2.6),
               ("dpe_prior", "DPE centred on 5 m prior", "#2ca02c", "--", 1.3),
-              ("dpe_truth", "DPE centred on truth, ±{half:g} m window (paper)", "0.45", "-.", 1.3),
+              ("dpe_truth", "DPE centred on truth, ±{half:g} m window (the paper's set-up, our run)", "0.45", "-.", 1.3),
               ("otdoa_first_path", "OTDoA, first-path ToA", "#d62728", "-", 1.3),
               ("otdoa_peak", "OTDoA, peak ToA (naive)", "#ff7f0e", ":", 1.6)]
     dpe_lab = ", ".join(f"{100 * q:g} % within {v:g} m" for q, v in PAPER_FIG10_DPE_M.items())

@@ -74,8 +74,10 @@ def test_index_leads_to_landing_page(server, browser):
 @pytest.mark.parametrize("page_path", pages() or ["index.html"])
 def test_page_renders_offline(server, browser, page_path):
     page = browser.new_page()
-    requests = []
+    requests, console_errors = [], []
     page.on("request", lambda r: requests.append(r.url))
+    page.on("console", lambda m: console_errors.append(m.text) if m.type == "error" else None)
+    page.on("pageerror", lambda exc: console_errors.append(str(exc)))
     failed = []
     page.on("requestfailed", lambda r: failed.append(r.url))
     resp = page.goto(f"{server}/{page_path}", wait_until="load")
@@ -103,6 +105,10 @@ def test_page_renders_offline(server, browser, page_path):
     outside = [u for u in requests if not u.startswith(server) and not u.startswith("data:")]
     assert not outside, f"{page_path}: requests left localhost: {outside[:5]}"
     assert not failed, f"{page_path}: failed requests: {failed[:5]}"
+    # no script error (Thebe's inline config, included twice, redeclared THEBE_JS_URL on every page) and no Thebe:
+    # the book is offline and has no live code
+    assert not console_errors, f"{page_path}: console errors: {console_errors[:3]}"
+    assert "thebe" not in (HTML / page_path).read_text().lower(), f"{page_path}: still loads Thebe"
     page.close()
 
 

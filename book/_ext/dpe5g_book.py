@@ -92,6 +92,27 @@ def _notebook(app, docname: str) -> Path:
 def _page_context(app, pagename, templatename, context, doctree):
     if doctree is not None and _notebook(app, pagename).exists():
         context["ipynb_source"] = f"{pagename}.ipynb"
+    # Jupyter Book loads sphinx-thebe even with launch_buttons.thebe false, and its inline THEBE_JS_URL script twice
+    # (a console error on every page) pointing at an online CDN: the book is offline and has no live code, so no
+    # page carries Thebe's scripts
+    for key in ("script_files", "css_files"):
+        if key in context:
+            context[key] = [f for f in context[key] if not _thebe_script(f)]
+
+
+def _drop_thebe_config(app, doctree, docname):
+    """Remove the raw HTML that sphinx-thebe appends to every page (its kernel configuration and kernel name)."""
+    from docutils import nodes
+
+    for node in list(doctree.findall(nodes.raw)):
+        if "x-thebe-config" in node.astext() or "kernelName =" in node.astext():
+            node.parent.remove(node)
+
+
+def _thebe_script(js) -> bool:
+    """A script or style sheet of sphinx-thebe: its loader, its CSS, or an inline script that configures it (the
+    asset's repr names each)."""
+    return "thebe" in str(js).lower()
 
 
 _GLUE_FIGURE = re.compile(r"```\{glue:figure\}[ \t]+(\S+)\n(.*?)```", re.S)
@@ -161,12 +182,45 @@ def _verbatim_docstring(app, what, name, obj, options, lines):
         lines[:] = ["::", ""] + ["    " + ln for ln in lines] + [""]
 
 
+def _author_year_style():
+    """A pybtex style, "dpe5g_author_year", whose bibliography labels read as the in-text author_year citations do
+    ("Li et al., 2025", "3GPP TR 38.901, 2022"; a, b … after the year where two would be the same), instead of the
+    default alpha labels ("LVX25")."""
+    from pybtex.plugin import register_plugin
+    from pybtex.style.formatting.unsrt import Style as Unsrt
+    from pybtex.style.labels import BaseLabelStyle
+
+    def names(entry):
+        people = entry.persons.get("author") or entry.persons.get("editor") or []
+        last = [" ".join(p.last_names).replace("{", "").replace("}", "") for p in people]
+        if len(last) > 2:
+            return f"{last[0]} et al."
+        return " and ".join(last) or entry.key
+
+    class Labels(BaseLabelStyle):
+        def format_labels(self, sorted_entries):
+            labels = [f"{names(e)}, {e.fields.get('year', '')}" for e in sorted_entries]
+            seen = {}
+            for label in labels:
+                n = labels.count(label)
+                seen[label] = seen.get(label, 0) + 1
+                yield label if n == 1 else label + "abcdefghijklmnopqrstuvwxyz"[seen[label] - 1]
+
+    class Style(Unsrt):
+        default_label_style = Labels
+        default_sorting_style = "author_year_title"
+
+    register_plugin("pybtex.style.formatting", "dpe5g_author_year", Style)
+
+
 def setup(app):
     app.add_config_value("dpe5g_cache_sources", [], "env")
+    _author_year_style()
     app.setup_extension("sphinx.ext.autodoc")  # (the API reference; its event below)
     app.connect("autodoc-process-docstring", _verbatim_docstring)
     app.connect("builder-inited", _sync, priority=900)  # after MyST-NB has set its execution cache path
     app.connect("env-get-outdated", _outdated)
     app.connect("html-page-context", _page_context)
+    app.connect("doctree-resolved", _drop_thebe_config, priority=900)  # after sphinx-thebe's own handler (500)
     app.connect("build-finished", _copy_notebooks)
     return {"parallel_read_safe": True, "parallel_write_safe": True}
