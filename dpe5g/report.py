@@ -1,5 +1,6 @@
-"""Tables of results for people: the readings of the paper against its claims (Markdown, for the book and the
-README) and a run's summary (text, for ``dpe5g run``).  The numbers come from ``results`` and the figures' payloads."""
+"""Tables of results for people: the claim tables with each claim's interval and verdict (Markdown, for the book),
+the readings' verdict counts (for the book and README) and a run's summary (text, for ``dpe5g run``).  The numbers
+come from ``results``, ``readings`` and the figures' payloads."""
 
 from __future__ import annotations
 
@@ -62,32 +63,6 @@ def claims_markdown(intervals: dict, bracket: dict | None = None) -> str:
         extra = f" ({result_plots.format_claim(c, bracket[c].value)})" if bracket else ""
         lines.append(f"| {readings.CLAIMS[c][0]} | {readings.CLAIMS[c][1]} | {claim_text(c, iv)}{extra} | "
                      f"{result_plots.VERDICT_MARKS[verdicts[c]]} {verdicts[c]} |")
-    return "\n".join(lines)
-
-
-def readings_markdown(p: dict, by_claim: bool = False) -> str:
-    """The readings table of a ``readings_payload`` as Markdown: a row per reading, a column per claim, each cell
-    the value and the mark of its verdict (``result_plots.VERDICT_MARKS``); by_claim: transposed, a row per claim and a column per reading
-    (narrower: the book's page)."""
-    claims, order = p["config"]["claims"], p["config"]["claim_order"]
-    cell = lambda n, c: (f"{result_plots.format_claim(c, p['data'][n]['values'][c])} "
-                         f"{result_plots.VERDICT_MARKS[p['data'][n]['verdicts'][c]]}")
-    if by_claim:
-        names = p["config"]["reading_order"]
-        lines = ["| claim (paper) | " + " | ".join(p["data"][n]["short"] for n in names) + " |",
-                 "|---" * (len(names) + 1) + "|"]
-        lines += [f"| {claims[c]['claim']} ({claims[c]['paper']}) | " + " | ".join(cell(n, c) for n in names) + " |"
-                  for c in order]
-        lines.append("| trials (Fig. 9 / Fig. 10) | " + " | ".join(
-            f"{p['data'][n]['n_trials']['fig9']} / {p['data'][n]['n_trials']['fig10_dpe']}" for n in names) + " |")
-        return "\n".join(lines)
-    short = lambda c: claims[c]["short"].replace("\n", " ")
-    lines = ["| reading | trials (Fig. 9 / Fig. 10) | " + " | ".join(short(c) for c in order) + " |",
-             "|---" * (len(order) + 2) + "|"]
-    for n in p["config"]["reading_order"]:
-        d, t = p["data"][n], p["data"][n]["n_trials"]
-        lines.append(f"| {d['label']} | {t['fig9']} / {t['fig10_dpe']} | "
-                     + " | ".join(cell(n, c) for c in order) + " |")
     return "\n".join(lines)
 
 

@@ -11,12 +11,16 @@ N_EQUATIONS = 11  # equations (1)–(11) of the compiled paper
 
 
 def _rows():
+    """{equation number: (the functions that implement it, the tests that check it)} from the page's list: one item
+    per equation, "- **Eq. {ref}`(N) <eq-N>`**: what.  Implemented by {py:func}`…`; checked by `tests/…::…`; …"."""
     rows = {}
     for line in PAGE.read_text().splitlines():
-        m = re.match(r"\| \((\d+)\) \|", line)
+        m = re.match(r"- \*\*Eq\. \{ref\}`\((\d+)\) <eq-(\d+)>`\*\*", line)
         if m:
-            cells = [c.strip() for c in line.strip().strip("|").split("|")]
-            rows[int(m.group(1))] = (re.findall(r"`(dpe5g\.[\w.]+)`", cells[2]), re.findall(r"`(tests/[\w/.]+::\w+)`", cells[3]))
+            assert m.group(1) == m.group(2), f"eq. ({m.group(1)}) links to eq-{m.group(2)}"
+            impl = line.split("Implemented by", 1)[1].split("; checked by", 1)
+            rows[int(m.group(1))] = (re.findall(r"\{py:func\}`(dpe5g\.[\w.]+)`", impl[0]),
+                                     re.findall(r"`(tests/[\w/.]+::\w+)`", impl[1]))
     return rows
 
 

@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 import hashlib
+import os
 import json
 import re
 import shutil
@@ -176,10 +177,25 @@ def _copy_notebooks(app, exception):
 
 
 def _verbatim_docstring(app, what, name, obj, options, lines):
-    """The API reference shows each docstring as written (a literal block): they are plain text with Unicode
-    maths (|ĥ(τ)|², (..., M, N)), which reST would read as markup."""
+    """The API reference shows each docstring as written (a literal block of plain text, not highlighted as code):
+    they are plain text with Unicode maths (|ĥ(τ)|², (..., M, N)), which reST would read as markup."""
     if lines:
-        lines[:] = ["::", ""] + ["    " + ln for ln in lines] + [""]
+        lines[:] = [".. code-block:: text", ""] + ["    " + ln for ln in lines] + [""]
+
+
+def _repository_paths():
+    """Values in the API reference name a packaged file by its path in the repository, not on the building machine
+    (``deployment.BUILTIN``'s files were shown as PosixPath('/tmp/…/dpe5g/data/…'))."""
+    import sphinx.ext.autodoc as autodoc
+
+    root = Path(__file__).resolve().parents[2]
+    described = autodoc.object_description
+
+    def relative(obj, *args, **kwargs):
+        text = described(obj, *args, **kwargs)
+        return re.sub(r"PosixPath\('([^']*)'\)", lambda m: repr(os.path.relpath(m.group(1), root)), text)
+
+    autodoc.object_description = relative
 
 
 def _author_year_style():
@@ -218,6 +234,7 @@ def setup(app):
     _author_year_style()
     app.setup_extension("sphinx.ext.autodoc")  # (the API reference; its event below)
     app.connect("autodoc-process-docstring", _verbatim_docstring)
+    _repository_paths()
     app.connect("builder-inited", _sync, priority=900)  # after MyST-NB has set its execution cache path
     app.connect("env-get-outdated", _outdated)
     app.connect("html-page-context", _page_context)
