@@ -181,6 +181,40 @@ def test_every_figure_is_numbered_and_captioned(server, browser, page_path):
     page.close()
 
 
+@pytest.mark.parametrize("width", [1280, 768])
+def test_nothing_is_wider_than_its_column(server, browser, width):
+    """At a 1280-px and a 768-px window, on every page: no table, display equation or image is wider than the
+    article's column (a wider one is clipped or scrolls sideways, and its last column or its equation number is
+    hidden)."""
+    page = browser.new_page(viewport={"width": width, "height": 1000})
+    wide = []
+    try:
+        for page_path in pages():
+            page.goto(f"{server}/{page_path}", wait_until="load")
+            if page.evaluate("document.querySelectorAll('div.math').length"):
+                page.wait_for_function("() => window.MathJax && MathJax.startup && MathJax.startup.promise",
+                                       timeout=30000)
+                page.evaluate("() => MathJax.startup.promise")
+            found = page.evaluate("""() => {
+                const art = document.querySelector('article'), right = art.getBoundingClientRect().right + 1;
+                const out = [];
+                for (const t of art.querySelectorAll('table')) {
+                    const box = t.closest('.pst-scrollable-table-container') || t.parentElement;
+                    if (t.getBoundingClientRect().width > box.clientWidth + 1 || t.getBoundingClientRect().right > right)
+                        out.push('table: ' + t.textContent.trim().slice(0, 50));
+                }
+                for (const m of art.querySelectorAll('mjx-container[display="true"]'))
+                    if (m.scrollWidth > m.clientWidth + 1 || m.getBoundingClientRect().right > right)
+                        out.push('equation: ' + (m.closest('.math') || m).textContent.slice(0, 50));
+                for (const i of art.querySelectorAll('img'))
+                    if (i.getBoundingClientRect().right > right) out.push('image: ' + i.src.slice(-40));
+                return out; }""")
+            wide += [f"{page_path}: {w}" for w in found]
+    finally:
+        page.close()
+    assert not wide, f"{len(wide)} element(s) wider than the column at {width} px: {wide[:6]}"
+
+
 @pytest.mark.parametrize("page_path", pages() or ["index.html"])
 def test_no_code_block_runs_off_the_page(server, browser, page_path):
     """Every page: every code or text block wraps inside its box (its content is no wider than the box), so no
