@@ -76,8 +76,14 @@ def test_page_renders_offline(server, browser, page_path):
     page = browser.new_page()
     requests, console_errors = [], []
     page.on("request", lambda r: requests.append(r.url))
-    page.on("console", lambda m: console_errors.append(m.text) if m.type == "error" else None)
+    # script errors; a missing resource is told by its response below (the browser's own /favicon.ico excepted: the
+    # book has no icon, and chromium asks for one at a time of its choosing)
+    page.on("console", lambda m: console_errors.append(m.text)
+            if m.type == "error" and not m.text.startswith("Failed to load resource") else None)
     page.on("pageerror", lambda exc: console_errors.append(str(exc)))
+    missing = []
+    page.on("response", lambda r: missing.append(f"{r.status} {r.url}")
+            if r.status >= 400 and not r.url.endswith("/favicon.ico") else None)
     failed = []
     page.on("requestfailed", lambda r: failed.append(r.url))
     resp = page.goto(f"{server}/{page_path}", wait_until="load")
@@ -108,7 +114,12 @@ def test_page_renders_offline(server, browser, page_path):
     # no script error (Thebe's inline config, included twice, redeclared THEBE_JS_URL on every page) and no Thebe:
     # the book is offline and has no live code
     assert not console_errors, f"{page_path}: console errors: {console_errors[:3]}"
-    assert "thebe" not in (HTML / page_path).read_text().lower(), f"{page_path}: still loads Thebe"
+    assert not missing, f"{page_path}: resources not found: {missing[:3]}"
+    html = (HTML / page_path).read_text()
+    assert "thebe" not in html.lower(), f"{page_path}: still loads Thebe"
+    # no emoji: the Debian fonts the book is read with have none (a box is drawn in its place)
+    emoji = sorted({c for c in html if ord(c) >= 0x1F000 or c in "\u2705\u274c\u2b50"})
+    assert not emoji, f"{page_path}: glyphs the fonts lack: {emoji}"
     page.close()
 
 

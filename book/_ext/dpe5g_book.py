@@ -102,12 +102,18 @@ def _page_context(app, pagename, templatename, context, doctree):
 
 
 def _drop_thebe_config(app, doctree, docname):
-    """Remove the raw HTML that sphinx-thebe appends to every page (its kernel configuration and kernel name)."""
+    """Remove the raw HTML that sphinx-thebe appends to every page (its kernel configuration and kernel name), and
+    put a glyph the page's fonts have in place of MyST-NB's emoji."""
     from docutils import nodes
 
     for node in list(doctree.findall(nodes.raw)):
         if "x-thebe-config" in node.astext() or "kernelName =" in node.astext():
             node.parent.remove(node)
+    # MyST-NB's execution table marks a chapter run with an emoji (U+2705) that the Debian fonts lack (an empty box
+    # on the page): the check mark U+2713, which DejaVu has
+    for text in list(doctree.findall(nodes.Text)):
+        if "\u2705" in text:
+            text.parent.replace(text, nodes.Text(str(text).replace("\u2705", "\u2713")))
 
 
 def _thebe_script(js) -> bool:
