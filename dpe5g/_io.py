@@ -9,6 +9,8 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
+import numpy as np
+
 
 def umask() -> int:
     """The process's file mode creation mask (read without changing it where Linux shows it)."""
@@ -171,3 +173,31 @@ def remove_stale_temporaries(directory) -> list[Path]:
         tmp.unlink(missing_ok=True)
         gone.append(tmp)
     return gone
+
+
+def jsonable(x):
+    """``x`` with NumPy and JAX arrays and scalars turned into lists and Python numbers, recursively.
+
+    Parameters
+    ----------
+    x : object
+        Dicts (keys made str), lists and tuples are walked; other objects are kept as they are.
+
+    Returns
+    -------
+    object
+        The JSON-able copy.
+    """
+    if isinstance(x, dict):
+        return {str(k): jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [jsonable(v) for v in x]
+    if hasattr(x, "shape") and hasattr(x, "dtype") and hasattr(x, "tolist"):  # NumPy and JAX arrays
+        return jsonable(np.asarray(x).tolist())
+    if isinstance(x, (np.bool_, bool)):
+        return bool(x)
+    if isinstance(x, (np.integer, int)):
+        return int(x)
+    if isinstance(x, (np.floating, float)):
+        return float(x)
+    return x

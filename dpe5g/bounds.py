@@ -1,20 +1,21 @@
 """Cramér–Rao bounds (CRB) of ToA and of the position: not in the paper, which cites the CRB of DPE but shows none.
 
-Single link, frequency domain (the unitary DFT of eq. (5), the signal-model chapter): on the pilot subcarriers k ∈ K,
+Single link, frequency domain (the unitary DFT of eq. (5), the signal-model chapter): on the pilot subcarriers k ∈ K::
 
     Y_k = d_k Σ_l a_l e^{-j2π f_k (τ + δ_l)} + W_k,     W_k ~ CN(0, σ²),  |d_k| = 1,
 
 with f_k the subcarrier's baseband frequency, τ the ToA, δ_l known tap delays (δ_0 = 0) and complex gains a_l
 unknown.  The unknown gains are nuisance parameters: the Fisher information of τ is what is left of
 J_ττ = (2/σ²) ‖∂μ/∂τ‖² after projecting ∂μ/∂τ off the span of the gains' columns (the Schur complement of the
-Fisher matrix of (τ, Re a, Im a)),
+Fisher matrix of (τ, Re a, Im a))::
 
     J_τ = (2/σ²) Re{ μ̇^H (I − A (A^H A)^{-1} A^H) μ̇ },   μ̇_k = −j2π f_k μ_k,   A_{k,l} = d_k e^{-j2π f_k (τ + δ_l)}
 
 (``toa_fisher``; the pilots' phases cancel, so d_k = 1 below).  With one path (LoS, no other tap) this is the
-classical J_τ = 8π² ρ Σ_k (f_k − f̄)² = 8π² ρ |K| β², ρ = |a_0|²/σ² the per-subcarrier SNR and β the RMS bandwidth
-about the mean frequency (the unknown phase of a_0 absorbs the mean, hence the centring); for N contiguous
-subcarriers β = Δf √((N² − 1)/12) (``rms_bandwidth_hz``).
+classical ``J_τ = 8π² ρ Σ_k (f_k − f̄)² = 8π² ρ |K| β²``, ``ρ = |a_0|²/σ²`` the per-subcarrier SNR and β the
+RMS bandwidth
+about the mean frequency (the unknown phase of a_0 absorbs the mean, hence the centring); for N
+contiguous subcarriers β = Δf √((N² − 1)/12) (``rms_bandwidth_hz``).
 
 Position (the paper's search space, x, y and c δt at a known UE height): τ_m = (‖p − b_m‖ + c δt)/c, so the links'
 ToA information adds up as J(θ) = Σ_m J_τ,m g_m g_mᵀ with g_m = ∂τ_m/∂θ = (u_m,x, u_m,y, 1)/c, u_m the unit vector
@@ -46,12 +47,32 @@ SUBCARRIER_SETS = ("full", "active", "comb")
 
 def subcarrier_frequencies_hz(subcarriers: str = "full", comb: int = 4, comb_offset: int = 0,
                               num: Numerology = PAPER) -> np.ndarray:
-    """Baseband frequencies f_k (Hz) of the pilot subcarriers.
+    """Baseband frequencies f_k of the pilot subcarriers.
 
-    subcarriers : "full" — all N FFT bins (the paper's PRS, ``nr.prs_symbols(pattern="full")``); "active" — the
-    n_active subcarriers of the carrier (``nr.active_bins``); "comb" — every ``comb``-th active subcarrier from
-    ``comb_offset`` (comb 2, 4, 6 or 12; the bins of ``nr.prs_symbols(pattern="comb")``).
-    FFT bin k sits at k Δf for k < N/2 and at (k − N) Δf above (the negative frequencies).  Returns float (|K|,).
+    FFT bin k sits at k Δf for k < N/2 and at (k − N) Δf above (the negative frequencies).
+
+    Parameters
+    ----------
+    subcarriers : str
+        "full": all N FFT bins (the paper's PRS, ``nr.prs_symbols(pattern="full")``); "active": the n_active
+        subcarriers of the carrier (``nr.active_bins``); "comb": every ``comb``-th active subcarrier from
+        ``comb_offset`` (the bins of ``nr.prs_symbols(pattern="comb")``).
+    comb : int
+        The comb's spacing, 2, 4, 6 or 12 ("comb" only).
+    comb_offset : int
+        The comb's first active subcarrier, 0 to comb − 1 ("comb" only).
+    num : Numerology
+        The numerology (``nr.PAPER`` by default).
+
+    Returns
+    -------
+    float (|K|,)
+        f_k, Hz, one per pilot subcarrier k ∈ K.
+
+    Raises
+    ------
+    ValueError
+        When ``subcarriers``, ``comb`` or ``comb_offset`` is not one of its allowed values.
     """
     _checks.one_of("subcarriers", subcarriers, SUBCARRIER_SETS)
     if subcarriers == "full":
@@ -67,18 +88,53 @@ def subcarrier_frequencies_hz(subcarriers: str = "full", comb: int = 4, comb_off
 
 
 def rms_bandwidth_hz(freqs_hz) -> float:
-    """β = √(mean_k (f_k − f̄)²) in Hz, the RMS bandwidth of a subcarrier set about its mean frequency."""
+    """RMS bandwidth β = √(mean_k (f_k − f̄)²) of a subcarrier set about its mean frequency.
+
+    Parameters
+    ----------
+    freqs_hz : float (|K|,)
+        The pilot subcarriers' frequencies, Hz (``subcarrier_frequencies_hz``), at least two different.
+
+    Returns
+    -------
+    float
+        β, Hz.
+
+    Raises
+    ------
+    ValueError
+        When ``freqs_hz`` is not 1-D, finite, with two different frequencies.
+    """
     f = _check_freqs(freqs_hz)
     return float(np.sqrt(np.mean((f - f.mean()) ** 2)))
 
 
 def toa_fisher(freqs_hz, snr_db, gains=None, tap_delays_s=None) -> float:
-    """Fisher information J_τ (1/s²) of the ToA of one link from known unit-modulus pilots on ``freqs_hz``, the
-    gains of its taps unknown (the projection formula of the module docstring).
+    """Fisher information J_τ of the ToA of one link from known unit-modulus pilots, the gains of its taps unknown.
 
-    snr_db : per-subcarrier SNR in dB of a unit-power channel, 10 log10(1/σ²) (the per-sample SNR of the signal-model
-    chapter for the full band).  gains : complex (L,) tap gains (default: one path of unit power, the LoS case);
-    tap_delays_s : (L,) their delays relative to the first path in seconds (default 0).
+    The projection formula of the module docstring.
+
+    Parameters
+    ----------
+    freqs_hz : float (|K|,)
+        The pilot subcarriers' frequencies, Hz (``subcarrier_frequencies_hz``), at least two different.
+    snr_db : float
+        The per-subcarrier SNR of a unit-power channel, 10 log10(1/σ²), dB (the per-sample SNR of the signal-model
+        chapter for the full band).
+    gains : complex (L,) or None
+        The tap gains; None: one path of unit power (the LoS case).
+    tap_delays_s : float (L,) or None
+        Their delays relative to the first path, seconds, ``|δ| ≤ 1e-4``; None: 0.
+
+    Returns
+    -------
+    float
+        J_τ, 1/s².
+
+    Raises
+    ------
+    ValueError
+        When the frequencies, the SNR or the taps are invalid (the taps: finite, not all zero).
     """
     f = _check_freqs(freqs_hz)
     noise_var = 10.0 ** (-float(signal.check_snr_db(snr_db)) / 10.0)
@@ -93,16 +149,52 @@ def toa_fisher(freqs_hz, snr_db, gains=None, tap_delays_s=None) -> float:
 
 
 def toa_crb_s(freqs_hz, snr_db, gains=None, tap_delays_s=None) -> float:
-    """√CRB of the ToA in seconds, 1/√J_τ (``toa_fisher``).  One path: 1/(2π β √(2 ρ |K|))."""
+    """√CRB of the ToA, 1/√J_τ (``toa_fisher``); with one path ``1/(2π β √(2 ρ |K|))``.
+
+    Parameters
+    ----------
+    freqs_hz, snr_db, gains, tap_delays_s
+        As for ``toa_fisher``.
+
+    Returns
+    -------
+    float
+        The bound, seconds.
+    """
     return float(1.0 / np.sqrt(toa_fisher(freqs_hz, snr_db, gains, tap_delays_s)))
 
 
 def window_model_toa_fisher(freqs_hz, snr_db, n_taps: int, gains=None, num: Numerology = PAPER) -> float:
-    """Fisher information J_τ (1/s²) of the ToA under the channel model of eq. (8): ``n_taps`` = L free complex taps
-    on the sample grid, δ_l = l T_s, the true channel being such a channel (``gains``: its first taps, complex
-    (≤ L,), on δ_l = 0, T_s, …; default one path of unit power).  It is the true signal's derivative projected off
-    the span of the L delayed copies: what is left of the information about τ once every tap of the window is free
-    (the bounds chapter: about half of the one-path information for any L ≥ 12, not zero)."""
+    """Fisher information J_τ of the ToA under the channel model of eq. (8): L free complex taps on the sample grid.
+
+    The taps sit at δ_l = l T_s and the true channel is such a channel.  J_τ is the true signal's derivative projected
+    off the span of the L delayed copies: what is left of the information about τ once every tap of the window is free
+    (the bounds chapter: about half of the one-path information for any L ≥ 12, not zero).
+
+    Parameters
+    ----------
+    freqs_hz : float (|K|,)
+        The pilot subcarriers' frequencies, Hz (``subcarrier_frequencies_hz``), at least two different.
+    snr_db : float
+        The per-subcarrier SNR of a unit-power channel, 10 log10(1/σ²), dB (the per-sample SNR of the signal-model
+        chapter for the full band).
+    n_taps : int
+        L, 1 to N.
+    gains : complex (≤ L,) or None
+        The true channel's first taps, on δ_l = 0, T_s, …; None: one path of unit power.
+    num : Numerology
+        The numerology (T_s; ``nr.PAPER`` by default).
+
+    Returns
+    -------
+    float
+        J_τ, 1/s².
+
+    Raises
+    ------
+    ValueError
+        When an input is invalid (``gains``: 1 to L finite taps, not all zero).
+    """
     f = _check_freqs(freqs_hz)
     noise_var = 10.0 ** (-float(signal.check_snr_db(snr_db)) / 10.0)
     n_taps = _checks.integer("n_taps", n_taps, 1, num.n_fft)
@@ -122,8 +214,29 @@ def _projected_fisher(mu_dot, basis, noise_var) -> float:
 
 
 def position_fisher(ue_xyz, bs_xyz, toa_fisher_s) -> np.ndarray:
-    """Fisher matrix (3, 3) of θ = (x, y, c δt) in 1/m² from the links' ToA information: Σ_m J_τ,m g_m g_mᵀ,
-    g_m = (u_m,x, u_m,y, 1)/c.  ue_xyz : (3,) m; bs_xyz : (M, 3) m; toa_fisher_s : (M,) 1/s² (``toa_fisher``)."""
+    """Fisher matrix of θ = (x, y, c δt) from the links' ToA information: Σ_m J_τ,m g_m g_mᵀ.
+
+    With g_m = (u_m,x, u_m,y, 1)/c, u_m the unit vector from BS m to the UE.
+
+    Parameters
+    ----------
+    ue_xyz : float (3,)
+        The UE position, metres.
+    bs_xyz : float (M, 3)
+        Base-station positions, metres, M ≥ 3.
+    toa_fisher_s : float (M,)
+        Each link's J_τ, 1/s², > 0 (``toa_fisher``).
+
+    Returns
+    -------
+    float (3, 3)
+        The Fisher matrix, 1/m².
+
+    Raises
+    ------
+    ValueError
+        When the shapes do not match, M < 3, an input is not finite, a J_τ is not > 0 or the UE sits on a BS.
+    """
     ue, bs, j = _check_geometry(ue_xyz, bs_xyz, toa_fisher_s)
     d = ue - bs
     g = np.column_stack([d[:, 0], d[:, 1], np.linalg.norm(d, axis=1)]) / np.linalg.norm(d, axis=1)[:, None] / C
@@ -131,20 +244,67 @@ def position_fisher(ue_xyz, bs_xyz, toa_fisher_s) -> np.ndarray:
 
 
 def position_crb(ue_xyz, bs_xyz, toa_fisher_s) -> np.ndarray:
-    """CRB (3, 3) of θ = (x, y, c δt) in m², the inverse of ``position_fisher``: the DPE bound."""
+    """CRB of θ = (x, y, c δt), the inverse of ``position_fisher``: the DPE bound.
+
+    Parameters
+    ----------
+    ue_xyz, bs_xyz, toa_fisher_s
+        As for ``position_fisher``.
+
+    Returns
+    -------
+    float (3, 3)
+        The CRB, m².
+
+    Raises
+    ------
+    ValueError
+        When the shapes do not match, M < 3, an input is not finite, a J_τ is not > 0 or the UE sits on a BS.
+    """
     return np.linalg.inv(position_fisher(ue_xyz, bs_xyz, toa_fisher_s))
 
 
 def horizontal_rmse_bound_m(crb) -> float:
-    """√(CRB_xx + CRB_yy) in metres: the bound on the RMS horizontal error (what Fig. 9 plots)."""
+    """The bound on the RMS horizontal error, √(CRB_xx + CRB_yy) (what Fig. 9 plots).
+
+    Parameters
+    ----------
+    crb : float (3, 3) or (2, 2)
+        A position CRB, m² (``position_crb``, ``tdoa_position_crb``).
+
+    Returns
+    -------
+    float
+        The bound, metres.
+    """
     crb = np.asarray(crb, dtype=np.float64)
     return float(np.sqrt(crb[..., 0, 0] + crb[..., 1, 1]))
 
 
 def tdoa_position_crb(ue_xyz, bs_xyz, toa_fisher_s, reference: int = 0) -> np.ndarray:
-    """CRB (2, 2) of (x, y) in m² of the two-step receiver: ToA estimates with variances 1/J_τ,m, their differences
-    to link ``reference`` (the clock bias cancels), weighted least squares with the differences' covariance
-    Σ = D diag(1/J_τ) Dᵀ: (Hᵀ Σ⁻¹ H)⁻¹, H the derivatives of the differences with respect to (x, y)."""
+    """CRB of (x, y) of the two-step receiver.
+
+    ToA estimates with variances 1/J_τ,m, their differences to link ``reference`` (the clock bias cancels), weighted
+    least squares with the differences' covariance Σ = D diag(1/J_τ) Dᵀ: (Hᵀ Σ⁻¹ H)⁻¹, H the derivatives of the
+    differences with respect to (x, y).
+
+    Parameters
+    ----------
+    ue_xyz, bs_xyz, toa_fisher_s
+        As for ``position_fisher``.
+    reference : int
+        The reference link, 0 to M − 1.
+
+    Returns
+    -------
+    float (2, 2)
+        The CRB, m².
+
+    Raises
+    ------
+    ValueError
+        As for ``position_fisher``, or when ``reference`` is out of range.
+    """
     ue, bs, j = _check_geometry(ue_xyz, bs_xyz, toa_fisher_s)
     m = bs.shape[0]
     reference = _checks.integer("reference", reference, 0, m - 1)
@@ -160,14 +320,29 @@ def tdoa_position_crb(ue_xyz, bs_xyz, toa_fisher_s, reference: int = 0) -> np.nd
 
 
 def ml_toa_errors_s(res) -> np.ndarray:
-    """The ToA errors of the ML estimator of one path in an experiment's results: ``paper.ml_toa_experiment``, each
-    link one path (los_mode "free_space": unit power, uniform phase, ToA set by the geometry), whose OTDoA peak
-    detector (``otdoa.toa_from_spectrum`` "peak": the maximum of |ĥ(τ)|², eq. (10) with L = 1 for one link, on a
-    grid of T_s / ``trials.OTDOA_UPSAMPLE``, refined by a parabola) is the ML ToA.
+    """The ToA errors of the ML estimator of one path in an experiment's results.
 
-    res : ``results.Results`` of a "free_space" experiment with the OTDoA baseline.  Returns the errors (T·S·I,) in
-    seconds, estimated ToA − (‖p − b_i‖ / c + δt) of every trial, SNR index and link, to compare with
-    ``toa_crb_s(subcarrier_frequencies_hz("full"), snr_db)``."""
+    The experiment is ``paper.ml_toa_experiment``, each link one path (los_mode "free_space": unit power, uniform phase,
+    ToA set by the geometry), whose OTDoA peak detector (``otdoa.toa_from_spectrum`` "peak": the maximum of
+    ``|ĥ(τ)|²``, eq. (10) with L = 1 for one link, on a grid of T_s / ``trials.OTDOA_UPSAMPLE``, refined by a parabola)
+    is the ML ToA.
+
+    Parameters
+    ----------
+    res : results.Results
+        The results of a "free_space" experiment with the OTDoA baseline.
+
+    Returns
+    -------
+    float (T·S·I,)
+        Estimated ToA − (‖p − b_i‖ / c + δt) of every trial, SNR index and link, seconds, to compare with
+        ``toa_crb_s(subcarrier_frequencies_hz("full"), snr_db)``.
+
+    Raises
+    ------
+    ValueError
+        When ``res`` is not of a "free_space" experiment with ``otdoa=True``.
+    """
     from .experiment import OTDOA_DETECTORS  # the engine's modules do not import this one
 
     e = res.experiment
@@ -181,15 +356,33 @@ def ml_toa_errors_s(res) -> np.ndarray:
 
 
 def rmse_bound_m(e, n_trials: int, snrs_db=None) -> np.ndarray:
-    """The DPE bound on the horizontal error of an urban experiment, as an RMSE over its trials 0 … n_trials−1:
-    √(mean_t (CRB_xx + CRB_yy)) per (SNR, M), shape (S, J) in metres, the same (S, J) as ``Results.rmse_m``.
+    """The DPE bound on the horizontal error of an urban experiment, as an RMSE over its trials.
 
-    e : ``experiment.Experiment``.  Each trial's links are the engine's (``trials.example``: positions, channels
-    with their tap delays known, per-link SNR); the pilots are the full band (the paper's, the engine's).  The
+    √(mean_t (CRB_xx + CRB_yy)) per (SNR, M).  Each trial's links are the engine's (``trials.example``: positions,
+    channels with their tap delays known, per-link SNR); the pilots are the full band (the paper's, the engine's).  The
     Fisher information of a link scales with its linear SNR, so it is computed once per link and scaled.
-    snrs_db : (S,) SNRs in dB, in the experiment's ``snr_convention``, to use instead of ``e.links.snrs_db`` (snr_mode
-    "fixed" only: every link at each; the trials' links do not depend on the SNR, so one call serves several experiments
-    of the same trials)."""
+
+    Parameters
+    ----------
+    e : experiment.Experiment
+        The experiment.
+    n_trials : int
+        Its trials 0 … n_trials−1 to average over, 1 to ``e.run.n_trials``.
+    snrs_db : float (S,) or None
+        SNRs, dB, in the experiment's ``snr_convention``, to use instead of ``e.links.snrs_db`` (snr_mode "fixed" only:
+        every link at each; the trials' links do not depend on the SNR, so one call serves several experiments of the
+        same trials); None: the experiment's.
+
+    Returns
+    -------
+    float (S, J)
+        The bound, metres, the same (S, J) as ``Results.rmse_m``.
+
+    Raises
+    ------
+    ValueError
+        When ``n_trials`` is out of range, or ``snrs_db`` is given for an experiment whose SNRs come from the path loss.
+    """
     n_trials = _checks.integer("n_trials", n_trials, 1, e.run.n_trials)
     if snrs_db is not None and e.links.snr_mode != "fixed":
         raise ValueError("snrs_db replaces the SNRs of a 'fixed' experiment; this one takes them from the path loss")
@@ -206,19 +399,32 @@ def rmse_bound_m(e, n_trials: int, snrs_db=None) -> np.ndarray:
 
 
 def link_information(e, n_trials: int) -> dict:
-    """The links of an urban experiment's trials 0 … n_trials−1 as ``rmse_bound_m`` reads them: ue (T, 3) and bs
-    (T, I, 3) metres, info_0db (T, I) each link's ToA Fisher information (s⁻²) at 0 dB per subcarrier on the full
-    band with its channel's tap delays known, link_snr_db (T, I) its SNR of the experiment's first SNR index.
+    """The links of an urban experiment's trials as ``rmse_bound_m`` reads them.
 
-    Computing the information costs a projection per link, so the arrays are kept beside the experiment's Monte
-    Carlo results (``store.cache_dir``, whose key covers the engine's code and the experiment) in a file keyed
-    by this module's code; a later call with at most as many trials reads them."""
-    from . import experiment, store, trials  # the engine's draws; they do not import this module
+    Computing the information costs a projection per link, so the arrays are kept beside the experiment's Monte Carlo
+    results (``chunk_cache.cache_dir``, whose key covers the engine's code and the experiment) in a file keyed by this
+    module's code; a later call with at most as many trials reads them.
+
+    Parameters
+    ----------
+    e : experiment.Experiment
+        The experiment.
+    n_trials : int
+        Its trials 0 … n_trials−1, 1 to ``e.run.n_trials``.
+
+    Returns
+    -------
+    dict
+        ue (T, 3) and bs (T, I, 3), metres; info_0db (T, I), each link's ToA Fisher information, 1/s², at 0 dB per
+        subcarrier on the full band with its channel's tap delays known; link_snr_db (T, I), its SNR at the
+        experiment's first SNR index, dB.
+    """
+    from . import chunk_cache, experiment, trials  # the engine's draws; they do not import this module
 
     n_trials = _checks.integer("n_trials", n_trials, 1, e.run.n_trials)
-    path = store.cache_dir(e) / f"link-information-{experiment.code_digest(Path(__file__)).hex()[:16]}.npz"
+    path = chunk_cache.cache_dir(e) / f"link-information-{experiment.code_digest(Path(__file__)).hex()[:16]}.npz"
     origin = {"link_information_of": e.config_key()}
-    held = store.read_cached(path, origin)  # (a damaged file is named, set aside and computed again)
+    held = chunk_cache.read_cached(path, origin)  # (a damaged file is named, set aside and computed again)
     if held is not None and held["info_0db"].shape[0] >= n_trials:
         return {k: v[:n_trials] for k, v in held.items()}
     f = subcarrier_frequencies_hz("full")
@@ -230,7 +436,7 @@ def link_information(e, n_trials: int) -> dict:
         out["info_0db"].append([toa_fisher(f, 0.0, ex.gains[i], ex.delays_s[i]) for i in range(ex.bs_xyz.shape[0])])
         out["link_snr_db"].append(np.asarray(ex.link_snr_db))
     out = {k: np.asarray(v, dtype=np.float64) for k, v in out.items()}
-    store.write_cached(path, out, origin)
+    chunk_cache.write_cached(path, out, origin)
     return out
 
 

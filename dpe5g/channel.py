@@ -1,8 +1,8 @@
 """3GPP TR 38.901 tapped-delay-line (TDL) channels, eqs. (1)–(2) of the paper.
 
-Eq. (1): h(τ, t) = Σ_l h_l(t) δ(τ - τ_l).  The system is static (paper, Section II-B), so h_l(t) = h_l within a symbol:
-each Rayleigh tap is one draw of CN(0, P_l); the LoS tap of TDL-D/E is a specular component of power P_l with a
-uniformly random phase.  Eq. (2): τ_l = τ_l,normalized × DS_desired.
+Eq. (1): h(τ, t) = Σ_l h_l(t) δ(τ - τ_l).  The system is static (paper, Section II-B), so h_l(t) = h_l within a
+symbol: each Rayleigh tap is one draw of CN(0, P_l); the LoS tap of TDL-D/E is a specular component of power P_l with
+a uniformly random phase.  Eq. (2): τ_l = τ_l,normalized × DS_desired.
 
 The five tables are TR 38.901 V16/V17 Tables 7.7.2-1 (TDL-A) … 7.7.2-5 (TDL-E), transcribed digit for digit.  In
 TDL-D/E the first tap appears twice at delay 0: once as the specular LoS path and once as a Rayleigh tap; their dB
@@ -25,7 +25,21 @@ from .nr import PAPER, Numerology
 
 @dataclass(frozen=True)
 class TDLTable:
-    """One TR 38.901 TDL table: normalized delays (unitless, DS = 1) and powers in dB, tap by tap."""
+    """One TR 38.901 TDL table: normalized delays (unitless, DS = 1) and powers in dB, tap by tap.
+
+    Attributes
+    ----------
+    name : str
+        The profile, "TDL-A" … "TDL-E".
+    table : str
+        Its source, e.g. "TR 38.901 Table 7.7.2-3".
+    delays_norm : tuple of float (L,)
+        Normalized delays τ_l,normalized (unitless, DS = 1).
+    powers_db : tuple of float (L,)
+        Tap powers, dB.
+    los : bool
+        True: entry 0 is the specular LoS component, entry 1 the Rayleigh part of the same tap (TDL-D/E).
+    """
 
     name: str
     table: str
@@ -102,9 +116,20 @@ MIN_DELAY_SPREAD_S = 1e-9
 class TDLProfile:
     """A TDL table scaled to a delay spread: the average power delay profile the taps are drawn from.
 
-    delays_s : (L,) tap delays in seconds, eq. (2).
-    powers : (L,) linear mean tap powers, summing to 1.
-    los : (L,) bool, True for the specular LoS component (TDL-D/E entry 0).
+    Attributes
+    ----------
+    name, table : str
+        As ``TDLTable``.
+    delay_spread_s : float
+        The delay spread DS_desired it is scaled to, seconds.
+    k_factor_db : float or None
+        K-factor in dB (TDL-D/E); None for NLoS profiles.
+    delays_s : numpy.ndarray float (L,)
+        Tap delays in seconds, eq. (2).
+    powers : numpy.ndarray float (L,)
+        Linear mean tap powers, summing to 1.
+    los : numpy.ndarray bool (L,)
+        True for the specular LoS component (TDL-D/E entry 0).
     """
 
     name: str
@@ -117,21 +142,44 @@ class TDLProfile:
 
     @property
     def n_taps(self) -> int:
+        """Number of entries L."""
         return int(self.delays_s.size)
 
     @property
     def powers_db(self) -> np.ndarray:
+        """Mean tap powers in dB, shape (L,)."""
         return 10.0 * np.log10(self.powers)
 
     def pdp_db(self) -> np.ndarray:
-        """Normalized power delay profile in dB relative to the strongest entry, shape (L,)."""
+        """Normalized power delay profile, relative to the strongest entry.
+
+        Returns
+        -------
+        numpy.ndarray float (L,)
+            Tap powers in dB, 0 dB for the strongest.
+        """
         return 10.0 * np.log10(self.powers / self.powers.max())
 
 
 def check_delay_spread(delay_spread_s: float) -> float:
-    """Validate a delay spread in seconds: a finite number in [``MIN_DELAY_SPREAD_S``, ``MAX_DELAY_SPREAD_S``].  The
-    error says what the value looks like: nanoseconds typed as seconds (65 → 65e-9), or seconds far above any TR
-    38.901 delay spread."""
+    """Validate a delay spread in seconds: a finite number in [``MIN_DELAY_SPREAD_S``, ``MAX_DELAY_SPREAD_S``].
+
+    Parameters
+    ----------
+    delay_spread_s : float
+        The delay spread, seconds.
+
+    Returns
+    -------
+    float
+        The delay spread, seconds.
+
+    Raises
+    ------
+    ValueError
+        Outside the range; the message says what the value looks like: nanoseconds typed as seconds (65 → 65e-9), or
+        seconds far above any TR 38.901 delay spread.
+    """
     ds = _checks.finite("delay_spread_s", delay_spread_s)
     if MIN_DELAY_SPREAD_S <= ds <= MAX_DELAY_SPREAD_S:
         return ds
@@ -151,6 +199,23 @@ def rms_delay_spread(delays_s, powers) -> float:
 
     This is the second central moment used by TR 38.901; the paper's text calls the span between the first and
     the last arrival the "RMS delay spread", which it is not (see the errata in the book).
+
+    Parameters
+    ----------
+    delays_s : float (L,)
+        Delays, seconds (or any unit), in [0, 1e6].
+    powers : float (L,)
+        Linear powers, non-negative with a positive sum (normalized here).
+
+    Returns
+    -------
+    float
+        The RMS delay spread, in the delays' unit.
+
+    Raises
+    ------
+    ValueError
+        Shapes that are not 1-D of equal length, or powers negative or summing to 0.
     """
     _checks.values_in_range("delays_s", delays_s, 0.0, 1e6, "(the delays' unit)")
     _checks.values_in_range("powers", powers, 0.0, np.inf, "(linear)")
@@ -175,17 +240,32 @@ def tdl_profile(name: str, delay_spread_s: float, k_factor_db: float | None = No
                 definition: str = "rms") -> TDLProfile:
     """Scale TR 38.901 TDL-``name`` to ``delay_spread_s`` seconds (eq. (2)) with unit total power.
 
-    name : "A" … "E" (or "TDL-A" … "TDL-E"), TR 38.901 Tables 7.7.2-1 … 7.7.2-5.
-    delay_spread_s : desired RMS delay spread DS_desired in seconds (the paper: 65e-9, UMi street canyon short).
-    k_factor_db : TDL-D/E only.  None keeps the table's K (13.3 dB for TDL-D, the paper's value; 22 dB for TDL-E).
-        Otherwise TR 38.901 §7.7.6: the Rayleigh taps are shifted by K_model - K_desired dB, powers renormalized,
-        and the normalized delays divided by the new profile's RMS spread so the scaled profile still has
-        DS_desired.
-    definition : "rms" (TR 38.901) — the profile's RMS delay spread is ``delay_spread_s``; "span" (the paper's
-        text) — its last tap comes ``delay_spread_s`` after the first (the normalized delays divided by the
-        largest; TDL-C's taps then span 65 ns instead of 562 ns).  ``DELAY_SPREAD_DEFS``.
+    Parameters
+    ----------
+    name : str
+        "A" … "E" (or "TDL-A" … "TDL-E"), TR 38.901 Tables 7.7.2-1 … 7.7.2-5.
+    delay_spread_s : float
+        Desired RMS delay spread DS_desired in seconds (the paper: 65e-9, UMi street canyon short).
+    k_factor_db : float or None
+        TDL-D/E only, dB in [-30, 60].  None keeps the table's K (13.3 dB for TDL-D, the paper's value; 22 dB for
+        TDL-E).  Otherwise TR 38.901 §7.7.6: the Rayleigh taps are shifted by K_model - K_desired dB, powers
+        renormalized, and the normalized delays divided by the new profile's RMS spread so the scaled profile still
+        has DS_desired.
+    definition : str
+        One of ``DELAY_SPREAD_DEFS``: ``"rms"`` (TR 38.901), the profile's RMS delay spread is ``delay_spread_s``;
+        ``"span"`` (the paper's text), its last tap comes ``delay_spread_s`` after the first (the normalized delays
+        divided by the largest; TDL-C's taps then span 65 ns instead of 562 ns).
 
-    Returns a TDLProfile whose delays_s, powers, los have shape (L,), L = 23, 23, 24, 14, 15 entries.
+    Returns
+    -------
+    TDLProfile
+        Its delays_s, powers, los have shape (L,), L = 23, 23, 24, 14, 15 entries for A … E.
+
+    Raises
+    ------
+    ValueError
+        An unknown profile or definition, a delay spread out of range (``check_delay_spread``), or a K-factor out of
+        range or given for an NLoS profile.
     """
     key = str(name).upper().removeprefix("TDL-").removeprefix("TDL")
     if key not in TABLES:
@@ -217,9 +297,21 @@ def tdl_profile(name: str, delay_spread_s: float, k_factor_db: float | None = No
 
 
 def draw_gains(profile: TDLProfile, key: jax.Array) -> jax.Array:
-    """One realisation of the complex tap gains h_l of eq. (1), shape (L,) complex.
+    """One realisation of the complex tap gains h_l of eq. (1).
 
-    Rayleigh taps: h_l ~ CN(0, P_l).  LoS specular tap: √P_l e^{jφ}, φ ~ U[0, 2π).  E Σ|h_l|² = 1.
+    Rayleigh taps: h_l ~ CN(0, P_l).  LoS specular tap: √P_l e^{jφ}, φ ~ U[0, 2π).  ``E Σ|h_l|² = 1``.
+
+    Parameters
+    ----------
+    profile : TDLProfile
+        The power delay profile.
+    key : jax PRNG key
+        The random key.
+
+    Returns
+    -------
+    jax.Array complex (L,)
+        The gains h_l.
     """
     k_ray, k_phi = jax.random.split(key)
     p = jnp.asarray(profile.powers)
@@ -232,8 +324,21 @@ def draw_gains(profile: TDLProfile, key: jax.Array) -> jax.Array:
 def frequency_response(gains, delays_s, num: Numerology = PAPER) -> jax.Array:
     """H_k = Σ_l h_l exp(-j 2π k Δf τ_l) on FFT bins k = 0 … N-1, the channel part of eqs. (5)–(6).
 
-    gains : complex (..., L); delays_s : real (..., L) seconds.  Returns complex (..., N).
     Fractional delays are exact here: no rounding of τ_l to the sample grid.
+
+    Parameters
+    ----------
+    gains : complex (..., L)
+        Tap gains h_l.
+    delays_s : float (..., L)
+        Tap delays τ_l, seconds.
+    num : Numerology
+        The numerology (``nr.PAPER`` by default).
+
+    Returns
+    -------
+    jax.Array complex (..., N)
+        H_k.
     """
     k = jnp.arange(num.n_fft)
     phase = jax.lax.complex(*(f(-2 * jnp.pi * num.scs_hz * jnp.asarray(delays_s)[..., :, None] * k)
@@ -242,9 +347,19 @@ def frequency_response(gains, delays_s, num: Numerology = PAPER) -> jax.Array:
 
 
 def sampled_cir(gains, delays_s, num: Numerology = PAPER) -> jax.Array:
-    """Realised CIR on the sample grid, h[n] = (1/N) Σ_k H_k e^{j2πkn/N}, n = 0 … N-1; complex (..., N).
+    """Realised CIR on the sample grid, h[n] = (1/N) Σ_k H_k e^{j2πkn/N}, n = 0 … N-1.
 
     The band-limited (periodic-sinc) image of the taps as a receiver sampling at f_s sees it: a tap at an integer
     multiple of T_s lands on one sample with its full gain, a fractional one spreads over its neighbours.
+
+    Parameters
+    ----------
+    gains, delays_s, num
+        As ``frequency_response``.
+
+    Returns
+    -------
+    jax.Array complex (..., N)
+        h[n].
     """
     return jnp.fft.ifft(frequency_response(gains, delays_s, num), axis=-1)

@@ -50,39 +50,82 @@ def _with_option(err: ValueError, options: dict[str, str]) -> ValueError:
     return err
 
 
-def run_experiment(args):
-    """The ``experiment.Experiment`` of ``dpe5g run``'s arguments: the paper's Fig. 9 set-up (``dpe5g.paper``) with
-    the user's deployment, SNRs (dB), M values, trials, receiver window L (taps), delay spread (s), centring, prior
-    σ (m) and seed.  Centring "truth" uses the paper's coarse-to-fine grid (``search_config.SearchConfig()``), "prior"
-    and "otdoa" the honest certified search (``paper.honest_search()``), as the figures do.  When everything equals one
-    of the paper's experiments, that experiment (and its cache) is used."""
-    from dataclasses import replace
+def default_m_values(n_bs: int, snr_mode: str = "fixed") -> tuple[int, ...]:
+    """``dpe5g run``'s M values when ``--m`` is not given, for a deployment of ``n_bs`` base stations.
 
-    from . import paper, search_config, signal
-    from .deployment import builtin
+    Parameters
+    ----------
+    n_bs : int
+        The deployment's number of base stations (≥ 3).
+    snr_mode : str
+        "fixed" (Fig. 9's set-up) or "link_budget" (Fig. 10's).
+
+    Returns
+    -------
+    tuple of int
+        Fig. 9's M = 6, 12, 18, 24 that fit the deployment, then ``n_bs`` itself where it is below 24 (all of a
+        small deployment's links); Fig. 10's M = 4 with snr_mode "link_budget" (``n_bs`` if fewer).
+    """
+    from . import paper
     from .experiment import Experiment
 
-    dep = args.deployment if builtin(args.deployment) else str(Path(args.deployment).resolve())
-    if args.reuse and args.centring == "truth":
-        raise ValueError(f"--reuse {args.reuse} needs the honest receiver's certified search: use --centring prior "
-                         f"or --centring otdoa, not truth")
-    if args.prior_sigma is not None and args.centring != "prior":
-        raise ValueError(f"--prior-sigma applies to --centring prior only (got --centring {args.centring})")
+    if snr_mode == "link_budget":
+        fig10_m = paper.fig10(1)[(paper.FIG10_CASES[0], "prior")].receiver.m_values
+        return tuple(min(m, n_bs) for m in fig10_m)
+    fig9_m = Experiment().receiver.m_values
+    fits = tuple(m for m in fig9_m if m <= n_bs)
+    return fits if n_bs >= max(fig9_m) or n_bs in fits else fits + (n_bs,)
+
+
+def run_experiment(args):
+    """The ``experiment.Experiment`` of ``dpe5g run``'s arguments.
+
+    The paper's Fig. 9 set-up (``dpe5g.paper``), or Fig. 10's link budget (``--snr-mode link-budget``), with the
+    user's deployment, SNRs (dB), M values, trials, receiver window L (taps), delay spread (s), centring, prior σ (m)
+    and seed.  Centring "truth" uses the paper's coarse-to-fine grid (``search_config.SearchConfig()``), "prior" and
+    "otdoa" the honest certified search (``paper.honest_search()``), as the figures do.  When everything equals one
+    of the paper's experiments, that experiment (and its cache) is used.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``dpe5g run``'s parsed options (``cli_parser.add_run``).
+
+    Returns
+    -------
+    Experiment
+        The study to run.
+
+    Raises
+    ------
+    ValueError
+        An option out of its range or at odds with another, its message starting with the option's name.
+    """
+    from dataclasses import replace
+
+    from . import deployment, paper, search_config, signal
+    from .experiment import Experiment
+
+    dep = args.deployment if deployment.builtin(args.deployment) else str(Path(args.deployment).resolve())
+    snr_mode = _check_run_options(args)
     prior_sigma = paper.PRIOR_SIGMA_M if args.prior_sigma is None else args.prior_sigma
-    if not (math.isfinite(prior_sigma) and 0 < prior_sigma <= 1000):
-        raise ValueError(f"--prior-sigma must be in (0, 1000] m, got {prior_sigma!r} (for no prior error, use "
-                         f"--centring truth)")
     try:
-        for snr in args.snr:
+        n_bs = deployment.named(args.deployment).n_bs
+        m_values = tuple(args.m) if args.m is not None else default_m_values(n_bs, snr_mode)
+        snrs = () if snr_mode == "link_budget" else tuple(Experiment().links.snrs_db if args.snr is None
+                                                            else args.snr)
+        for snr in snrs:
             signal.check_snr_db(snr)  # one by one, so that the message shows the bad value
         search = search_config.SearchConfig(n_taps=args.taps) if args.centring == "truth" else replace(paper.honest_search(),
                                                                                              n_taps=args.taps)
-        kw = dict(n_trials=args.trials, seed=args.seed, snrs_db=tuple(args.snr), m_values=tuple(args.m),
+        kw = dict(n_trials=args.trials, seed=args.seed, snrs_db=snrs, m_values=m_values, snr_mode=snr_mode,
                   delay_spread_s=args.delay_spread, centring=args.centring, search=search, deployment=dep)
         if args.centring != "truth":
             kw.update(prior_kind="gaussian", prior_scale_m=prior_sigma)
-        if args.reuse:  # interference needs each BS's power: --snr is then the nearest link's SNR
+        if args.reuse and snr_mode == "fixed":  # interference needs each BS's power: --snr is the nearest link's SNR
             kw.update(prs_reuse=args.reuse, snr_mode="nearest")
+        elif args.reuse:
+            kw.update(prs_reuse=args.reuse)
         e = Experiment.build(name="run", otdoa=args.centring == "otdoa", **kw)
         e.load_deployment()  # the file, and M against its BS count
     except ValueError as err:
@@ -94,25 +137,50 @@ def run_experiment(args):
     return e
 
 
+def _check_run_options(args) -> str:
+    """The options of ``dpe5g run`` that depend on each other; returns the experiment's snr_mode."""
+    modes = {"fixed": "fixed", "link-budget": "link_budget"}
+    if args.snr_mode not in modes:
+        raise ValueError(f"--snr-mode must be one of fixed, link-budget; got {args.snr_mode!r}")
+    if args.snr_mode == "link-budget" and args.snr is not None:
+        raise ValueError("--snr does not apply to --snr-mode link-budget (each link's SNR comes from its BS's "
+                         "power_dbm and the path loss)")
+    if args.reuse and args.centring == "truth":
+        raise ValueError(f"--reuse {args.reuse} needs the honest receiver's certified search: use --centring prior "
+                         f"or --centring otdoa, not truth")
+    if args.prior_sigma is not None and args.centring != "prior":
+        raise ValueError(f"--prior-sigma applies to --centring prior only (got --centring {args.centring})")
+    if args.prior_sigma is not None and not (math.isfinite(args.prior_sigma) and 0 < args.prior_sigma <= 1000):
+        raise ValueError(f"--prior-sigma must be in (0, 1000] m, got {args.prior_sigma!r} (for no prior error, use "
+                         f"--centring truth)")
+    return modes[args.snr_mode]
+
+
 def _run(args) -> int:
-    from . import engine, report
+    from . import engine, report, store
     from ._io import atomic_target
 
     e = run_experiment(args)
-    out = output_file("--out", args.out, (".csv", ".json"), force=args.force)
+    out = output_file("--out", args.out, (".csv",), force=args.force)
+    sidecar = out.with_suffix(".json")
+    if sidecar.exists() and not args.force:
+        raise ValueError(f"--out {args.out}: {sidecar.name} beside it (where its provenance goes) exists; pass --force "
+                         f"to overwrite both")
     with _cluster(args) as client:
         res = engine.run(e, progress=True, client=client)
     try:  # an existing file is never left half-overwritten; without --force, never replaced
-        with atomic_target(out, exclusive=not args.force) as tmp:
-            (res.write_csv if out.suffix.lower() == ".csv" else res.write_json)(tmp)
+        with atomic_target(out, exclusive=not args.force) as tmp_csv:
+            res.write_csv(tmp_csv)
+            with atomic_target(sidecar, exclusive=not args.force) as tmp_json:
+                res.write_provenance(tmp_json, store.git_commit())
     except FileExistsError:
         raise ValueError(f"--out {args.out}: another run wrote it meanwhile; the results of this one are in the "
                          f"cache: rerun with another --out, or --force to overwrite it") from None
     if threading.current_thread() is threading.main_thread():  # written: Ctrl-C now would only cut the summary
         os_signal.signal(os_signal.SIGINT, os_signal.SIG_IGN)
-    n_rows = e.run.n_trials * len(e.links.snrs_db) * len(e.receiver.m_values)
+    n_rows = e.run.n_trials * e.n_snr * len(e.receiver.m_values)
     print(report.run_summary(res))
-    print(f"wrote {out} ({n_rows} rows: one per trial, SNR and M)")
+    print(f"wrote {out} ({n_rows} rows: one per trial, SNR and M) and {sidecar.name} (what produced it)")
     return 0
 
 
@@ -187,6 +255,12 @@ def _reproduce(args) -> int:
     if store.store_root() is None:
         raise ValueError("DPE5G_STORE is 'off': reproduce rewrites the results store; unset it or name a folder")
     writable_dir("DPE5G_STORE", store.store_root())
+    changed = store.code_changes()
+    if changed and not args.allow_dirty:
+        shown = ", ".join(changed[:3]) + (f" and {len(changed) - 3} more" if len(changed) > 3 else "")
+        raise ValueError(f"reproduce: the code differs from its commit ({shown}); commit it first, so that every "
+                         f"entry records the commit that computed it, or pass --allow-dirty (make reproduce "
+                         f"ALLOW_DIRTY=1): the entries then record the commit and a digest of the changes")
     with _cluster(args) as client:
         found = verify.reproduce(progress=args.progress, client=client)
     print(f"reproduce: {len(found)} stored (trial, field) values differed from today's code and were rewritten"
@@ -280,9 +354,18 @@ def _scene(args) -> int:
     from . import figures, scene3d
 
     out = output_file("--out", args.out, (".html", ".htm"), force=args.force)
+    if args.deployment is None:  # ours: the figures' payloads, computed once and kept
+        p7, p8 = figures.compute("fig07_deployment_map"), figures.compute("fig08_urban_correlogram")
+    else:
+        from . import figure_data
+
+        try:
+            p7, p8 = (figure_data.deployment_payload(args.deployment),
+                      figure_data.urban_correlogram_payload(args.deployment))
+        except ValueError as err:
+            raise ValueError(f"--deployment: {err}") from None
     try:
-        path = scene3d.export(figures.compute("fig07_deployment_map"), figures.compute("fig08_urban_correlogram"), out,
-                              exclusive=not args.force)
+        path = scene3d.export(p7, p8, out, exclusive=not args.force)
     except FileExistsError:
         raise ValueError(f"--out {args.out}: another process wrote it meanwhile; pass --force to overwrite "
                          f"it") from None

@@ -92,19 +92,26 @@ def add_run(sub) -> None:
     r.add_argument("--trials", type=int, required=True, metavar="N",
                    help="Monte Carlo trials (required; trial t's draws depend only on --seed and t)")
     r.add_argument("--out", required=True, metavar="FILE",
-                   help="results file, .csv (tidy table, one row per trial, SNR and M) or .json (the same rows and "
-                        "the experiment's config); an existing file is kept unless --force")
+                   help="results file, .csv: a header line, then one row per trial, SNR and M, every cell one value "
+                        "(any CSV reader reads it as it is); beside it, FILE with .json in place of .csv, what "
+                        "produced it (the experiment's settings, the deployment, the code's commit) and what each "
+                        "column means; existing files are kept unless --force")
     r.add_argument("--force", action="store_true", help="overwrite --out if it exists")
     r.add_argument("--deployment", default="tst", metavar="FILE",
                    help="deployment file, JSON or CSV (see `dpe5g deployment`), or a packaged one: 'tst' (the "
                         "default; our Tsim Sha Tsui-like layout), 'ring' or 'ring-wide' (the DPE chapter's rings)")
-    r.add_argument("--snr", type=float, nargs="+", default=list(paper_e.links.snrs_db), metavar="DB",
+    r.add_argument("--snr-mode", default="fixed", metavar="{fixed,link-budget}",
+                   help="'fixed' (default; Fig. 9): every link at each SNR of --snr, whatever the BSs' powers; "
+                        "'link-budget' (Fig. 10): each link's SNR from its BS's power_dbm, the TR 38.901 UMi path "
+                        "loss and the receiver's noise (Table I), one SNR per link and no --snr")
+    r.add_argument("--snr", type=float, nargs="+", default=None, metavar="DB",
                    help=f"per-sample SNRs in dB, in [-50, 100] (default: the paper's "
-                        f"{' '.join(f'{s:g}' for s in paper_e.links.snrs_db)})")
-    r.add_argument("--m", type=int, nargs="+", default=list(paper_e.receiver.m_values), metavar="M",
+                        f"{' '.join(f'{s:g}' for s in paper_e.links.snrs_db)}); with --reuse, the nearest link's")
+    r.add_argument("--m", type=int, nargs="+", default=None, metavar="M",
                    help=f"numbers of nearest BSs used by the DPE, increasing, each >= 3 (x, y and the clock bias "
-                        f"are unknown) and <= the deployment's BS count (default: "
-                        f"{' '.join(map(str, paper_e.receiver.m_values))})")
+                        f"are unknown) and <= the deployment's BS count (default: the paper's "
+                        f"{' '.join(map(str, paper_e.receiver.m_values))} that fit the deployment, and its BS count "
+                        f"if below {max(paper_e.receiver.m_values)}; with --snr-mode link-budget, Fig. 10's 4)")
     r.add_argument("--taps", type=int, default=search_config.DEFAULT_TAPS, metavar="L",
                    help=f"receiver window L in taps, 1 to the FFT size (default: {search_config.DEFAULT_TAPS}, chosen in "
                         f"the Fig. 9 chapter)")
@@ -159,8 +166,12 @@ def add_other_commands(sub) -> None:
                                     "from its seeds, report every stored trial that differs from what today's code "
                                     "computes, and rewrite the store.  `make reproduce` runs it, then regenerates "
                                     "the figure baselines.  Run it after a change that `make test`'s verification "
-                                    "fails on.")
+                                    "fails on, once that change is committed: each entry records the commit whose "
+                                    "code computed it.")
     rp.add_argument("--progress", action="store_true", help="a progress bar per experiment on stderr")
+    rp.add_argument("--allow-dirty", action="store_true",
+                    help="run although dpe5g/, environment.txt or pyproject.toml differ from the checkout's commit "
+                         "(refused otherwise); every entry then records the commit and a digest of the changes")
     add_cluster_options(rp)
     rp
 
@@ -188,7 +199,13 @@ def add_other_commands(sub) -> None:
                    help="path, or a packaged deployment: 'tst' (default), 'ring', 'ring-wide'")
     d
 
-    s = sub.add_parser("scene", help="export the meshcat 3-D scene of the urban example as a static HTML file")
+    s = sub.add_parser("scene", help="export the meshcat 3-D scene of the urban example as a static HTML file",
+                       description="The deployment's buildings and BSs, an example UE with its nearest links "
+                                   "(LoS/NLoS from eq. (11)) and the correlogram of its DPE fix, as one offline HTML "
+                                   "page; ours (Figs. 7-8) by default.")
+    s.add_argument("--deployment", default=None, metavar="FILE",
+                   help="a deployment file, JSON or CSV (see `dpe5g deployment`), or a packaged one ('tst', 'ring', "
+                        "'ring-wide'); default: ours, as in Figs. 7-8")
     s.add_argument("--out", default="urban_scene.html", metavar="FILE.html",
                    help="output HTML file (default: urban_scene.html); an existing file is kept unless --force")
     s.add_argument("--force", action="store_true", help="overwrite --out if it exists")

@@ -35,11 +35,29 @@ SCHEDULER_ADDRESS = re.compile(r"tcp://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9][A-Za-z0-9
 
 
 def connect(scheduler: str | None = None, workers: int | None = None, timeout_s: float = 20.0):
-    """A ``distributed.Client``: of the scheduler at ``scheduler`` (else DPE5G_SCHEDULER), or of a new
-    ``LocalCluster`` of ``workers`` single-threaded processes; None when neither is given (run in this process).
-    timeout_s : how long the whole connection may take (``check_scheduler``: TCP connect, Dask's handshake and the
-    scheduler's answer).  ValueError when both are given, ``workers`` is not in [1, 256], the address is not
-    ``tcp://host:port`` or no Dask scheduler answers there in time."""
+    """A ``distributed.Client`` of a scheduler, or of a new ``LocalCluster``; None when neither is asked for.
+
+    Parameters
+    ----------
+    scheduler : str or None
+        The scheduler's address ``tcp://host:port``; None (or ""): DPE5G_SCHEDULER if set.
+    workers : int or None
+        Start a ``LocalCluster`` of this many single-threaded processes, 1 to 256.
+    timeout_s : float
+        How long the whole connection may take, seconds (``check_scheduler``: TCP connect, Dask's handshake and the
+        scheduler's answer).
+
+    Returns
+    -------
+    distributed.Client or None
+        The client; None when neither a scheduler nor ``workers`` is given (run in this process).
+
+    Raises
+    ------
+    ValueError
+        When both are given, ``workers`` is not in [1, 256], the address is not ``tcp://host:port`` or no Dask
+        scheduler answers there in time.
+    """
     from . import _checks
 
     source = "--scheduler"
@@ -63,9 +81,23 @@ def connect(scheduler: str | None = None, workers: int | None = None, timeout_s:
 
 
 def local_cluster(n_workers: int, **options):
-    """A ``distributed.LocalCluster`` of ``n_workers`` single-threaded worker processes with no dashboard and its
-    scheduler's HTTP server on a free port of 127.0.0.1 (distributed binds it to 8787 even without a dashboard, so
-    two clusters on one machine, or a real scheduler's dashboard there, collided); ``options`` go to it as well."""
+    """A ``distributed.LocalCluster`` of single-threaded worker processes with no dashboard.
+
+    Its scheduler's HTTP server listens on a free port of 127.0.0.1 (distributed binds it to 8787 even without a
+    dashboard, so two clusters on one machine, or a real scheduler's dashboard there, collided).
+
+    Parameters
+    ----------
+    n_workers : int
+        Worker processes.
+    **options
+        Further ``LocalCluster`` options (they override these).
+
+    Returns
+    -------
+    distributed.LocalCluster
+        The cluster, started.
+    """
     from distributed import LocalCluster
 
     return LocalCluster(**{"n_workers": n_workers, "threads_per_worker": 1, "processes": True,
@@ -74,12 +106,32 @@ def local_cluster(n_workers: int, **options):
 
 
 def check_scheduler(address: str, timeout_s: float, source: str = "--scheduler") -> float:
-    """Check that a Dask scheduler answers at ``address`` (``SCHEDULER_ADDRESS``) within ``timeout_s`` seconds in
-    all: the TCP connect, Dask's handshake and its answer to an "identity" request, under one deadline.
-    ``distributed.Client``'s own timeout covers the connect only, so a port where something else listens (a web
-    server, the dashboard's 8787) would hang it for good.  Runs in a thread of its own, so it works inside a running
-    event loop (Jupyter) too.  Returns the seconds left of ``timeout_s``; ValueError naming ``source`` and what was
-    found otherwise."""
+    """Check that a Dask scheduler answers at ``address`` within ``timeout_s`` seconds in all.
+
+    The TCP connect, Dask's handshake and its answer to an "identity" request run under one deadline:
+    ``distributed.Client``'s own timeout covers the connect only, so a port where something else listens (a web server,
+    the dashboard's 8787) would hang it for good.  Runs in a thread of its own, so it works inside a running event loop
+    (Jupyter) too.
+
+    Parameters
+    ----------
+    address : str
+        ``tcp://host:port`` (``SCHEDULER_ADDRESS``).
+    timeout_s : float
+        The deadline, seconds.
+    source : str
+        Where the address came from, for the message ("--scheduler" or "DPE5G_SCHEDULER").
+
+    Returns
+    -------
+    float
+        The seconds left of ``timeout_s``.
+
+    Raises
+    ------
+    ValueError
+        Naming ``source`` and what was found, when the address is malformed or no Dask scheduler answers there in time.
+    """
     import asyncio
     import socket
     import time
@@ -131,7 +183,13 @@ def check_scheduler(address: str, timeout_s: float, source: str = "--scheduler")
 
 
 def close(client) -> None:
-    """Close a client from ``connect`` and the ``LocalCluster`` it started, if any."""
+    """Close a client from ``connect`` and the ``LocalCluster`` it started, if any.
+
+    Parameters
+    ----------
+    client : distributed.Client or None
+        The client; None does nothing.
+    """
     if client is None:
         return
     cluster = getattr(client, "cluster", None)
@@ -141,9 +199,21 @@ def close(client) -> None:
 
 
 class OtherCode(Exception):
-    """Raised by ``engine.chunk_task`` on a worker whose code version is not the client's, or whose sources changed
-    after it imported them (``stale``: their names), before any work; it travels back to the client, which
-    ``gather`` turns into an ``errors.ClusterFailed``."""
+    """Raised by ``engine.chunk_task``, before any work, on a worker that does not run the client's code.
+
+    The worker's code version is not the client's, or its sources changed after it imported them.  It travels back to
+    the client, which ``gather`` turns into an ``errors.ClusterFailed``.  The arguments are kept as attributes of the
+    same names.
+
+    Parameters
+    ----------
+    worker : str
+        The worker's address.
+    theirs, ours : str
+        The worker's and the client's code versions.
+    stale : tuple of str
+        The names of the sources that changed after the worker imported them.
+    """
 
     def __init__(self, worker: str, theirs: str, ours: str, stale: tuple[str, ...] = ()):
         super().__init__(worker, theirs, ours, tuple(stale))
@@ -151,7 +221,13 @@ class OtherCode(Exception):
 
 
 def worker_address() -> str:
-    """The address of the Dask worker running this call ("this process" outside a worker)."""
+    """The address of the Dask worker running this call.
+
+    Returns
+    -------
+    str
+        The address; "this process" outside a worker.
+    """
     try:
         from distributed import get_worker
 
@@ -161,9 +237,23 @@ def worker_address() -> str:
 
 
 def gather(futures: dict, chunks, bar=None) -> None:
-    """Write each chunk a Dask task (``engine.chunk_task``) returns ({future: (start, stop)}) into ``chunks``
-    (``store.ChunkCache``) as it arrives, after checking that its worker ran this process's code.  A chunk from other code, a worker killed too often or a lost scheduler
-    is an ``errors.ClusterFailed`` saying so in one line; the chunks written before it stay in the cache."""
+    """Write each chunk a Dask task returns into ``chunks`` as it arrives, after checking that its worker ran this code.
+
+    Parameters
+    ----------
+    futures : dict
+        {future of ``engine.chunk_task``: (start, stop)}.
+    chunks : chunk_cache.ChunkCache
+        The run's cache.
+    bar : tqdm or None
+        Progress bar updated per chunk.
+
+    Raises
+    ------
+    dpe5g.errors.ClusterFailed
+        Saying so in one line, on a chunk from other code, a worker killed too often or a lost scheduler; the chunks
+        written before it stay in the cache.
+    """
     if not futures:
         return
     from distributed import as_completed
@@ -185,7 +275,22 @@ def gather(futures: dict, chunks, bar=None) -> None:
 
 
 def other_code_message(worker: str, theirs: str, mine: str, stale: tuple[str, ...] = ()) -> str:
-    """``gather``'s line for a worker that runs other code (or code older than its files: ``stale``)."""
+    """``gather``'s line for a worker that runs other code (or code older than its files).
+
+    Parameters
+    ----------
+    worker : str
+        The worker's address.
+    theirs, mine : str
+        The worker's and this process's code versions.
+    stale : tuple of str
+        The sources that changed after the worker imported them (empty: another code version).
+
+    Returns
+    -------
+    str
+        The line.
+    """
     if stale:
         return (f"Dask worker {worker} runs dpe5g code older than its files ({', '.join(stale)} changed after it "
                 f"imported them); its chunks were refused, none kept: restart the worker")
@@ -195,7 +300,22 @@ def other_code_message(worker: str, theirs: str, mine: str, stale: tuple[str, ..
 
 
 def cluster_lost_message(err: Exception, start: int, stop: int, chunks) -> str:
-    """``gather``'s line for a task that failed on the cluster: what happened and that finished chunks are kept."""
+    """``gather``'s line for a task that failed on the cluster: what happened, and that finished chunks are kept.
+
+    Parameters
+    ----------
+    err : Exception
+        The task's error.
+    start, stop : int
+        The chunk's trials, start … stop-1.
+    chunks : chunk_cache.ChunkCache
+        The run's cache.
+
+    Returns
+    -------
+    str
+        The line.
+    """
     kind = type(err).__name__
     if kind == "KilledWorker":
         what = (f"the workers running trials {start}-{stop - 1} died repeatedly (Dask gave up after "

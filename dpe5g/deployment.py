@@ -49,13 +49,29 @@ MIN_SPACING_M = 0.5
 class Deployment:
     """Base stations over a rectangular region, with optional buildings and streets for the map and the 3-D scene.
 
-    bs_ids : (B,) names; bs_xyz : (B, 3) m; power_dbm : (B,) transmit power per BS in dBm;
-    region : (x_min, y_min, x_max, y_max) m; ue_height_m : UE height in m;
-    buildings : (K, 5) rows (x_min, y_min, x_max, y_max, height) in m (may be empty);
-    streets : tuple of dicts (name, axis, centre_m, width_m), for drawing only;
-    anchor_lat_deg, anchor_lon_deg : WGS-84 position of the local origin, or None.
-    ue_region : (x_min, y_min, x_max, y_max) m, inside ``region``: where the UE is drawn, or None for the whole
-        region (``ue_bounds``).
+    Attributes
+    ----------
+    name, description : str
+        The deployment's name, and a free text about it.
+    bs_ids : tuple of str (B,)
+        The base stations' names.
+    bs_xyz : float (B, 3)
+        Base-station positions, metres.
+    power_dbm : float (B,)
+        Transmit power per BS, dBm.
+    region : tuple of 4 float
+        (x_min, y_min, x_max, y_max), metres.
+    ue_height_m : float
+        UE height, metres (2 m by default).
+    buildings : float (K, 5)
+        Rows (x_min, y_min, x_max, y_max, height), metres (may be empty).
+    streets : tuple of dict
+        Dicts (name, axis, centre_m, width_m), for drawing only.
+    anchor_lat_deg, anchor_lon_deg : float or None
+        WGS-84 position of the local origin, degrees, or None.
+    ue_region : tuple of 4 float or None
+        (x_min, y_min, x_max, y_max) metres, inside ``region``: where the UE is drawn, or None for the whole region
+        (``ue_bounds``).
     """
 
     name: str
@@ -73,20 +89,37 @@ class Deployment:
 
     @property
     def ue_bounds(self) -> tuple[float, float, float, float]:
-        """(x_min, y_min, x_max, y_max) m of the area the UE is drawn from: ``ue_region``, else the region."""
+        """The area the UE is drawn from, (x_min, y_min, x_max, y_max) in metres; ``ue_region``, else the region."""
         return self.region if self.ue_region is None else self.ue_region
 
     @property
     def n_bs(self) -> int:
+        """Number of base stations B."""
         return len(self.bs_ids)
 
     @property
     def area_m2(self) -> float:
+        """Area of the region, m²."""
         x0, y0, x1, y1 = self.region
         return (x1 - x0) * (y1 - y0)
 
     def check_ue(self, xy) -> np.ndarray:
-        """Validate UE positions (..., 2) in metres: finite and inside the UE's area (``ue_bounds``)."""
+        """Validate UE positions, finite and inside the UE's area (``ue_bounds``); return them as float64.
+
+        Parameters
+        ----------
+        xy : float (..., 2)
+            UE positions (x, y), metres.
+
+        Returns
+        -------
+        numpy.ndarray float (..., 2)
+
+        Raises
+        ------
+        ValueError
+            A position not finite or outside the UE's area, or a shape other than (..., 2).
+        """
         xy = np.asarray(xy, dtype=np.float64)
         if xy.shape[-1:] != (2,) or not np.all(np.isfinite(xy)):
             raise ValueError(f"UE position must be finite (..., 2) metres, got shape {xy.shape}")
@@ -99,53 +132,47 @@ class Deployment:
         return xy
 
     def prs_plan(self, reuse: int) -> tuple[np.ndarray, np.ndarray]:
-        """The PRS resource and ID of every BS for frequency reuse ``reuse`` (``prs_plan``)."""
+        """The PRS resource and ID of every BS for frequency reuse ``reuse`` (``scenario.prs_plan``).
+
+        Parameters
+        ----------
+        reuse : int
+            As ``scenario.prs_plan``.
+
+        Returns
+        -------
+        resource, prs_id : numpy.ndarray int (B,)
+            As ``scenario.prs_plan``.
+        """
+        from .scenario import prs_plan
+
         return prs_plan(self.bs_xyz, reuse)
 
     def nearest(self, ue_xy, m: int) -> np.ndarray:
-        """Indices (..., m) of the m BSs nearest to the UE in 2-D distance, nearest first.  ue_xy (..., 2) metres,
-        finite (anywhere: a UE outside the region has nearest BSs too)."""
+        """Indices of the m BSs nearest to the UE in 2-D distance, nearest first.
+
+        Parameters
+        ----------
+        ue_xy : float (..., 2)
+            UE positions, metres, finite (anywhere: a UE outside the region has nearest BSs too).
+        m : int
+            Number of BSs, 1 to B.
+
+        Returns
+        -------
+        numpy.ndarray int (..., m)
+
+        Raises
+        ------
+        ValueError
+            ``m`` out of range, or ``ue_xy`` not finite or not of shape (..., 2).
+        """
         _checks.integer("m", m, 1, self.n_bs)
         _checks.values_in_range("ue_xy", ue_xy, -1e6, 1e6, "m")
         if np.shape(ue_xy)[-1:] != (2,):
             raise ValueError(f"ue_xy must have shape (..., 2), got {np.shape(ue_xy)}")
         d = np.linalg.norm(np.asarray(ue_xy)[..., None, :] - self.bs_xyz[:, :2], axis=-1)
         return np.argsort(d, axis=-1, kind="stable")[..., :m]
-
-
-#: PRS sequence IDs n_ID^PRS per resource, 0 … 4095 (TS 38.211 §7.4.1.7.2)
-N_PRS_IDS = 4096
-
-
-def prs_plan(bs_xyz, reuse: int) -> tuple[np.ndarray, np.ndarray]:
-    """PRS frequency reuse: each BS gets one of ``reuse`` orthogonal resources and a PRS ID.
-
-    The resources are the comb offsets 0 … reuse − 1 of a comb of size ``reuse`` (``nr.PrsPattern(reuse)``): in the
-    fully staggered pattern every offset still covers the whole band, so each link keeps the paper's resolution, and
-    the offsets never share an RE.  The assignment colours the BS graph greedily, in the order of the deployment: each
-    BS takes the resource whose nearest BS already holding it is farthest away (ties: the lowest resource), so the
-    first ``reuse`` BSs take distinct resources and near neighbours differ.  Its PRS ID n_ID is its rank among the
-    BSs of its resource (0, 1, …), so co-channel BSs carry different sequences.
-
-    bs_xyz : (B, 3) metres; reuse : in ``nr.PRS_COMB_SIZES``.  Returns (resource (B,) int, prs_id (B,) int).
-    Deterministic: a function of the BS positions and their order.
-    """
-    from . import nr
-
-    _checks.one_of("reuse", reuse, nr.PRS_COMB_SIZES)
-    xy = np.asarray(bs_xyz, dtype=np.float64)[:, :2]
-    n_bs = xy.shape[0]
-    if n_bs > reuse * N_PRS_IDS:
-        raise ValueError(f"n_bs must be at most reuse × PRS IDs = {reuse} × {N_PRS_IDS} = {reuse * N_PRS_IDS} for "
-                         f"reuse {reuse}, got {n_bs} base stations")
-    res = np.zeros(n_bs, dtype=int)
-    nearest = np.full((n_bs, reuse), np.inf)  # nearest[b, r]: distance from b to the closest BS on resource r so far
-    for b in range(n_bs):
-        score = np.where(np.bincount(res[:b], minlength=reuse) < N_PRS_IDS, nearest[b], -np.inf)
-        res[b] = int(np.argmax(score))
-        nearest[:, res[b]] = np.minimum(nearest[:, res[b]], np.linalg.norm(xy - xy[b], axis=-1))
-    ids = np.array([np.count_nonzero(res[:b] == res[b]) for b in range(n_bs)], dtype=int)
-    return res, ids
 
 
 def _fail(source, msg):
@@ -211,8 +238,20 @@ def _base_stations(source, rows, text: bool = False):
 
 
 def nearest_neighbours(xy) -> tuple[np.ndarray, np.ndarray]:
-    """Each BS's nearest other BS: distances (B,) m and indices (B,), for BS positions xy (B, 2) m, by a k-d tree
-    (B log B, not a B × B distance matrix)."""
+    """Each BS's nearest other BS, by a k-d tree (B log B, not a B × B distance matrix).
+
+    Parameters
+    ----------
+    xy : float (B, 2)
+        BS positions, metres.
+
+    Returns
+    -------
+    distance : numpy.ndarray float (B,)
+        Distance to the nearest other BS, metres.
+    index : numpy.ndarray int (B,)
+        Its index.
+    """
     from scipy.spatial import cKDTree
 
     d, j = cKDTree(xy).query(xy, k=2)
@@ -236,15 +275,28 @@ def _check_geometry(source, ids, xy) -> None:
 def load_deployment(path) -> Deployment:
     """Read a deployment from JSON (our schema, see ``dpe5g/data/tst_deployment.json``) or CSV.
 
-    CSV: a header row with columns id, x_m, y_m, height_m, power_dbm (id optional), one BS per row; the region is
-    then the BSs' bounding box grown by 10 % on each side and the UE height 2 m.
-    JSON: {"base_stations": [{id, x_m, y_m, height_m, power_dbm}, ...], "region": {x_min_m, y_min_m, x_max_m,
-    y_max_m}, optional "ue_region" (the same keys, inside the region: where the UE is drawn), "ue_height_m",
-    "buildings" [{x_min_m, y_min_m, x_max_m, y_max_m, height_m}], "streets" [{name, axis, centre_m, width_m}],
-    "anchor" {lat_deg, lon_deg}, "name", "description"}; numbers must be JSON numbers.
-    At most ``MAX_FILE_BYTES`` bytes, ``MAX_BS`` base stations and ``MAX_BUILDINGS`` buildings; the BSs at least
-    ``MIN_SPACING_M`` apart and not all on one line.  Malformed files raise ``ValueError`` naming the file, the entry
-    and the allowed range, before any computation.
+    * CSV: a header row with columns id, x_m, y_m, height_m, power_dbm (id optional), one BS per row; the region is
+      then the BSs' bounding box grown by 10 % on each side and the UE height 2 m.
+    * JSON: ``{"base_stations": [{id, x_m, y_m, height_m, power_dbm}, ...], "region": {x_min_m, y_min_m, x_max_m,
+      y_max_m}``, optional ``"ue_region"`` (the same keys, inside the region: where the UE is drawn),
+      ``"ue_height_m"``, ``"buildings" [{x_min_m, y_min_m, x_max_m, y_max_m, height_m}]``, ``"streets" [{name, axis,
+      centre_m, width_m}]``, ``"anchor" {lat_deg, lon_deg}``, ``"name"``, ``"description"}``; JSON numbers.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The file, ending in .json or .csv.
+
+    Returns
+    -------
+    Deployment
+
+    Raises
+    ------
+    ValueError
+        A missing, unreadable or malformed file (over ``MAX_FILE_BYTES`` bytes, ``MAX_BS`` base stations or
+        ``MAX_BUILDINGS`` buildings; BSs closer than ``MIN_SPACING_M`` or all on one line), naming the file, the
+        entry and the allowed range, before any computation.
     """
     path = Path(path)
     src = str(path)
@@ -381,19 +433,41 @@ def _rectangle(src, key, reg) -> tuple[float, float, float, float]:
 
 
 def builtin(name: str) -> Path | None:
-    """The file of the packaged deployment ``name`` (``BUILTIN``), or None if ``name`` is not one of them."""
+    """The file of the packaged deployment ``name`` (``BUILTIN``), or None if ``name`` is not one of them.
+
+    Parameters
+    ----------
+    name : str
+        The packaged deployment's name, e.g. ``"tst"``.
+
+    Returns
+    -------
+    pathlib.Path or None
+    """
     return BUILTIN.get(name)
 
 
 def named(name: str) -> Deployment:
-    """A packaged deployment by name (``BUILTIN``), or a user's deployment file (``load_deployment``)."""
+    """A packaged deployment by name (``BUILTIN``), or a user's deployment file (``load_deployment``).
+
+    Parameters
+    ----------
+    name : str
+        A packaged deployment's name, or the path of a JSON or CSV file.
+
+    Returns
+    -------
+    Deployment
+    """
     path = builtin(name)
     return load_deployment(name if path is None else path)
 
 
 def tst() -> Deployment:
-    """Our Tsim Sha Tsui-like deployment: 26 BSs at 10 m, 24 dBm, over a 476.8 m square (227,360 m²)."""
+    """Our Tsim Sha Tsui-like deployment: 26 BSs at 10 m, 24 dBm, over a 476.8 m square (227,360 m²).
+
+    Returns
+    -------
+    Deployment
+    """
     return load_deployment(TST_FILE)
-
-
-# ---- links: TR 38.901 UMi street canyon ----------------------------------------------------------------------------

@@ -25,9 +25,21 @@ from .experiment import Experiment
 @jax.tree_util.register_dataclass
 @dataclass(frozen=True)
 class CoChannelDraw:
-    """With PRS reuse and ``co_channel``: every other BS of the deployment (X of them, nearest first), which transmits
-    on its resource too.  res (X,) resource index; prs (X, N) pilots; y0 (X, N) noise-free received spectra (unit
-    power); snr_db (S, X) per-sample SNR at each SNR index."""
+    """With PRS reuse and ``co_channel``: every other BS of the deployment (X of them, nearest first).
+
+    Each transmits on its resource too.
+
+    Attributes
+    ----------
+    res : int (X,)
+        Resource index.
+    prs : complex (X, N)
+        Pilots.
+    y0 : complex (X, N)
+        Noise-free received spectra (unit power).
+    snr_db : float (S, X)
+        Per-sample SNR at each SNR index, dB.
+    """
 
     res: jax.Array
     prs: jax.Array
@@ -37,8 +49,17 @@ class CoChannelDraw:
 
 @dataclass(frozen=True)
 class ReuseDraw:
-    """With PRS reuse (``Experiment.prs_reuse`` = n_res > 0): the resource (comb offset) res (I,) of every link,
-    and the other BSs (``CoChannelDraw``, None without ``co_channel``)."""
+    """With PRS reuse (``Experiment.prs_reuse`` = n_res > 0): every link's resource and the other BSs.
+
+    Attributes
+    ----------
+    res : int (I,)
+        The resource (comb offset) of every link.
+    co_channel : CoChannelDraw or None
+        The other BSs; None without ``co_channel``.
+    n_res : int
+        The number of resources (static).
+    """
 
     res: jax.Array
     co_channel: CoChannelDraw | None
@@ -52,13 +73,38 @@ jax.tree_util.register_dataclass(ReuseDraw, data_fields=["res", "co_channel"], m
 class TrialDraw:
     """The draws of one trial (``draw_fn``), arrays over the I = max(m_values) nearest links, nearest first.
 
-    ue_xyz (3,) m; clock_bias_s (); bs_index (I,) deployment index; bs_xyz (I, 3) m; los (I,) bool; prs (I, N)
-    pilots; gains (I, L) complex tap gains and delays_s (I, L) s (padded with zero-gain taps to the longer profile);
-    y0 (I, N) noise-free received spectrum (unit power); link_snr_db (S, I) per-sample SNR of each link at each SNR
-    index; link_sinr_db (S, I) its SINR (equal to the SNR without co-channel interference); noise (I, N) the trial's
-    unit noise spectrum, CN(0, 1) per bin; reuse : ``ReuseDraw`` with PRS reuse, else None.  per_link_power
-    (static): whether the links' received powers differ (snr_mode "link_budget" or "nearest"), which sets how the
-    receiver scales signal and noise (``receiver.spectrum_at``)."""
+    Attributes
+    ----------
+    ue_xyz : float (3,)
+        The UE position, metres.
+    clock_bias_s : float ()
+        The clock bias δt, seconds.
+    bs_index : int (I,)
+        The BSs' deployment indices.
+    bs_xyz : float (I, 3)
+        The BSs' positions, metres.
+    los : bool (I,)
+        The links' LoS states.
+    prs : complex (I, N)
+        Pilots.
+    gains : complex (I, L)
+        Tap gains, padded with zero-gain taps to the longer profile.
+    delays_s : float (I, L)
+        Tap delays, seconds.
+    y0 : complex (I, N)
+        Noise-free received spectrum (unit power).
+    link_snr_db : float (S, I)
+        Per-sample SNR of each link at each SNR index, dB.
+    link_sinr_db : float (S, I)
+        Its SINR, dB (equal to the SNR without co-channel interference).
+    noise : complex (I, N)
+        The trial's unit noise spectrum, CN(0, 1) per bin.
+    reuse : ReuseDraw or None
+        With PRS reuse, else None.
+    per_link_power : bool
+        Whether the links' received powers differ (snr_mode "link_budget" or "nearest"), static: it sets how the
+        receiver scales signal and noise (``receiver.spectrum_at``).
+    """
 
     ue_xyz: jax.Array
     clock_bias_s: jax.Array
@@ -77,6 +123,7 @@ class TrialDraw:
 
     @property
     def n_snr(self) -> int:
+        """The number S of SNR indices."""
         return self.link_snr_db.shape[0]
 
 
@@ -86,25 +133,80 @@ jax.tree_util.register_dataclass(
 
 
 def trial_key(seed: int, t) -> jax.Array:
-    """The key every draw of trial t comes from: fold_in(PRNGKey(seed), t)."""
+    """The key every draw of trial t comes from: fold_in(PRNGKey(seed), t).
+
+    Parameters
+    ----------
+    seed : int
+        The run's seed.
+    t : int
+        The trial index (may be traced).
+
+    Returns
+    -------
+    jax PRNG key
+        The trial's key.
+    """
     return jax.random.fold_in(jax.random.PRNGKey(seed), t)
 
 
 def trial_keys(seed: int, start: int, stop: int) -> jax.Array:
-    """``trial_key`` of trials start … stop − 1: (T, 2) uint32."""
+    """``trial_key`` of trials start … stop − 1.
+
+    Parameters
+    ----------
+    seed : int
+        The run's seed.
+    start, stop : int
+        The first trial and one past the last.
+
+    Returns
+    -------
+    uint32 (T, 2)
+        The T = stop − start keys.
+    """
     return jax.vmap(lambda t: trial_key(seed, t))(jnp.arange(start, stop))
 
 
 def profiles(e: Experiment) -> tuple[channel.TDLProfile, channel.TDLProfile]:
-    """The NLoS (TDL-C) and LoS (TDL-D) profiles of the experiment."""
+    """The NLoS (TDL-C) and LoS (TDL-D) profiles of the experiment.
+
+    Parameters
+    ----------
+    e : Experiment
+        The experiment (its scenario's delay spread, K-factor and delay-spread definition).
+
+    Returns
+    -------
+    nlos, los : channel.TDLProfile
+        The TDL-C and TDL-D profiles.
+    """
     return (channel.tdl_profile("C", e.scenario.delay_spread_s, definition=e.scenario.delay_spread_def),
             channel.tdl_profile("D", e.scenario.delay_spread_s, e.scenario.k_factor_db, definition=e.scenario.delay_spread_def))
 
 
 def link_snr_db(e: Experiment, rx_dbm, rx_nearest_dbm, snrs) -> jax.Array:
-    """Per-sample SNR (S, n) of links with received powers ``rx_dbm`` (n,) dBm: from the link budget (snr_mode
-    "link_budget", S = 1), or the nearest link's SNR ``snrs`` (S,) plus the power difference (snr_mode "nearest");
-    then read in the experiment's ``snr_convention``."""
+    """Per-sample SNR of links from their received powers, in the experiment's ``snr_convention``.
+
+    From the link budget (snr_mode "link_budget", S = 1), or the nearest link's SNR ``snrs`` plus the power difference
+    (snr_mode "nearest"); then read in the experiment's ``snr_convention``.
+
+    Parameters
+    ----------
+    e : Experiment
+        The experiment.
+    rx_dbm : float (n,)
+        The links' received powers, dBm.
+    rx_nearest_dbm : float
+        The nearest link's received power, dBm.
+    snrs : float (S,)
+        The nearest link's SNRs, dB (snr_mode "nearest").
+
+    Returns
+    -------
+    float (S, n)
+        Per-sample SNR of every link, dB.
+    """
     if e.links.snr_mode == "link_budget":
         snr = e.links.budget.model_snr_db(rx_dbm - e.links.budget.noise_dbm)[None, :]
         if e.links.snr_offset_db:
@@ -115,9 +217,23 @@ def link_snr_db(e: Experiment, rx_dbm, rx_nearest_dbm, snrs) -> jax.Array:
 
 
 def sinr_db(link_snr, reuse: ReuseDraw | None) -> jax.Array:
-    """SINR (S, I) of every link: its SNR over 1 + the SNRs (linear) of the BSs on its resource (the other links
-    and the co-channel BSs of ``reuse``), all per sample, so the pilots' equal power cancels; the SNR itself without
-    co-channel interference."""
+    """SINR of every link: its SNR over 1 + the SNRs (linear) of the BSs on its resource.
+
+    The BSs on its resource are the other links and the co-channel BSs of ``reuse``, all per sample, so the pilots'
+    equal power cancels; without co-channel interference the SINR is the SNR itself.
+
+    Parameters
+    ----------
+    link_snr : float (S, I)
+        Per-sample SNR of the links, dB.
+    reuse : ReuseDraw or None
+        The trial's PRS reuse draw.
+
+    Returns
+    -------
+    float (S, I)
+        The SINR, dB.
+    """
     if reuse is None or reuse.co_channel is None:
         return link_snr
     x = reuse.co_channel
@@ -130,16 +246,28 @@ def sinr_db(link_snr, reuse: ReuseDraw | None) -> jax.Array:
 
 
 def draw_fn(e: Experiment, dep: deployment.Deployment):
-    """Build the traceable trial key → ``TrialDraw`` of the trial with that key (``trial_key``), shared by the
-    engine, ``trials.example`` and ``draw_links``.  The seed is not read (it enters through the key), so one compiled
-    engine serves every seed.
+    """Build the traceable trial key → ``TrialDraw`` of the trial with that key (``trial_key``).
 
-    Each link's channel is TDL-D if LoS and TDL-C if not; its frequency response is ``channel.frequency_response``
-    of the profile it belongs to, and the received spectrum ``signal.received_spectrum`` (the one signal path;
-    ``signal.received_noiseless`` is its inverse DFT, which a test checks against the engine).  With PRS reuse the
-    co-channel BSs' draws come from fold_in(key, 2000), so the links' draws are those of the same experiment
-    without reuse; with an NLoS excess delay (``Scenario.nlos_excess_median_s``) the links' Δτ come from
-    fold_in(key, 3000), so every other draw is that of the same experiment without it."""
+    Shared by the engine, ``trials.example`` and ``draw_links``.  The seed is not read (it enters through the key), so
+    one compiled engine serves every seed.  Each link's channel is TDL-D if LoS and TDL-C if not; its frequency response
+    is ``channel.frequency_response`` of the profile it belongs to, and the received spectrum
+    ``signal.received_spectrum`` (the one signal path; ``signal.received_noiseless`` is its inverse DFT, which a test
+    checks against the engine).  With PRS reuse the co-channel BSs' draws come from fold_in(key, 2000), so the links'
+    draws are those of the same experiment without reuse; with an NLoS excess delay (``Scenario.nlos_excess_median_s``)
+    the links' Δτ come from fold_in(key, 3000), so every other draw is that of the same experiment without it.
+
+    Parameters
+    ----------
+    e : Experiment
+        The experiment.
+    dep : deployment.Deployment
+        Its deployment.
+
+    Returns
+    -------
+    callable
+        key → ``TrialDraw``.
+    """
     links = _LinkModel(e, dep)
     m_max = max(e.receiver.m_values)
 
@@ -264,8 +392,25 @@ class _LinkModel:
 
 
 def prior_center(e: Experiment, ue, key) -> jax.Array:
-    """Centring "prior": truth + a horizontal error from the stated prior, keyed by fold_in(trial key, 1000) so the
-    trial's other draws are unchanged; the height is the known UE height and c δt is 0.  Returns (4,) metres."""
+    """Centring "prior": the window centre at the truth plus a horizontal error drawn from the stated prior.
+
+    Keyed by fold_in(trial key, 1000), so the trial's other draws are unchanged; the height is the known UE height and
+    c δt is 0.
+
+    Parameters
+    ----------
+    e : Experiment
+        The experiment (``prior_kind``, ``prior_scale_m``).
+    ue : float (3,)
+        The true UE position, metres.
+    key : jax PRNG key
+        The trial's key.
+
+    Returns
+    -------
+    float (4,)
+        The centre [x, y, z, c δt], metres.
+    """
     key = jax.random.fold_in(key, 1000)
     if e.receiver.prior_kind == "gaussian":
         err = e.receiver.prior_scale_m * jax.random.normal(key, (2,))
@@ -278,9 +423,23 @@ def prior_center(e: Experiment, ue, key) -> jax.Array:
 
 
 def draw_links(e: Experiment, n_trials: int) -> dict:
-    """Link draws only (no DPE) for trials 0 … n_trials-1: LoS flags (T, I), per-sample link SNR and SINR
-    (T, S, I), 2-D distances (T, I) in metres — the statistics the urban-scenario chapter shows, from the same keys as
-    the engine."""
+    """Link draws only (no DPE) for trials 0 … n_trials − 1, from the same keys as the engine.
+
+    They are the statistics the urban-scenario chapter shows.
+
+    Parameters
+    ----------
+    e : Experiment
+        The experiment.
+    n_trials : int
+        The number of trials T.
+
+    Returns
+    -------
+    dict
+        "los" (T, I) LoS flags, "link_snr_db" and "link_sinr_db" (T, S, I) per-sample link SNR and SINR in dB,
+        "d2d_m" (T, I) 2-D distances in metres.
+    """
     draw = draw_fn(e, e.load_deployment())
 
     @jax.jit

@@ -1,6 +1,8 @@
-"""The Monte Carlo engine (Section IV): runs an experiment's trials in batches (vmap) and threads, through programs
-compiled once per the part of the experiment they read (``trials.program_config``), and keeps the results in the
-store (``store.ChunkCache``): chunks already there are loaded, the others computed and written as they finish.
+"""The Monte Carlo engine (Section IV): runs an experiment's trials in batches (vmap) and threads, keeping the results.
+
+The programs are compiled once per the part of the experiment they read (``trials.program_config``), and the
+results are kept in the store (``chunk_cache.ChunkCache``): chunks already there are loaded, the others computed and
+written as they finish.
 
 Every draw of trial t comes from ``draw.trial_key(seed, t)``, so results do not depend on the batch size, the chunk
 size, the number of threads or which chunks come from the store.
@@ -25,7 +27,8 @@ from .cluster import OtherCode, gather, worker_address
 from .errors import Failure
 from .experiment import Experiment, changed_since_import, code_version, deployment_digest
 from .results import Results
-from .store import ChunkCache, sliced_chunk, snr_superset_runs, stored, stored_fields
+from .chunk_cache import ChunkCache, sliced_chunk, snr_superset_runs
+from .store import stored, stored_fields
 
 #: trials vmapped together by ``run``, per search method (speed only; results do not depend on it): the grid search
 #: runs the same steps for every trial and gains from batching; the certified search's loops run as long as the
@@ -38,8 +41,22 @@ _BUILDERS = {"grid_trial": trials.grid_trial_fn, "bnb_prep": trials.bnb_prep_fn,
 
 
 def compiled_program(e: Experiment, program: str):
-    """``e``'s program ``program`` (``trials.PROGRAMS``), one object per ``trials.program_config`` and deployment
-    file content, so that the runs of one process that share it trace and compile it once."""
+    """``e``'s program ``program``, one object per ``trials.program_config`` and deployment file content.
+
+    So the runs of one process that share it trace and compile it once.
+
+    Parameters
+    ----------
+    e : Experiment
+        The experiment.
+    program : str
+        One of ``trials.PROGRAMS``.
+
+    Returns
+    -------
+    callable
+        The program (jitted).
+    """
     key = trials.program_config(e, program)
     return _compiled(program, key, "" if program == "bnb_fix" else deployment_digest(e))
 
@@ -53,23 +70,57 @@ def _compiled(program: str, key, digest: str):
 
 @partial(jax.jit, static_argnames=("fn",))
 def run_batch(args, fn, shared=()):
-    """fn(*a, *shared) for each a of ``args``, vmapped over their leading axis (the batch); ``shared`` goes to every
-    call.  A batch of one trial calls fn on it directly (vmap would turn any while loop into a batched one that
-    carries its state through a select at every step; the results are the same bits)."""
+    """``fn(*a, *shared)`` for each ``a`` of ``args``, vmapped over their leading axis (the batch).
+
+    A batch of one trial calls ``fn`` on it directly (vmap would turn any while loop into a batched one that carries its
+    state through a select at every step; the results are the same bits).
+
+    Parameters
+    ----------
+    args : tuple of arrays (B, ...)
+        Per-trial inputs, the batch on the leading axis.
+    fn : callable
+        The per-trial function (static: a new one compiles anew).
+    shared : tuple
+        Inputs passed to every call.
+
+    Returns
+    -------
+    pytree of arrays (B, ...)
+        ``fn``'s outputs, the batch on the leading axis.
+    """
     if args[0].shape[0] == 1:
         return jax.tree.map(lambda o: o[None], fn(*(a[0] for a in args), *shared))
     return jax.vmap(lambda *a: fn(*a, *shared))(*args)
 
 
 def run_chunk(args, fn, batch_size: int, shared=(), workers: int = 1) -> dict | tuple:
-    """fn(*a, *shared) for each a of ``args`` (NumPy arrays, trials on the leading axis), ``batch_size`` trials per
-    call of one compiled batch function; the last batch is filled up by repeating its last trial, whose copies are
-    dropped.  So the compiled program depends on the batch size, never on the chunk's length: a run of 3 trials
-    reuses the executable of a run of 5000 (in this process, and through JAX's persistent cache in others).
-    workers : batches computed at once, each in its own thread (XLA runs a call of the certified search's loops on
-    one core, and releases the GIL while it runs); the first batch runs alone, so the program is traced and compiled
-    once.  A batch's result depends only on its trials, never on the thread or the order.
-    Returns fn's outputs as NumPy arrays, trials on the leading axis."""
+    """``fn(*a, *shared)`` for each ``a`` of ``args``, ``batch_size`` trials per call of one compiled batch function.
+
+    The last batch is filled up by repeating its last trial, whose copies are dropped.  So the compiled program depends
+    on the batch size, never on the chunk's length: a run of 3 trials reuses the executable of a run of 5000 (in this
+    process, and through JAX's persistent cache in others).  A batch's result depends only on its trials, never on the
+    thread or the order.
+
+    Parameters
+    ----------
+    args : tuple of numpy.ndarray (T, ...)
+        Per-trial inputs, trials on the leading axis.
+    fn : callable
+        The per-trial function.
+    batch_size : int
+        Trials per call.
+    shared : tuple
+        Inputs passed to every call.
+    workers : int
+        Batches computed at once, each in its own thread (XLA runs a call of the certified search's loops on one core,
+        and releases the GIL while it runs); the first batch runs alone, so the program is traced and compiled once.
+
+    Returns
+    -------
+    dict or tuple of numpy.ndarray (T, ...)
+        ``fn``'s outputs, trials on the leading axis.
+    """
     n = args[0].shape[0]
 
     def one(a):
@@ -81,8 +132,24 @@ def run_chunk(args, fn, batch_size: int, shared=(), workers: int = 1) -> dict | 
 
 
 def threaded(fn, items, workers: int) -> list:
-    """[fn(i) for i in items], ``workers`` at once in threads, the first alone (so that what it compiles is compiled
-    once, then shared by the threads)."""
+    """``[fn(i) for i in items]``, ``workers`` at once in threads, the first alone.
+
+    The first runs alone so that what it compiles is compiled once, then shared by the threads.
+
+    Parameters
+    ----------
+    fn : callable
+        The function of one item.
+    items : sequence
+        Its arguments.
+    workers : int
+        Threads at once (1: all in this thread).
+
+    Returns
+    -------
+    list
+        ``fn``'s results, in the order of ``items``.
+    """
     parts = [fn(items[0])]
     if len(items) > 1 and workers > 1:
         with ThreadPoolExecutor(min(workers, len(items) - 1)) as pool:
@@ -93,8 +160,17 @@ def threaded(fn, items, workers: int) -> list:
 
 
 class ChunkRunner:
-    """The compiled computation of a chunk of trials: OTDoA step 1 and its convex fixes (when the experiment asks),
-    then the DPE fixes; built on first use (compiling is the slow part) and shared by every chunk of a run."""
+    """The compiled computation of a chunk of trials, called as ``runner(start, stop, batch_size, workers=1)``.
+
+    OTDoA step 1 and its convex fixes (when the experiment asks), then the DPE fixes; built on first use (compiling is
+    the slow part) and shared by every chunk of a run.  A call returns the chunk's fields of ``Results`` for trials
+    start … stop-1.
+
+    Parameters
+    ----------
+    e : Experiment
+        The experiment whose chunks it computes.
+    """
 
     def __init__(self, e: Experiment):
         self.e = e
@@ -148,9 +224,24 @@ class ChunkRunner:
         return run_chunk((keys, ext), self.fn, batch_size, workers=workers)
 
     def bnb_fixes(self, keys, ext, workers: int) -> dict:
-        """The certified search's trials, one at a time (its loops run as long as the slowest trial of a batch needs,
-        so it is not batched; ``workers`` trials at once, in threads, the first alone so that each program is
-        compiled once): ``trials.bnb_prep_fn``, then ``trials.bnb_fix_fn``.  Returns the fields of ``Results``."""
+        """The certified search's trials, one at a time: ``trials.bnb_prep_fn``, then ``trials.bnb_fix_fn``.
+
+        Its loops run as long as the slowest trial of a batch needs, so it is not batched.
+
+        Parameters
+        ----------
+        keys : PRNG keys (T, ...)
+            The trials' keys (``draw.trial_keys``).
+        ext : float (T, S, J, 4)
+            The window centres [x, y, z, c δt], metres.
+        workers : int
+            Trials at once, in threads, the first alone so that each program is compiled once.
+
+        Returns
+        -------
+        dict
+            The fields of ``Results``, trials on the leading axis.
+        """
 
         def one(i):
             trial, bs, centers, sls, starts = self.prep(keys[i], self.window, ext[i])
@@ -171,14 +262,38 @@ def _runner(e: Experiment) -> ChunkRunner:
 
 
 def chunk_task(experiment: bytes, start: int, stop: int, batch_size: int, version: str) -> tuple[dict, dict]:
-    """Trials start … stop-1 of an experiment, computed in this process: the task ``run`` submits to a Dask cluster
-    (``cluster``) for each missing chunk.  It first checks that this process runs the client's code
+    """Trials start … stop-1 of an experiment, computed in this process: the task ``run`` submits to a Dask cluster.
+
+    ``run`` submits one for each missing chunk (``cluster``).  It first checks that this process runs the client's code
     (``code_version`` equal to ``version``, and no source changed since this process imported it:
-    ``experiment.changed_since_import``; ``OtherCode`` otherwise, before any work), then unpickles the experiment
-    (``experiment``: pickled by the client, so that a worker whose ``Experiment`` differs fails the check, not the
-    unpickling) and computes; a worker builds (compiles) the ``ChunkRunner`` of an experiment once and keeps it for
-    the experiment's other chunks.  Returns (the chunk's arrays, {"code_version": this process's, "worker": its
-    address}), which ``cluster.gather`` checks again before it keeps the chunk."""
+    ``experiment.changed_since_import``), then unpickles the experiment and computes; a worker builds (compiles) the
+    ``ChunkRunner`` of an experiment once and keeps it for the experiment's other chunks.
+
+    Parameters
+    ----------
+    experiment : bytes
+        The pickled ``Experiment``, pickled by the client so that a worker whose ``Experiment`` differs fails the check,
+        not the unpickling.
+    start, stop : int
+        The chunk's trials, start … stop-1.
+    batch_size : int
+        Trials vmapped together.
+    version : str
+        The client's ``experiment.code_version``.
+
+    Returns
+    -------
+    arrays : dict
+        The chunk's arrays.
+    origin : dict
+        {"code_version": this process's, "worker": its address}, which ``cluster.gather`` checks again before it keeps
+        the chunk.
+
+    Raises
+    ------
+    dpe5g.cluster.OtherCode
+        When this process runs other code, before any work.
+    """
     mine = code_version()
     where = worker_address()
     stale = changed_since_import()
@@ -188,8 +303,20 @@ def chunk_task(experiment: bytes, start: int, stop: int, batch_size: int, versio
 
 
 def from_supersets(supersets: list, start: int, stop: int) -> dict | None:
-    """Trials start … stop-1 sliced from the first cached run at more SNRs that holds them (``snr_superset_runs``'
-    list), None if none does (or its chunk is damaged: then set aside)."""
+    """Trials start … stop-1 sliced from the first cached run at more SNRs that holds them.
+
+    Parameters
+    ----------
+    supersets : list
+        ``chunk_cache.snr_superset_runs``' list of (cached run, SNR index).
+    start, stop : int
+        The chunk's trials, start … stop-1.
+
+    Returns
+    -------
+    dict or None
+        The chunk's arrays; None if no run holds it (or its chunk is damaged: then set aside).
+    """
     for source, snr_index in supersets:
         if source.path(start, stop).exists() and (sliced := sliced_chunk(source, start, stop, snr_index)) is not None:
             return sliced
@@ -197,7 +324,18 @@ def from_supersets(supersets: list, start: int, stop: int) -> dict | None:
 
 
 def default_workers() -> int:
-    """Batches ``run`` computes at once by default: DPE5G_WORKERS if set, else the CPUs this process may use."""
+    """Batches ``run`` computes at once by default: DPE5G_WORKERS if set, else the CPUs this process may use.
+
+    Returns
+    -------
+    int
+        The number of workers, at least 1.
+
+    Raises
+    ------
+    ValueError
+        When DPE5G_WORKERS is not an integer in [1, 256].
+    """
     env = os.environ.get("DPE5G_WORKERS")
     if env is not None:
         try:
@@ -210,21 +348,50 @@ def default_workers() -> int:
 def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = True,
         batch_size: int | None = None, reverse: bool = False, workers: int | None = None,
         use_store: bool = True, client=None) -> Results:
-    """Run (or resume, or load) an experiment; returns its ``Results``.
+    """Run (or resume, or load) an experiment.
 
-    An experiment the results store holds (``store.stored``; use_store False skips it) is read from it, nothing
-    computed.  Otherwise chunks already in the cache (``ChunkCache``) are loaded, the others computed and written as they finish; a chunk
-    that another process wrote meanwhile is read, not computed again, and a chunk that a cached run of the same
-    experiment at more SNRs holds is sliced from it (``store.snr_superset_runs``).  progress : a tqdm bar with ETA on stderr.
-    batch_size : trials vmapped together (memory/speed only; results do not depend on it; the certified search's
-    fixes run one trial at a time); None: ``BATCH_SIZE`` of the experiment's search method.  reverse : compute the
-    missing chunks last first (``warm`` does, so that a process filling the cache beside one that runs forward meets
-    it in the middle instead of repeating its chunks).
-    workers : batches of a chunk computed at once, in threads (speed only; results do not depend on it); None:
-    ``default_workers()``.  client : a ``distributed.Client`` (``cluster.connect``): the missing chunks run as tasks
-    on its workers (``chunk_task``), this process checks that they ran its code and writes them as they arrive.
-    A cached chunk that is damaged, or records another code version or config, is named on stderr, set aside and
-    computed again (``store.read_cached``).
+    An experiment the results store holds (``store.stored``) is read from it, nothing computed.  Otherwise chunks
+    already in the cache (``ChunkCache``) are loaded, the others computed and written as they finish; a chunk that
+    another process wrote meanwhile is read, not computed again, and a chunk that a cached run of the same experiment
+    at more SNRs holds is sliced from it (``chunk_cache.snr_superset_runs``).  A cached chunk that is damaged, or records
+    another code version or config, is named on stderr, set aside and computed again (``chunk_cache.read_cached``).
+
+    Parameters
+    ----------
+    e : Experiment
+        The experiment.
+    cache : str or os.PathLike or None
+        The Monte Carlo cache's root folder; None: DPE5G_CACHE, else ``chunk_cache.DEFAULT_CACHE``
+        (``chunk_cache.cache_root``).
+    progress : bool
+        Show a tqdm bar with ETA on stderr.
+    batch_size : int or None
+        Trials vmapped together, 1 to 4096 (memory/speed only; results do not depend on it; the certified search's
+        fixes run one trial at a time); None: ``BATCH_SIZE`` of the experiment's search method.
+    reverse : bool
+        Compute the missing chunks last first (``warm`` does, so that a process filling the cache beside one that runs
+        forward meets it in the middle instead of repeating its chunks).
+    workers : int or None
+        Batches of a chunk computed at once, in threads, 1 to 256 (speed only; results do not depend on it); None:
+        ``default_workers()``.
+    use_store : bool
+        False skips the results store.
+    client : distributed.Client or None
+        From ``cluster.connect``: the missing chunks run as tasks on its workers (``chunk_task``), and this process
+        checks that they ran its code and writes them as they arrive; None: this process computes them.
+
+    Returns
+    -------
+    Results
+        The experiment's per-trial results.
+
+    Raises
+    ------
+    ValueError
+        When ``batch_size`` or ``workers`` is out of range, ``e``'s M do not fit its deployment, or the cache folder is
+        not writable.
+    dpe5g.errors.Failure
+        When a chunk computed again is damaged again when read back.
     """
     _checks.require_x64()
     batch_size = BATCH_SIZE[e.receiver.search.method] if batch_size is None else batch_size
@@ -250,8 +417,22 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
 
 def fill(e: Experiment, chunks: ChunkCache, todo: list, batch_size: int, workers: int, client, progress: bool,
          reverse: bool, cache) -> None:
-    """Compute and write the chunks ``todo`` of ``e`` (``run``'s arguments): each from a cached run at more SNRs
-    where one holds it, else in this process or, with a ``client``, as a task on its cluster (``gather``)."""
+    """Compute and write the chunks ``todo`` of ``e``, each where it is cheapest.
+
+    Each comes from a cached run at more SNRs where one holds it, else is computed in this process or, with a
+    ``client``, as a task on its cluster (``gather``).
+
+    Parameters
+    ----------
+    e : Experiment
+        The experiment.
+    chunks : ChunkCache
+        Its open cache, where the chunks are written.
+    todo : list of (int, int)
+        The chunks (start, stop) to compute.
+    batch_size, workers, client, progress, reverse, cache
+        As in ``run``.
+    """
     bar = None
     if todo and progress:
         from tqdm import tqdm

@@ -69,7 +69,7 @@ class Scenario:
     prs_reuse : ``PRS_REUSES``.  0 (default) — the paper's model: every link's PRS on all N bins in one symbol,
         received alone (its own noise, no other BS).  R > 0 — Table I's PRS frequency reuse: the PRS of TS 38.211
         with comb R over R symbols on the 3276 active subcarriers (``nr.PrsPattern(R)``, the pilot energy of the
-        paper's symbol), each BS on the comb offset and with the PRS ID of ``deployment.prs_plan`` (R resources).
+        paper's symbol), each BS on the comb offset and with the PRS ID of ``scenario.prs_plan`` (R resources).
         Every BS of the deployment transmits; the UE receives on each resource the sum of its BSs' signals through
         their own channels, path loss and ToA, plus one noise (co-channel links share their REs and so their noise).
         Needs per-BS power (``Links.snr_mode`` "link_budget" or "nearest") and the certified search, whose window

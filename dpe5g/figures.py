@@ -1,12 +1,12 @@
 """The one place where the paper's figures are registered.
 
-Each figure has one ``compute`` function (config + seed → JSON-able payload of every plotted number) and one
-``plot`` function in ``dpe5g.plots`` (payload → matplotlib Figure).  ``make figures`` (``dpe5g figures``), the
+Each figure has one ``compute`` function in ``figure_data`` (config + seed → JSON-able payload of every plotted
+number) and one ``plot`` function in ``plots`` or ``result_plots`` (payload → matplotlib Figure).  ``make figures`` (``dpe5g figures``), the
 figure-diff test and the book's chapters all go through ``REGISTRY``, so they cannot drift apart.
 
 Payload layout: ``{"id", "paper_ref", "caption", "seed", "config": {...}, "data": {...}}``.
 
-``compute`` keeps each payload in the store (``store.payload_path``) keyed by the code of the whole package, so within
+``compute`` keeps each payload in the cache (``payload_path``) keyed by the code of the whole package, so within
 one state of the code a payload is computed once: by the first chapter that shows it, then read by the other
 chapters, the figure-diff and ``make figures``.  The statistics come from ``results``, the Markdown tables of the
 readings from ``report``.
@@ -14,23 +14,35 @@ readings from ``report``.
 
 from __future__ import annotations
 
+import hashlib
 import inspect
 import json
-from dataclasses import astuple, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-import jax
-import numpy as np
-
-from . import (bounds, channel, cost, dpe, engine, experiment, paper, plots, readings, result_plots, results,
-               search_config, store, trials)
-from ._io import atomic_target, atomic_write
-from .nr import C, PAPER
+from . import chunk_cache, experiment, figure_data, paper, plots, result_plots, store
+from ._io import atomic_target, atomic_write, jsonable
 
 
 @dataclass(frozen=True)
 class FigureSpec:
+    """A registered figure.
+
+    Attributes
+    ----------
+    id : str
+        The figure's id, e.g. ``"fig09_rmse_vs_snr"``.
+    paper_ref : str or None
+        The paper's figure, e.g. ``"Fig. 9"``; None: not a figure of the paper (the readings table).
+    caption : str
+        The caption.
+    compute : callable
+        Its producer: () → payload without id, ``paper_ref`` and caption (see the module).
+    plot : callable
+        Its drawing: payload → matplotlib Figure.
+    """
+
     id: str
     paper_ref: str | None  # None: not a figure of the paper (the readings table)
     caption: str
@@ -42,7 +54,18 @@ REGISTRY: dict[str, FigureSpec] = {}
 
 
 def register(fig_id: str, paper_ref: str | None, caption: str, plot: Callable[[dict], Any]):
-    """Decorator registering ``compute`` as the producer of figure ``fig_id``."""
+    """Decorator registering ``compute`` as the producer of figure ``fig_id``.
+
+    Parameters
+    ----------
+    fig_id, paper_ref, caption, plot
+        The ``FigureSpec`` fields ``id``, ``paper_ref``, ``caption`` and ``plot``.
+
+    Returns
+    -------
+    callable
+        The decorator: it registers ``compute`` and returns it unchanged; ``ValueError`` when ``fig_id`` is taken.
+    """
 
     def wrap(compute: Callable[[], dict]) -> Callable[[], dict]:
         if fig_id in REGISTRY:
@@ -54,24 +77,66 @@ def register(fig_id: str, paper_ref: str | None, caption: str, plot: Callable[[d
 
 
 def get(fig_id: str) -> FigureSpec:
+    """The registered figure ``fig_id``.
+
+    Parameters
+    ----------
+    fig_id : str
+        A key of ``REGISTRY``.
+
+    Returns
+    -------
+    FigureSpec
+
+    Raises
+    ------
+    ValueError
+        When ``fig_id`` is not registered.
+    """
     if fig_id not in REGISTRY:
         raise ValueError(f"figure must be one of {', '.join(REGISTRY)}; got {fig_id!r}")
     return REGISTRY[fig_id]
 
 
 def takes_trials(fig_id: str) -> bool:
-    """Whether the figure comes from a Monte Carlo whose trial count ``compute(..., trials=N)`` can set."""
+    """Whether the figure comes from a Monte Carlo whose trial count ``compute(..., trials=N)`` can set.
+
+    Parameters
+    ----------
+    fig_id : str
+        A key of ``REGISTRY``.
+
+    Returns
+    -------
+    bool
+    """
     return "trials" in inspect.signature(get(fig_id).compute).parameters
 
 
 def compute(fig_id: str, progress: bool = False, trials: int | None = None) -> dict:
-    """Run the producer of ``fig_id`` and return its JSON-able payload, or read it from the store
-    (``store.load_payload``) where this code computed it before (the Monte Carlo figures then need no Monte Carlo
-    results either).
+    """Run the producer of ``fig_id``, or read its payload from the store where this code computed it before.
 
-    progress : show a progress bar (stderr) where the producer runs a long Monte Carlo (the CLI turns it on).
-    trials : Monte Carlo trials per experiment instead of the committed figure's (``dpe5g.paper``); only for the
-        figures of ``takes_trials``.  The payload then differs from the committed baseline.
+    Read by ``load_payload``: the Monte Carlo figures then need no Monte Carlo results either.
+
+    Parameters
+    ----------
+    fig_id : str
+        A key of ``REGISTRY``.
+    progress : bool
+        Show a progress bar (stderr) where the producer runs a long Monte Carlo (the CLI turns it on).
+    trials : int or None
+        Monte Carlo trials per experiment instead of the committed figure's (``dpe5g.paper``); only for the figures
+        of ``takes_trials``.  The payload then differs from the committed baseline.
+
+    Returns
+    -------
+    dict
+        The JSON-able payload.
+
+    Raises
+    ------
+    ValueError
+        When ``fig_id`` is unknown, or ``trials`` is given for a figure without a Monte Carlo.
     """
     spec = get(fig_id)
     kwargs = {}
@@ -82,16 +147,26 @@ def compute(fig_id: str, progress: bool = False, trials: int | None = None) -> d
             raise ValueError(f"trials: figure {fig_id} has no Monte Carlo; trials applies to "
                              f"{', '.join(f for f in REGISTRY if takes_trials(f))}")
         kwargs["trials"] = int(trials)
-    stored = store.load_payload(fig_id, kwargs.get("trials"))
+    stored = load_payload(fig_id, kwargs.get("trials"))
     if stored is not None:
         return stored
     payload = spec.compute(**kwargs)
-    return store.save_payload(fig_id, kwargs.get("trials"),
+    return save_payload(fig_id, kwargs.get("trials"),
                               {"id": spec.id, "paper_ref": spec.paper_ref, "caption": spec.caption, **payload})
 
 
 def render(payload: dict):
-    """Draw a payload with its registered plot function; returns a matplotlib Figure."""
+    """Draw a payload with its registered plot function.
+
+    Parameters
+    ----------
+    payload : dict
+        A payload of ``compute``.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     return get(payload["id"]).plot(payload)
 
 
@@ -104,6 +179,13 @@ def glue(name: str, fig) -> None:
         :name: fig-name
         **Reproduces the paper's Fig. 9.** RMSE against SNR …
         ```
+
+    Parameters
+    ----------
+    name : str
+        The glue name the chapter refers to.
+    fig : matplotlib.figure.Figure or object
+        The figure, or any displayable object.
     """
     from matplotlib.figure import Figure
     from myst_nb import glue as _glue
@@ -114,9 +196,23 @@ def glue(name: str, fig) -> None:
 
 
 def write(fig_id: str, out_dir, progress: bool = False, trials: int | None = None) -> tuple[Path, Path]:
-    """Compute and draw ``fig_id``; write ``out_dir/<id>.png`` and ``out_dir/data/<id>.json``.  The figure is drawn
-    and checked (``plots.save_png`` checks its legibility) before either file is written, so a figure that fails
-    leaves both files as they were."""
+    """Compute and draw ``fig_id``; write ``out_dir/<id>.png`` and ``out_dir/data/<id>.json``.
+
+    The figure is drawn and checked (``plots.save_png`` checks its legibility) before either file is written, so a
+    figure that fails leaves both files as they were.
+
+    Parameters
+    ----------
+    fig_id, progress, trials
+        As for ``compute``.
+    out_dir : str or pathlib.Path
+        The output folder.
+
+    Returns
+    -------
+    png, js : pathlib.Path
+        The files written.
+    """
     out = Path(out_dir)
     payload = compute(fig_id, progress=progress, trials=trials)
     js, png = out / "data" / f"{fig_id}.json", out / f"{fig_id}.png"
@@ -127,50 +223,103 @@ def write(fig_id: str, out_dir, progress: bool = False, trials: int | None = Non
     return png, js
 
 
-# ---------------------------------------------------------------------------------------------------------------
-# Figs. 1–5: TDL-A … TDL-E at 65 ns.
+def payload_path(fig_id: str, trials: int | None = None, cache=None) -> Path:
+    """Where ``figures.compute`` keeps a figure's payload: ``<cache root>/payloads/<id>-<key>.json``.
 
-TDL_DELAY_SPREAD_S = 65e-9  # paper: "desired RMS delay spread of 65 ns", UMi street canyon, short-delay profile
-TDL_SEED = 5
+    The key hashes the figure id, the trial count, the code of every module of the package (``experiment.code_digest``:
+    docstrings and comments left out), its data files, the numerical libraries' versions and the results store's content
+    (``store.store_digest``): everything a payload is computed from, so a stored payload is exactly what computing it again
+    would give, and any change of code or of the store computes it anew.
 
+    Parameters
+    ----------
+    fig_id : str
+        The figure's id.
+    trials : int or None
+        Its Monte Carlo trials; None: the committed figure's.
+    cache : str, os.PathLike or None
+        The cache root (``cache_root``), beside the Monte Carlo results.
 
-def tdl_payload(profile_name: str, delay_spread_s: float = TDL_DELAY_SPREAD_S, seed: int = TDL_SEED) -> dict:
-    """Data of one TDL figure: the scaled profile, one draw of its taps and the sampled CIR.
-
-    The draw uses ``jax.random.PRNGKey(seed)`` folded with the profile letter, so each figure has its own
-    reproducible realisation.
+    Returns
+    -------
+    Path
+        The payload's file.
     """
-    prof = channel.tdl_profile(profile_name, delay_spread_s)
-    key = jax.random.fold_in(jax.random.PRNGKey(seed), ord(profile_name))
-    gains = np.asarray(channel.draw_gains(prof, key))
-    h = np.asarray(channel.sampled_cir(gains, prof.delays_s, PAPER))
-    ts = PAPER.sample_period_s
-    n_show = int(np.ceil(prof.delays_s.max() / ts)) + 3
-    return {
-        "seed": seed,
-        "config": {
-            "profile": profile_name,
-            "profile_name": prof.name,
-            "table": prof.table,
-            "delay_spread_s": delay_spread_s,
-            "k_factor_db": prof.k_factor_db,
-            "scs_hz": PAPER.scs_hz,
-            "n_fft": PAPER.n_fft,
-        },
-        "data": {
-            "delays_ns": prof.delays_s * 1e9,
-            "powers": prof.powers,
-            "pdp_db": prof.pdp_db(),
-            "los": prof.los,
-            "gains_re": gains.real,
-            "gains_im": gains.imag,
-            "ts_ns": ts * 1e9,
-            "grid_ns": np.arange(n_show) * ts * 1e9,
-            "grid_abs": np.abs(h[:n_show]),
-            "rms_ds_ns": channel.rms_delay_spread(prof.delays_s, prof.powers) * 1e9,
-        },
-    }
+    here = Path(__file__).resolve().parent
+    h = hashlib.sha256(json.dumps([fig_id, trials, experiment.numerics()], sort_keys=True).encode())
+    for path in sorted(here.glob("*.py")):
+        h.update(path.name.encode() + experiment.code_digest(path))
+    for path in sorted(p for p in (here / "data").rglob("*") if p.is_file()):
+        h.update(path.name.encode() + path.read_bytes())
+    h.update(store.store_digest().encode())
+    return chunk_cache.cache_root(cache) / "payloads" / f"{fig_id}-{h.hexdigest()[:16]}.json"
 
+
+def load_payload(fig_id: str, trials: int | None = None, cache=None) -> dict | None:
+    """The stored payload of a figure (``payload_path``).
+
+    Parameters
+    ----------
+    fig_id, trials, cache
+        As for ``payload_path``.
+
+    Returns
+    -------
+    dict or None
+        The payload; None when this code has not computed it, or when its file is damaged or fails its checksum (named
+        on stderr and set aside as ``<name>.damaged``, so it is computed again).
+    """
+    path = payload_path(fig_id, trials, cache)
+    try:
+        held = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:  # (never computed, or another process set it aside meanwhile)
+        return None
+    except ValueError as err:  # (UnicodeDecodeError included)
+        return chunk_cache.set_aside(path, f"not valid JSON: {' '.join(str(err).split())}")
+    if not isinstance(held, dict) or held.get("sha256") != payload_digest(held.get("payload")):
+        return chunk_cache.set_aside(path, "its payload does not match its checksum")
+    return held["payload"]
+
+
+def payload_digest(payload) -> str:
+    """SHA-256 of a payload's JSON (keys sorted): the checksum ``save_payload`` records.
+
+    Parameters
+    ----------
+    payload : dict
+        The payload, JSON-able.
+
+    Returns
+    -------
+    str
+        The hex digest.
+    """
+    return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
+
+
+def save_payload(fig_id: str, trials: int | None, payload: dict, cache=None) -> dict:
+    """Store a payload as JSON (``jsonable``) with its checksum (``payload_digest``, checked by ``load_payload``).
+
+    Parameters
+    ----------
+    fig_id, trials, cache
+        As for ``payload_path``, where it is written atomically.
+    payload : dict
+        The payload.
+
+    Returns
+    -------
+    dict
+        What was stored: the payload made ``jsonable``.
+    """
+    payload = jsonable(payload)
+    held = {"sha256": payload_digest(payload), "payload": payload}
+    atomic_write(payload_path(fig_id, trials, cache), json.dumps(held).encode())
+    return payload
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The paper's figures (each payload's producer is in ``figure_data``) and the readings table.
 
 def _register_tdl(number: int, letter: str, condition: str) -> None:
     caption = (
@@ -178,266 +327,42 @@ def _register_tdl(number: int, letter: str, condition: str) -> None:
         "(a) is the channel impulse response of the TDL model, (b) is the power delay profile."
     )
     register(f"fig0{number}_tdl_{letter.lower()}", f"Fig. {number}", caption, plots.plot_tdl)(
-        lambda: tdl_payload(letter)
+        lambda: figure_data.tdl_payload(letter)
     )
 
 
 for _n, _l, _c in ((1, "A", "NLoS"), (2, "B", "NLoS"), (3, "C", "NLoS"), (4, "D", "LoS"), (5, "E", "LoS")):
     _register_tdl(_n, _l, _c)
 
-
-# ---------------------------------------------------------------------------------------------------------------
-# Fig. 6: the ML cost over (x, y) from 8 BSs through the paper's 3-tap NLoS channel.
-
-FIG6_TAPS = (0.7079, 1.0, 0.8913)  # |h_1|, |h_2|, |h_3|: LoS 3 dB and third path 1 dB below the strongest
-FIG6_RADIUS_M = 150.0  # the paper gives no geometry; ours: 8 BSs evenly on a circle, 10 m high
-FIG6_HALF_WIDTH_M = 10.0
-FIG6_STEP_M = 0.25
-
-
-def cost_surface_payload(n_taps: int | None = None) -> dict:
-    """Eq. (10) on an (x, y) grid around the UE: 8 BSs, each through the 3-tap channel, taps one sample apart.
-
-    Noise-free, taps real and positive (the paper gives amplitudes only), UE height and clock bias known (the paper:
-    "the estimation for altitude and clock bias is not involved").  The receiver window is the default L.
-    """
-    from . import nr, signal
-
-    n_taps = search_config.DEFAULT_TAPS if n_taps is None else n_taps
-    m = 8
-    ang = np.arange(m) * 2 * np.pi / m
-    bs = np.stack([FIG6_RADIUS_M * np.cos(ang), FIG6_RADIUS_M * np.sin(ang), np.full(m, 10.0)], axis=-1)
-    ue = np.array([0.0, 0.0, 2.0])
-    prs = nr.prs_matrix(range(1, m + 1))
-    ts = PAPER.sample_period_s
-    gains = np.tile(FIG6_TAPS, (m, 1))
-    y = signal.received_noiseless(prs, gains, np.tile(np.arange(3) * ts, (m, 1)), cost.toa(ue, bs, 0.0))
-    axis = np.arange(-FIG6_HALF_WIDTH_M, FIG6_HALF_WIDTH_M + 1e-9, FIG6_STEP_M)
-    rows = []
-    for yy in axis:  # one grid row at a time keeps the (candidates, M, N) intermediate small
-        xyz = np.stack([axis, np.full_like(axis, yy), np.full_like(axis, ue[2])], axis=-1)
-        rows.append(np.asarray(cost.ml_cost(y, prs, cost.toa(xyz, bs, 0.0), n_taps, PAPER.scs_hz)))
-    surface = np.stack(rows)  # [iy, ix]
-    iy, ix = np.unravel_index(np.argmax(surface), surface.shape)
-    return {
-        "seed": None,
-        "config": {"n_bs": m, "bs_radius_m": FIG6_RADIUS_M, "bs_height_m": 10.0, "ue_xyz": ue, "taps_abs": FIG6_TAPS,
-                   "tap_spacing_samples": 1, "n_taps_receiver": n_taps, "n_fft": PAPER.n_fft, "noise": "none",
-                   "grid_step_m": FIG6_STEP_M},
-        "data": {"x_m": axis, "y_m": axis, "cost_norm": surface / surface.max(), "cost_max": surface.max(),
-                 "peak_xy": [axis[ix], axis[iy]], "bs_xyz": bs},
-    }
-
-
 register("fig06_cost_surface", "Fig. 6",
          "Cost function composed of signals from 8 BSs, each propagating through an equally spaced 3-tap NLoS channel.",
-         plots.plot_cost_surface)(cost_surface_payload)
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# Figs. 7–9: the urban study (Section IV-A).
-
-EXAMPLE_TRIAL = 0  # the example UE of Figs. 7–8 and of the 3-D scene: trial 0 of the Fig. 9 experiment
-EXAMPLE_SNR_DB = 20.0
-EXAMPLE_M = 12
-FIG8_HALF_WIDTH_M = 10.0
-FIG8_STEP_M = 0.2
-
-
-def _example():
-    e = paper.fig9_truth(n_trials=EXAMPLE_TRIAL + 1)
-    return e, trials.example(e, EXAMPLE_TRIAL, list(e.links.snrs_db).index(EXAMPLE_SNR_DB))
-
-
-def deployment_payload() -> dict:
-    """Fig. 7: the deployment (region, buildings, streets, 26 BSs) and the example UE with its M nearest links."""
-    e, ex = _example()
-    dep = e.load_deployment()
-    m = EXAMPLE_M
-    return {
-        "seed": paper.URBAN_SEED,
-        "config": {"deployment": dep.name, "n_bs": dep.n_bs, "area_m2": dep.area_m2, "example_trial": EXAMPLE_TRIAL,
-                   "m": m, "anchor_lat_lon_deg": [dep.anchor_lat_deg, dep.anchor_lon_deg]},
-        "data": {"region": dep.region, "buildings": dep.buildings, "streets": [dict(s) for s in dep.streets],
-                 "bs_ids": list(dep.bs_ids), "bs_xyz": dep.bs_xyz, "ue_xyz": ex.ue_xyz,
-                 "link_bs_xyz": ex.bs_xyz[:m], "link_los": ex.los[:m]},
-    }
-
-
-def urban_correlogram_payload() -> dict:
-    """Fig. 8: eq. (10) — the correlograms of the M nearest BSs summed — over (x, y) around the example UE, at the
-    fix's clock bias, with the DPE fix (grid centred on the truth, the paper's set-up) and the truth."""
-    e, ex = _example()
-    m = EXAMPLE_M
-    y, prs, bs = ex.y[:m], ex.prs[:m], ex.bs_xyz[:m]
-    ue, bias = ex.ue_xyz, float(ex.clock_bias_s)
-    est = dpe.fix(y, prs, bs, np.concatenate([ue, [bias * C]]), e.receiver.search)
-    axis = np.arange(-FIG8_HALF_WIDTH_M, FIG8_HALF_WIDTH_M + 1e-9, FIG8_STEP_M)
-    rows = []
-    for yy in axis:
-        xyz = np.stack([ue[0] + axis, np.full_like(axis, ue[1] + yy), np.full_like(axis, ue[2])], axis=-1)
-        rows.append(np.asarray(cost.ml_cost(y, prs, cost.toa(xyz, bs, float(est.clock_bias_s)), e.receiver.search.n_taps,
-                                           PAPER.scs_hz)))
-    surface = np.stack(rows)
-    return {
-        "seed": paper.URBAN_SEED,
-        "config": {"example_trial": EXAMPLE_TRIAL, "snr_db": EXAMPLE_SNR_DB, "m": m, "n_taps": e.receiver.search.n_taps,
-                   "grid_step_m": FIG8_STEP_M, "centring": "truth"},
-        "data": {"x_m": ue[0] + axis, "y_m": ue[1] + axis, "cost_norm": surface / surface.max(), "ue_xyz": ue,
-                 "true_bias_s": bias, "est_xyz": est.xyz, "est_bias_s": est.clock_bias_s,
-                 "error_m": float(np.linalg.norm(est.xyz[:2] - ue[:2])), "n_los": int(ex.los[:m].sum())},
-    }
-
-
-def experiment_config(e) -> dict:
-    s = e.receiver_search()
-    return {"name": e.run.name, "n_trials": e.run.n_trials, "seed": e.run.seed, "centring": e.receiver.centring,
-            "prior": f"{e.receiver.prior_kind} {e.receiver.prior_scale_m:g} m" if e.receiver.centring == "prior" else None,
-            "search": s.method, "half_width_m": s.half_width_m, "bias_half_width_m": s.bias_half_width_m,
-            "n_taps": s.n_taps}
-
-
-def rmse_payload(experiments: dict, progress: bool = False) -> dict:
-    """Fig. 9 from the experiments' results (run or loaded from the cache), one entry per receiver ("honest",
-    "truth"): RMSE, median, 90/99 % error per (SNR, M), edge-flag and certified shares; and the LoS share."""
-
-    data, config = {}, {}
-    for name, e in experiments.items():
-        res = engine.run(e, progress=progress)
-        data[name] = results.error_stats(res)
-        config[name] = experiment_config(e)
-    e = next(iter(experiments.values()))
-    bound, bound_cfg = {}, {}
-    if "honest" in experiments and experiments["honest"].links.snr_mode == "fixed":  # the bounds chapter's bound, on the same trials
-        n_b = min(paper.BOUND_TRIALS, experiments["honest"].run.n_trials)
-        bound, bound_cfg = {"bound_m": bounds.rmse_bound_m(experiments["honest"], n_b)}, {"bound_trials": n_b}
-    return {
-        "seed": e.run.seed,
-        "config": {"snrs_db": e.links.snrs_db, "m_values": e.receiver.m_values, "los_mode": e.scenario.los_mode,
-                   "delay_spread_s": e.scenario.delay_spread_s, "k_factor_db": e.scenario.k_factor_db, "clock_sigma_s": e.scenario.clock_sigma_s,
-                   "clock_bound_sigmas": e.scenario.clock_bound_sigmas, "deployment": e.scenario.deployment, "receivers": config,
-                   **bound_cfg},
-        "data": {**data, **bound, "los_share_all": res.los_share(),
-                 "los_share_by_m": [res.los_share(m) for m in e.receiver.m_values]},
-    }
-
+         plots.plot_cost_surface)(figure_data.cost_surface_payload)
 
 register("fig07_deployment_map", "Fig. 7",
          "Our Tsim Sha Tsui-like deployment: 26 BSs over a 227,360 m² region, and an example UE with its 12 "
-         "nearest links (LoS/NLoS drawn from eq. (11)).", plots.plot_deployment)(deployment_payload)
+         "nearest links (LoS/NLoS drawn from eq. (11)).", plots.plot_deployment)(figure_data.deployment_payload)
+
 register("fig08_urban_correlogram", "Fig. 8",
          "2-D correlogram (eq. (10), the 12 nearest BSs summed) of the example urban fix at 20 dB.",
-         plots.plot_urban_correlogram)(urban_correlogram_payload)
+         plots.plot_urban_correlogram)(figure_data.urban_correlogram_payload)
+
 register("fig09_rmse_vs_snr", "Fig. 9",
          "(a) DPE RMSE against SNR for M = 6, 12, 18, 24 nearest BSs: the honest receiver (window centred on a "
          f"{paper.PRIOR_SIGMA_M:g} m "
          "prior, certified search; solid) and the paper's truth-centred grid (dashed); (b) the honest receiver beside the "
          "Cramér–Rao bound (the bounds chapter), log axis.",
          result_plots.plot_rmse_vs_snr)(
-    lambda progress=False, trials=None: rmse_payload(
+    lambda progress=False, trials=None: figure_data.rmse_payload(
         paper.fig9() if trials is None else paper.fig9(honest_trials=trials, truth_trials=trials), progress))
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# Fig. 10: DPE against OTDoA with the 4 nearest BSs (Section IV-B).
-
-CDF_GRID_M = np.logspace(-2, 3, 251)  # error axis of the stored CDFs, 1 cm … 1 km
-
-
-def cdf_payload(experiments: dict, progress: bool = False) -> dict:
-    """Fig. 10 from the experiments' results: error CDFs and 50/90/99 % points of each DPE receiver and of OTDoA
-    with each detector (all fixes, and without the flagged ones), flagged shares, and the improvement
-    1 − p90(DPE)/p90(OTDoA) as the paper computes it (honest DPE against first-path OTDoA)."""
-
-    data, config = {}, {}
-    cdf = lambda err: np.searchsorted(np.sort(err), CDF_GRID_M, side="right") / err.size
-    for (case, cen), e in experiments.items():
-        res = engine.run(e, progress=progress)
-        d = data.setdefault(case, {})
-        err = res.error_m[:, 0, 0]
-        d[f"dpe_{cen}"] = {"cdf": cdf(err), "p50_p90_p99_m": results.quantiles(err),
-                           "edge_share": float(np.mean(res.edge[:, 0, 0])),
-                           "certified_share": float(np.mean(res.certified[:, 0, 0]))}
-        if e.receiver.otdoa:
-            for k, det in enumerate(experiment.OTDOA_DETECTORS):
-                ot, ok = res.otdoa_error_m[:, 0, k, 0], res.otdoa_ok[:, 0, k, 0]
-                d[f"otdoa_{det}"] = {"cdf": cdf(ot), "p50_p90_p99_m": results.quantiles(ot),
-                                     "p50_p90_p99_unflagged_m": results.quantiles(ot[ok]),
-                                     "flagged_share": float(np.mean(~ok))}
-            d["los_share"] = res.los_share(4)
-            d["median_link_snr_db"] = float(np.median(res.link_snr_db))
-        config[f"{case}/{cen}"] = {**experiment_config(e), "los_mode": e.scenario.los_mode, "m": 4,
-                                   "noise_figure_db": e.links.budget.noise_figure_db}
-    for d in data.values():
-        d["improvement_p90"] = 1.0 - d["dpe_otdoa"]["p50_p90_p99_m"][1] / d["otdoa_first_path"]["p50_p90_p99_m"][1]
-    return {"seed": paper.FIG10_SEED, "config": {"experiments": config, "error_grid_m": CDF_GRID_M}, "data": data}
-
 
 register("fig10_cdf_dpe_vs_otdoa", "Fig. 10",
          "CDF of the position error of DPE and OTDoA with the 4 nearest BSs, SNR per link from the UMi path loss: "
          f"DPE centred on the OTDoA fix or on a {paper.PRIOR_SIGMA_M:g} m prior (certified search) and on the truth "
          "(the paper's set-up); "
          "OTDoA with the first-path and the strongest-peak ToA.", result_plots.plot_cdf)(
-    lambda progress=False, trials=None: cdf_payload(paper.fig10() if trials is None else paper.fig10(trials), progress))
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# the reproduction chapter: the readings of the paper against its claims about Figs. 9 and 10 (not a figure of the
-# paper).
-
-#: short names of the claims and readings for the table's axes
-CLAIM_SHORT = {"fig9_6m": f"Fig. 9: ≤ {paper.PAPER_FIG9_RMSE_M['rmse_m']:g} m\n10 dB, M = 6",
-               "fig9_falls": f"Fig. 9: falls\nwith SNR (< {readings.FALLS_RATIO:g})",
-               "fig9_submetre": f"Fig. 9: < {paper.PAPER_FIG9_SUB_METRE_M:g} m\n40 dB, M ≥ 18",
-               "fig9_more_hurts": "Fig. 9: more BSs\nhurt (> 1)",
-               "fig9_saturation": f"Fig. 9: saturates\n18 → 24 (≤ {100 * readings.SATURATION_TOLERANCE:g} %)",
-               "fig10_dpe_p90": f"Fig. 10: DPE\np90 ≤ {paper.PAPER_FIG10_DPE_M[0.9]:g} m",
-               "fig10_dpe_p99": f"Fig. 10: DPE\np99 ≤ {paper.PAPER_FIG10_DPE_M[0.99]:g} m",
-               "fig10_otdoa_p90": f"Fig. 10: OTDoA\np90 ≈ {paper.PAPER_FIG10_OTDOA_M[0.9]:g} m",
-               "fig10_gain": f"Fig. 10: gain\n≈ {100 * paper.PAPER_FIG10_GAIN:.2f} %"}
-READING_SHORT = {"as_read": "as this book reads it", "peak_otdoa": "… peak-ToA OTDoA", "span": "… DS = span",
-                 "total_snr": "… total SNR", "span_total": "… span and total SNR",
-                 "certified_window": "… certified search", "nearest_los": "… nearest two LoS",
-                 "honest": "honest receiver", "reuse": f"honest, PRS reuse {paper.REUSE}",
-                 "umi": "honest, UMi NLoS delay"}
-
-
-def readings_payload(progress: bool = False, trials: int | None = None) -> dict:
-    """Each reading of ``readings.READINGS`` tested on each claim of ``readings.CLAIMS``: its value, 95 % bootstrap
-    interval and verdict (``readings.claim_intervals``, ``readings.claim_verdicts``), from its experiments' results (run or loaded from the cache), with the share (a fraction, 0 to 1) of its DPE fixes on
-    the search window's edge: in Fig. 9 over every (SNR, M) cell at the readings' SNRs, in Fig. 10 over its trials."""
-
-    data = {}
-    for name, (label, changes) in readings.READINGS.items():
-        ex = readings.experiments(name, trials)
-        r9 = engine.run(ex["fig9"], progress=progress)
-        e9 = ex["fig9"]
-        si = [list(e9.links.snrs_db).index(s) for s in paper.READING_SNRS_DB]
-        r10 = engine.run(ex["fig10_dpe"], progress=progress)
-        o10 = engine.run(ex["fig10_otdoa"], progress=progress)
-        det = experiment.OTDOA_DETECTORS.index(ex["otdoa_detector"])
-        claims = readings.claim_intervals(r9.error_m[:, si], paper.READING_SNRS_DB, e9.receiver.m_values,
-                                          r10.error_m[:, 0, 0], o10.otdoa_error_m[:, 0, det, 0])
-        data[name] = {"label": label, "short": READING_SHORT[name], "changes": changes,
-                      "n_trials": {"fig9": e9.run.n_trials, "fig10_dpe": ex["fig10_dpe"].run.n_trials,
-                                   "fig10_otdoa": ex["fig10_otdoa"].run.n_trials},
-                      "values": {k: iv.value for k, iv in claims.items()},
-                      "intervals": {k: [iv.lo, iv.hi] for k, iv in claims.items()},
-                      "verdicts": readings.claim_verdicts(claims),
-                      "dpe_minus_otdoa_p90_m": list(astuple(results.quantile_difference(
-                          r10.error_m[:, 0, 0], o10.otdoa_error_m[:, 0, det, 0]))[:3]),
-                      "edge_share": {"fig9": float(np.mean(r9.edge[:, si])),
-                                     "fig10_dpe": float(np.mean(r10.edge[:, 0, 0]))}}
-    return {"seed": {"fig9": paper.URBAN_SEED, "fig10": paper.FIG10_SEED},
-            "config": {"snrs_db": paper.READING_SNRS_DB, "claim_order": list(readings.CLAIMS),
-                       "reading_order": list(readings.READINGS), "claims": {k: {"claim": c, "paper": v,
-                                                                        "short": CLAIM_SHORT[k],
-                                                                        "range": [None if abs(x) == np.inf else x for x in r]}
-                                                                    for k, (c, v, r) in readings.CLAIMS.items()}},
-            "data": data}
-
+    lambda progress=False, trials=None: figure_data.cdf_payload(paper.fig10() if trials is None else paper.fig10(trials), progress))
 
 register("readings_table", None,
          "Which reading of the paper reproduces which of its claims about Figs. 9 and 10: the set-up as this book "
          "reads it (window centred on the truth, RMS delay spread, per-sample SNR, L = 12, first-path OTDoA), one "
-         "reading changed at a time, and the honest receiver.", result_plots.plot_readings)(readings_payload)
+         "reading changed at a time, and the honest receiver.", result_plots.plot_readings)(figure_data.readings_payload)

@@ -1,9 +1,11 @@
-"""The NLoS-bias chapter's experiments (ours, beyond the paper): Fig. 10's receivers with TR 38.901's NLoS excess
-delay on every NLoS link (the UMi row, and its median swept), the honest DPE with a clock window that covers it,
-Fig. 10's unstated SNR swept, the optimiser and the window of the paper's truth-centred receiver apart, the deterministic reading of Fig. 10's LoS case, and Fig. 9 with the excess delay and with a blind window.
-Each is one of ``dpe5g.paper``'s figure experiments with a few settings changed (the excess delay, the SNR offset,
-the search, the LoS rule or the window's centre), on the figure's seed, so that its trials are the figure's signals
-with that change.
+"""The NLoS-bias chapter's experiments (ours, beyond the paper): the figures' experiments with one setting changed.
+
+They are Fig. 10's receivers with TR 38.901's NLoS excess delay on every NLoS link (the UMi row, and its median
+swept), the honest DPE with a clock window that covers it, Fig. 10's unstated SNR swept, the optimiser and the window
+of the paper's truth-centred receiver apart, the deterministic reading of Fig. 10's LoS case, and Fig. 9 with the
+excess delay and with a blind window.  Each is one of ``dpe5g.paper``'s figure experiments with a few settings
+changed (the excess delay, the SNR offset, the search, the LoS rule or the window's centre), on the figure's seed, so
+that its trials are the figure's signals with that change.
 """
 
 from __future__ import annotations
@@ -27,14 +29,39 @@ NLOS_EXCESS_TRIALS = paper.FIG10_TRIALS
 
 
 def excess_tag(median_s: float) -> str:
-    """The name tag of an excess-delay experiment: "umi" for the UMi row's median, else "excess{ns}ns"."""
+    """The name tag of an excess-delay experiment.
+
+    Parameters
+    ----------
+    median_s : float
+        The median of the excess delay, seconds.
+
+    Returns
+    -------
+    str
+        "umi" for the UMi row's median, else "excess{ns}ns" (the median in ns).
+    """
     return "umi" if median_s == UMI.median_s else f"excess{median_s * 1e9:g}ns"
 
 
 def fig10_nlos_excess(median_s: float, n_trials: int = NLOS_EXCESS_TRIALS) -> dict:
-    """``fig10``'s experiments, keyed (case, centring), with every NLoS link's paths late by a log-normal Δτ of median
-    ``median_s`` and the UMi row's σ_lg (``scenario.nlos_excess_delay``, drawn per link; the receivers do not know
-    it).  median_s 0 gives Fig. 10's own experiments (``paper.fig10``, their first ``n_trials`` trials)."""
+    """``fig10``'s experiments with every NLoS link's paths late by a log-normal excess delay Δτ.
+
+    Δτ has median ``median_s`` and the UMi row's σ_lg (``scenario.nlos_excess_delay``, drawn per link); the receivers do
+    not know it.
+
+    Parameters
+    ----------
+    median_s : float
+        The median of Δτ, seconds; 0 gives Fig. 10's own experiments (``paper.fig10``).
+    n_trials : int
+        Trials of each experiment (their first ``n_trials``); default Fig. 10's own count.
+
+    Returns
+    -------
+    dict
+        {(case, centring): Experiment}, as ``paper.fig10``.
+    """
     if median_s == 0:
         return paper.fig10(n_trials)
     return {k: e.replace(name=f"{e.run.name}-{excess_tag(median_s)}", nlos_excess_median_s=median_s,
@@ -42,9 +69,21 @@ def fig10_nlos_excess(median_s: float, n_trials: int = NLOS_EXCESS_TRIALS) -> di
 
 
 def fig10_clock_nlos(n_trials: int = NLOS_EXCESS_TRIALS) -> dict:
-    """The honest DPE on the OTDoA fix of Fig. 10 under the UMi excess delay, keyed by case, with a clock window that
-    covers the excess delay's law (clock_window "clock_nlos": ± 3 σ c + the 99th percentile of c Δτ) instead of the
-    clock model's ± 3 σ c: the same trials as ``fig10_nlos_excess(UMI.median_s)``, only the window differs."""
+    """The honest DPE on Fig. 10's OTDoA fix under the UMi excess delay, with a clock window that covers that delay.
+
+    The clock window is clock_window "clock_nlos" (± 3 σ c + the 99th percentile of c Δτ) instead of the clock model's
+    ± 3 σ c: the same trials as ``fig10_nlos_excess(UMI.median_s)``, only the window differs.
+
+    Parameters
+    ----------
+    n_trials : int
+        Trials of each experiment; default Fig. 10's own count.
+
+    Returns
+    -------
+    dict
+        {case: Experiment}, the cases of ``paper.FIG10_CASES``.
+    """
     ex = fig10_nlos_excess(UMI.median_s, n_trials)
     return {case: ex[(case, "otdoa")].replace(name=f"{ex[(case, 'otdoa')].run.name}-clock-nlos",
                                               clock_window="clock_nlos") for case in paper.FIG10_CASES}
@@ -60,8 +99,21 @@ FIG9_EXCESS_MEDIANS_S = (UMI.median_s, 100e-9)
 
 
 def fig10_snr_offset(offset_db: float, n_trials: int = FIG10_SWEEP_TRIALS) -> dict:
-    """Fig. 10's paper's case (two of the four nearest links LoS) with every link's SNR offset by ``offset_db``,
-    keyed by centring ("otdoa" also holds both OTDoA detectors' fixes); offset 0 gives Fig. 10's own experiments."""
+    """Fig. 10's paper's case (two of the four nearest links LoS) with every link's SNR offset by ``offset_db``.
+
+    Parameters
+    ----------
+    offset_db : float
+        The offset of every link's link-budget SNR, dB; 0 gives Fig. 10's own experiments.
+    n_trials : int
+        Trials of each experiment; default ``FIG10_SWEEP_TRIALS``.
+
+    Returns
+    -------
+    dict
+        {centring: Experiment}, the centrings of ``paper.FIG10_CENTRINGS`` ("otdoa" also holds both OTDoA detectors'
+        fixes).
+    """
     f10 = paper.fig10(n_trials)
     out = {cen: f10[("two_of_four", cen)] for cen in paper.FIG10_CENTRINGS}
     if offset_db == 0:
@@ -70,18 +122,37 @@ def fig10_snr_offset(offset_db: float, n_trials: int = FIG10_SWEEP_TRIALS) -> di
 
 
 def certified_in_paper_window() -> search_config.SearchConfig:
-    """The honest receiver's certified search (``paper.honest_search``) inside the paper's window: the default grid
-    search's half-widths (±10 m in position, its clock-bias window), for a receiver centred on the truth as the paper's
-    is, so that only the optimiser differs from the paper's set-up."""
+    """The honest receiver's certified search (``paper.honest_search``) inside the paper's window.
+
+    The window is the default grid search's half-widths (±10 m in position, its clock-bias window), for a receiver
+    centred on the truth as the paper's is, so that only the optimiser differs from the paper's set-up.
+
+    Returns
+    -------
+    search_config.SearchConfig
+        The certified search with the paper's half-widths.
+    """
     grid = paper.fig10()[("two_of_four", "truth")].receiver.search
     return replace(paper.honest_search(), half_width_m=grid.half_width_m, bias_half_width_m=grid.bias_half_width_m)
 
 
 def fig10_window_confound(n_trials: int = paper.FIG10_TRIALS) -> dict:
-    """The optimiser and the window apart, on Fig. 10's trials, keyed (case, variant): the certified search inside
-    the paper's truth-centred window (±10 m, the clock window of the truth-centred grid) — "certified ±10 m" — and
-    inside the honest receivers' ±30 m window, still centred on the truth — "certified ±30 m"; the grid in the
-    ±10 m window is Fig. 10's "truth" experiment."""
+    """The optimiser and the window apart, on Fig. 10's trials.
+
+    Two variants per case, both centred on the truth: "certified ±10 m", the certified search inside the paper's
+    truth-centred window (±10 m, the clock window of the truth-centred grid), and "certified ±30 m", the certified
+    search inside the honest receivers' ±30 m window.  The grid in the ±10 m window is Fig. 10's "truth" experiment.
+
+    Parameters
+    ----------
+    n_trials : int
+        Trials of each experiment; default Fig. 10's own count.
+
+    Returns
+    -------
+    dict
+        {(case, variant): Experiment}.
+    """
     out, f10 = {}, paper.fig10(n_trials)
     for case in paper.FIG10_CASES:
         truth = f10[(case, "truth")]
@@ -93,42 +164,110 @@ def fig10_window_confound(n_trials: int = paper.FIG10_TRIALS) -> dict:
 
 
 def fig10_nearest_los(n_trials: int = paper.FIG10_TRIALS) -> dict:
-    """Fig. 10 with the deterministic reading of its case: of the four nearest links the two nearest LoS, the two
-    farther NLoS (los_mode "nearest_two_los"), keyed by centring; the same seed and so the same UEs as Fig. 10."""
+    """Fig. 10 with the deterministic reading of its case: the two nearest links LoS, the next two NLoS.
+
+    Of the four nearest links, the two nearest are LoS and the two farther NLoS (los_mode "nearest_two_los"); the
+    same seed, and so the same UEs, as Fig. 10.
+
+    Parameters
+    ----------
+    n_trials : int
+        Trials of each experiment; default Fig. 10's own count.
+
+    Returns
+    -------
+    dict
+        {centring: Experiment}.
+    """
     return {cen: e.replace(name=e.run.name.replace("two-of-four", "nearest-two-los"), los_mode="nearest_two_los")
             for (case, cen), e in paper.fig10(n_trials).items() if case == "two_of_four"}
 
 
 def fig9_excess(median_s: float, n_trials: int = paper.FIG9_HONEST_TRIALS) -> Experiment:
-    """Fig. 9's honest receiver (``paper.fig9_honest``) with every NLoS link's paths late by Δτ of median ``median_s``
-    (σ_lg ``NLOS_EXCESS_SIGMA_LG``; the same trials otherwise), with the OTDoA fixes of both detectors on the same
-    signals."""
+    """Fig. 9's honest receiver (``paper.fig9_honest``) with every NLoS link's paths late by an excess delay Δτ.
+
+    Δτ has median ``median_s`` and σ_lg ``NLOS_EXCESS_SIGMA_LG``; the trials are the same otherwise, with the OTDoA
+    fixes of both detectors on the same signals.
+
+    Parameters
+    ----------
+    median_s : float
+        The median of Δτ, seconds.
+    n_trials : int
+        Trials; default ``paper.FIG9_HONEST_TRIALS``.
+
+    Returns
+    -------
+    Experiment
+        The experiment, named "fig09-honest-" + ``excess_tag(median_s)``.
+    """
     return paper.fig9_honest(n_trials).replace(name=f"fig09-honest-{excess_tag(median_s)}", otdoa=True,
                                                nlos_excess_median_s=median_s, nlos_excess_sigma_lg=NLOS_EXCESS_SIGMA_LG)
 
 
 def fig9_truth_excess(n_trials: int = paper.FIG9_TRUTH_TRIALS) -> Experiment:
-    """Fig. 9 in the paper's truth-centred set-up (``paper.fig9_truth``, a labelled comparison) under the UMi row's
-    excess delay; the same trials otherwise."""
+    """Fig. 9 in the paper's truth-centred set-up (``paper.fig9_truth``, a labelled comparison), UMi excess delay added.
+
+    Parameters
+    ----------
+    n_trials : int
+        Trials; default ``paper.FIG9_TRUTH_TRIALS``.
+
+    Returns
+    -------
+    Experiment
+        The same trials as ``paper.fig9_truth`` otherwise.
+    """
     return paper.fig9_truth(n_trials).replace(name="fig09-umi", nlos_excess_median_s=UMI.median_s,
                                               nlos_excess_sigma_lg=NLOS_EXCESS_SIGMA_LG)
 
 
 def fig9_blind(n_trials: int = paper.FIG9_HONEST_TRIALS) -> Experiment:
-    """Fig. 9 blind: the honest receiver's certified search in the ±30 m window centred on each trial's OTDoA fix
-    (first-path detector, the M nearest links) instead of on the prior; the same trials as ``fig9_honest``."""
+    """Fig. 9 blind: the honest receiver's certified search in the ±30 m window centred on each trial's OTDoA fix.
+
+    The OTDoA fix is the first-path detector's on the M nearest links; the window is centred on it instead of on the
+    prior.
+
+    Parameters
+    ----------
+    n_trials : int
+        Trials; default ``paper.FIG9_HONEST_TRIALS``.
+
+    Returns
+    -------
+    Experiment
+        The same trials as ``paper.fig9_honest``.
+    """
     return paper.fig9_honest(n_trials).replace(name="fig09-blind", centring="otdoa", otdoa=True)
 
 
 def fig9_blind_readings(n_trials: int = paper.READING_TRIALS) -> Experiment:
-    """``fig9_blind`` at the readings' SNRs (``paper.READING_SNRS_DB``) with ``paper.READING_TRIALS`` trials: the
-    blind receiver beside the honest reading's Fig. 9 (``readings.fig9_honest_readings``, the same trials), enough
-    trials to count the rare fixes that the blind window misses."""
+    """``fig9_blind`` at the readings' SNRs (``paper.READING_SNRS_DB``).
+
+    The blind receiver beside the honest reading's Fig. 9 (``readings.fig9_honest_readings``, the same trials), with
+    enough trials to count the rare fixes that the blind window misses.
+
+    Parameters
+    ----------
+    n_trials : int
+        Trials; default ``paper.READING_TRIALS``.
+
+    Returns
+    -------
+    Experiment
+        The experiment "fig09-blind-readings".
+    """
     return fig9_blind(n_trials).replace(name="fig09-blind-readings", snrs_db=paper.READING_SNRS_DB)
 
 
 def all_experiments() -> list[Experiment]:
-    """Every experiment of the NLoS-bias chapter, at the trial counts it reads."""
+    """Every experiment of the NLoS-bias chapter, at the trial counts it reads.
+
+    Returns
+    -------
+    list of Experiment
+        The experiments, in the order the chapter reads them.
+    """
     out = []
     for median in NLOS_EXCESS_MEDIANS_S[1:]:
         out += list(fig10_nlos_excess(median).values())

@@ -40,9 +40,17 @@ class Numerology:
 
     Attributes
     ----------
-    scs_hz : subcarrier spacing Δf in Hz (15, 30, 60, 120 or 240 kHz).
-    n_fft : FFT size N (number of subcarriers of eq. (3)).
-    n_rb : number of resource blocks of 12 subcarriers in the carrier.
+    scs_hz : float
+        Subcarrier spacing Δf in Hz: 15, 30, 60, 120 or 240 kHz.
+    n_fft : int
+        FFT size N (number of subcarriers of eq. (3)), 8 to 65536.
+    n_rb : int
+        Number of resource blocks of 12 subcarriers in the carrier, 1 to 275, with 12 n_rb ≤ N.
+
+    Raises
+    ------
+    ValueError
+        A field outside its range.
     """
 
     scs_hz: float = 30e3
@@ -103,6 +111,7 @@ class Numerology:
 
     @property
     def slots_per_frame(self) -> int:
+        """Slots per 10 ms frame, 10 · 2^μ."""
         return 10 * 2**self.mu
 
 
@@ -113,11 +122,26 @@ PAPER = Numerology()
 def gold_sequence(c_init: int, length: int) -> np.ndarray:
     """Pseudo-random sequence c(n), n = 0 … length-1, of TS 38.211 §5.2.1.
 
-    x1(n+31) = (x1(n+3) + x1(n)) mod 2, x1(0) = 1, x1(1..30) = 0;
-    x2(n+31) = (x2(n+3) + x2(n+2) + x2(n+1) + x2(n)) mod 2, x2 initialised with the bits of c_init;
-    c(n) = (x1(n + Nc) + x2(n + Nc)) mod 2, Nc = 1600.
+    * x1(n+31) = (x1(n+3) + x1(n)) mod 2, x1(0) = 1, x1(1..30) = 0;
+    * x2(n+31) = (x2(n+3) + x2(n+2) + x2(n+1) + x2(n)) mod 2, x2 initialised with the bits of c_init;
+    * c(n) = (x1(n + Nc) + x2(n + Nc)) mod 2, Nc = 1600.
 
-    Returns a uint8 array of shape (length,).
+    Parameters
+    ----------
+    c_init : int
+        The initialiser, 0 to 2^31 − 1 (``prs_c_init`` for the PRS).
+    length : int
+        Number of bits, 0 to 2^24.
+
+    Returns
+    -------
+    numpy.ndarray uint8 (length,)
+        The bits c(n).
+
+    Raises
+    ------
+    ValueError
+        ``c_init`` or ``length`` outside its range.
     """
     c_init = _checks.integer("c_init", c_init, 0, 2**31 - 1)
     length = _checks.integer("length", length, 0, 1 << 24)
@@ -148,7 +172,24 @@ def prs_c_init(prs_id: int, slot: int = 0, symbol: int = 0) -> int:
 
     c_init = (2^22 ⌊n_ID/1024⌋ + 2^10 (N_symb^slot n_s + l + 1)(2 (n_ID mod 1024) + 1) + (n_ID mod 1024)) mod 2^31
 
-    prs_id : n_ID^PRS in 0 … 4095; slot : n_s,f^μ (slot in frame); symbol : l in 0 … 13.
+    Parameters
+    ----------
+    prs_id : int
+        n_ID^PRS, 0 … 4095.
+    slot : int
+        n_s,f^μ, the slot in the frame, 0 … 159.
+    symbol : int
+        l, the OFDM symbol in the slot, 0 … 13.
+
+    Returns
+    -------
+    int
+        c_init, in [0, 2^31).
+
+    Raises
+    ------
+    ValueError
+        An argument outside its range.
     """
     prs_id = _checks.integer("prs_id", prs_id, 0, 4095)
     slot = _checks.integer("slot", slot, 0, 159)
@@ -159,7 +200,18 @@ def prs_c_init(prs_id: int, slot: int = 0, symbol: int = 0) -> int:
 
 
 def qpsk_from_bits(bits: np.ndarray) -> np.ndarray:
-    """r(m) = ((1 - 2 c(2m)) + j (1 - 2 c(2m+1))) / √2, TS 38.211 §7.4.1.7.2; unit modulus. Shape (len(bits)//2,)."""
+    """QPSK symbols r(m) = ((1 - 2 c(2m)) + j (1 - 2 c(2m+1))) / √2 of TS 38.211 §7.4.1.7.2, of unit modulus.
+
+    Parameters
+    ----------
+    bits : int (2 K,)
+        The bits c(n), 0 or 1.
+
+    Returns
+    -------
+    numpy.ndarray complex (K,)
+        The symbols r(m).
+    """
     b = np.asarray(bits, dtype=np.float64)
     return ((1 - 2 * b[0::2]) + 1j * (1 - 2 * b[1::2])) / np.sqrt(2.0)
 
@@ -168,20 +220,42 @@ def active_bins(num: Numerology = PAPER) -> np.ndarray:
     """FFT bins of the active subcarriers, in subcarrier order.
 
     Subcarrier j = 0 … n_active-1 sits at frequency (j - n_active/2) Δf around the carrier, i.e. in FFT bin
-    (j - n_active/2) mod N.  Shape (n_active,), int.
+    (j - n_active/2) mod N.
+
+    Parameters
+    ----------
+    num : Numerology
+        The numerology (``PAPER`` by default).
+
+    Returns
+    -------
+    numpy.ndarray int (n_active,)
+        The bins.
     """
     j = np.arange(num.n_active)
     return (j - num.n_active // 2) % num.n_fft
 
 
 def band_bins(num: Numerology = PAPER) -> np.ndarray:
-    """The bins of the active subcarriers in the signal model's own convention, where bin k is the tone at k Δf of
-    eq. (3) for k = 0 … N-1 (``dpe5g.signal``: the channel response and the delay phasor e^{-j2πkΔfτ} use k Δf):
-    the contiguous block k = (N - n_active)/2 + j, j = 0 … n_active-1, centred in the sampled band with a guard band
-    of (N - n_active)/2 bins at each end.  ``active_bins`` is the same carrier in the two-sided FFT layout (negative
-    frequencies at the top), which only a model reading bins k ≥ N/2 as (k - N) Δf may use: under eq. (3)'s
-    convention it would split the band in two, 2458 … 4095 Δf and 0 … 1637 Δf, whose correlogram has sidelobes a
-    contiguous band does not.  Shape (n_active,), int, in subcarrier order."""
+    """The bins of the active subcarriers in the signal model's own convention, bin k the tone at k Δf of eq. (3).
+
+    That convention (k = 0 … N-1, ``dpe5g.signal``: the channel response and the delay phasor e^{-j2πkΔfτ} use
+    k Δf) puts the carrier on the contiguous block k = (N - n_active)/2 + j, j = 0 … n_active-1, centred in the
+    sampled band with a guard band of (N - n_active)/2 bins at each end.  ``active_bins`` is the same carrier in the
+    two-sided FFT layout (negative frequencies at the top), which only a model reading bins k ≥ N/2 as (k - N) Δf may
+    use: under eq. (3)'s convention it would split the band in two, 2458 … 4095 Δf and 0 … 1637 Δf, whose
+    correlogram has sidelobes a contiguous band does not.
+
+    Parameters
+    ----------
+    num : Numerology
+        The numerology (``PAPER`` by default).
+
+    Returns
+    -------
+    numpy.ndarray int (n_active,)
+        The bins, in subcarrier order.
+    """
     return (num.n_fft - num.n_active) // 2 + np.arange(num.n_active)
 
 
@@ -197,13 +271,33 @@ def prs_symbols(
 ) -> np.ndarray:
     """PRS frequency-domain symbols d_{m,k} of one BS for one OFDM symbol, in FFT-bin order k = 0 … N-1.
 
-    pattern="full" (the paper's simplification, default): every bin carries a unit-modulus QPSK pilot,
-        d_k = r(k), so D^H D = I as eq. (8) of the paper requires.
-    pattern="comb" (TS 38.211 §7.4.3.2.1): only the 3276 active subcarriers can carry PRS, every ``comb``-th one
-        starting at ``comb_offset`` (comb size 2, 4, 6 or 12, k' = 0 for this symbol); the other bins are zero.
-        Pilots keep unit modulus.
+    Parameters
+    ----------
+    prs_id : int
+        n_ID^PRS, 0 … 4095 (``prs_c_init``).
+    num : Numerology
+        The numerology (``PAPER`` by default).
+    pattern : str
+        ``"full"`` (the paper's simplification, default): every bin carries a unit-modulus QPSK pilot, d_k = r(k), so
+        D^H D = I as eq. (8) of the paper requires.  ``"comb"`` (TS 38.211 §7.4.3.2.1): only the 3276 active
+        subcarriers can carry PRS, every ``comb``-th one starting at ``comb_offset`` (k' = 0 for this symbol); the
+        other bins are zero.  Pilots keep unit modulus.
+    comb : int
+        Comb size for ``"comb"``: 2, 4, 6 or 12.
+    comb_offset : int
+        First active subcarrier of the comb, 0 … comb − 1.
+    slot, symbol : int
+        Slot in the frame and OFDM symbol in the slot, as ``prs_c_init``.
 
-    Returns complex128 array of shape (N,).
+    Returns
+    -------
+    numpy.ndarray complex128 (N,)
+        The symbols d_k.
+
+    Raises
+    ------
+    ValueError
+        An argument outside its range or list.
     """
     _checks.one_of("pattern", pattern, ["full", "comb"])
     d = np.zeros(num.n_fft, dtype=np.complex128)
@@ -221,7 +315,22 @@ def prs_symbols(
 
 
 def prs_matrix(prs_ids, num: Numerology = PAPER, **kwargs) -> np.ndarray:
-    """Stack the PRS of several BSs: complex (M, N), row m from ``prs_symbols(prs_ids[m], num, **kwargs)``."""
+    """Stack the PRS of several BSs.
+
+    Parameters
+    ----------
+    prs_ids : int (M,)
+        The BSs' PRS IDs, each 0 … 4095.
+    num : Numerology
+        The numerology (``PAPER`` by default).
+    **kwargs
+        Passed on to ``prs_symbols`` (``pattern``, ``comb``, ``comb_offset``, ``slot``, ``symbol``).
+
+    Returns
+    -------
+    numpy.ndarray complex (M, N)
+        Row m is ``prs_symbols(prs_ids[m], num, **kwargs)``.
+    """
     return np.stack([prs_symbols(int(i), num, **kwargs) for i in prs_ids])
 
 
@@ -238,15 +347,26 @@ PRS_K_PRIME = {2: (0, 1, 0, 1, 0, 1, 0, 1, 0, 1, 0, 1),
 
 @dataclass(frozen=True)
 class PrsPattern:
-    """The DL PRS resource pattern of TS 38.211 §7.4.1.7.3 in one slot: comb size K_comb, L_PRS symbols from
-    l_start, over the carrier's active subcarriers (3276 for 273 RB, the PRS bandwidth = the carrier).
+    """The DL PRS resource pattern of TS 38.211 §7.4.1.7.3 in one slot: comb size K_comb, L_PRS symbols from l_start.
 
-    comb_size : K_comb in ``PRS_COMB_SIZES``; n_symbols : L_PRS in ``PRS_SYMBOL_COUNTS``, a multiple of K_comb
-    (default K_comb: the "fully staggered" pattern, every active subcarrier carries exactly one PRS RE of the
-    resource); start_symbol : l_start, with l_start + L_PRS ≤ 14.
+    It covers the carrier's active subcarriers (3276 for 273 RB, the PRS bandwidth = the carrier).  The comb offset
+    k_offset (dl-PRS-ReOffset, 0 … K_comb − 1) is per resource, an argument of the methods: resources with different
+    offsets use disjoint REs in every symbol, because k' depends only on the symbol.
 
-    The comb offset k_offset (dl-PRS-ReOffset, 0 … K_comb − 1) is per resource, an argument of the methods:
-    resources with different offsets use disjoint REs in every symbol, because k' depends only on the symbol.
+    Attributes
+    ----------
+    comb_size : int
+        K_comb, one of ``PRS_COMB_SIZES``.
+    n_symbols : int or None
+        L_PRS, one of ``PRS_SYMBOL_COUNTS`` and a multiple of K_comb.  None (default): K_comb, the "fully staggered"
+        pattern, every active subcarrier carries exactly one PRS RE of the resource.
+    start_symbol : int
+        l_start, with l_start + L_PRS ≤ 14.
+
+    Raises
+    ------
+    ValueError
+        A field outside its range or list, or L_PRS not a multiple of K_comb.
     """
 
     comb_size: int = 6
@@ -264,9 +384,28 @@ class PrsPattern:
         _checks.integer("start_symbol", self.start_symbol, 0, SYMBOLS_PER_SLOT - self.n_symbols)
 
     def subcarriers(self, comb_offset: int, num: Numerology = PAPER) -> np.ndarray:
-        """Subcarriers k of the resource with comb offset ``comb_offset`` in each of its symbols, TS 38.211
-        §7.4.1.7.3: k = m K_comb + ((k_offset + k') mod K_comb), m = 0, 1, …, counted from the lowest active
-        subcarrier (the PRS occupies all n_rb resource blocks).  Returns int (L_PRS, n_active / K_comb)."""
+        """Subcarriers k of the resource with comb offset ``comb_offset`` in each of its symbols, TS 38.211 §7.4.1.7.3.
+
+        k = m K_comb + ((k_offset + k') mod K_comb), m = 0, 1, …, counted from the lowest active subcarrier (the PRS
+        occupies all n_rb resource blocks).
+
+        Parameters
+        ----------
+        comb_offset : int
+            k_offset, 0 … K_comb − 1.
+        num : Numerology
+            The numerology (``PAPER`` by default); K_comb must divide its active subcarriers.
+
+        Returns
+        -------
+        numpy.ndarray int (L_PRS, n_active / K_comb)
+            Row i: the subcarriers of symbol l_start + i.
+
+        Raises
+        ------
+        ValueError
+            ``comb_offset`` out of range, or K_comb not dividing the active subcarriers.
+        """
         k_comb = self.comb_size
         comb_offset = _checks.integer("comb_offset", comb_offset, 0, k_comb - 1)
         if num.n_active % k_comb:
@@ -276,19 +415,49 @@ class PrsPattern:
                          for i in range(self.n_symbols)])
 
     def resource_elements(self, comb_offset: int, num: Numerology = PAPER) -> np.ndarray:
-        """The same REs as bins of the signal model (``band_bins``: subcarrier j at bin (N - n_active)/2 + j, the tone
-        at that multiple of Δf in eq. (3)): int (L_PRS, n_active / K_comb)."""
+        """The REs of ``subcarriers`` as bins of the signal model.
+
+        ``band_bins``: subcarrier j at bin (N - n_active)/2 + j, the tone at that multiple of Δf in eq. (3).
+
+        Parameters
+        ----------
+        comb_offset, num
+            As ``subcarriers``.
+
+        Returns
+        -------
+        numpy.ndarray int (L_PRS, n_active / K_comb)
+            Row i: the bins of symbol l_start + i.
+        """
         return band_bins(num)[self.subcarriers(comb_offset, num)]
 
 
 def prs_grid(prs_id: int, pattern: PrsPattern, comb_offset: int, num: Numerology = PAPER, slot: int = 0) -> np.ndarray:
-    """The PRS of one resource over its L_PRS symbols: a_{k,l} = β r_l(m) on the REs of ``pattern`` (TS 38.211
-    §7.4.1.7.3), r_l the QPSK sequence of §7.4.1.7.2 initialised for symbol l = l_start + i, zero elsewhere.
+    """The PRS of one resource over its L_PRS symbols: a_{k,l} = β r_l(m) on the REs of ``pattern``, zero elsewhere.
 
-    β = √(N / n_RE), n_RE the resource's REs in the slot, so that every pattern carries the pilot energy of the
-    paper's full-band symbol, Σ_{k,l} |a_{k,l}|² = N: at equal power a link's energy does not depend on the comb
-    size, the number of symbols or the offset, and the SNR keeps the meaning of ``dpe5g.signal`` (pilot energy over
-    N σ²).  Returns complex (L_PRS, N), row i for symbol l_start + i, bins in FFT order.
+    The REs are those of TS 38.211 §7.4.1.7.3, r_l the QPSK sequence of §7.4.1.7.2 initialised for symbol
+    l = l_start + i.  β = √(N / n_RE), n_RE the resource's REs in the slot, so that every pattern carries the pilot
+    energy of the paper's full-band symbol, ``Σ_{k,l} |a_{k,l}|² = N``: at equal power a link's energy does not
+    depend on the comb size, the number of symbols or the offset, and the SNR keeps the meaning of ``dpe5g.signal``
+    (pilot energy over N σ²).
+
+    Parameters
+    ----------
+    prs_id : int
+        n_ID^PRS, 0 … 4095.
+    pattern : PrsPattern
+        The resource pattern.
+    comb_offset : int
+        The resource's comb offset k_offset, 0 … K_comb − 1.
+    num : Numerology
+        The numerology (``PAPER`` by default).
+    slot : int
+        Slot in the frame, 0 … 159.
+
+    Returns
+    -------
+    numpy.ndarray complex (L_PRS, N)
+        Row i for symbol l_start + i, bins in FFT order.
     """
     bins = pattern.resource_elements(comb_offset, num)
     beta = np.sqrt(num.n_fft / bins.size)
@@ -301,12 +470,27 @@ def prs_grid(prs_id: int, pattern: PrsPattern, comb_offset: int, num: Numerology
 
 def prs_per_subcarrier(prs_id: int, pattern: PrsPattern, comb_offset: int, num: Numerology = PAPER,
                        slot: int = 0) -> np.ndarray:
-    """The fully staggered PRS (L_PRS = K_comb) as one pilot per subcarrier: d_k = a_{k,l(k)}, the pilot of the one
-    symbol l(k) in which the resource has subcarrier k (zero on the guard bins, ``band_bins``).
+    """The fully staggered PRS (L_PRS = K_comb) as one pilot per subcarrier: d_k = a_{k,l(k)}.
 
-    With a static channel the receiver combines the symbols coherently, Σ_l conj(a_{k,l}) Y_{k,l}, and each subcarrier
-    then holds one RE with its own noise: the L_PRS symbols act as one symbol with pilots d (energy N).  Resources
-    with the same offset share every RE, those with different offsets none.  Returns complex (N,).
+    a_{k,l(k)} is the pilot of the one symbol l(k) in which the resource has subcarrier k (zero on the guard bins,
+    ``band_bins``).  With a static channel the receiver combines the symbols coherently, Σ_l conj(a_{k,l}) Y_{k,l},
+    and each subcarrier then holds one RE with its own noise: the L_PRS symbols act as one symbol with pilots d
+    (energy N).  Resources with the same offset share every RE, those with different offsets none.
+
+    Parameters
+    ----------
+    prs_id, pattern, comb_offset, num, slot
+        As ``prs_grid``.
+
+    Returns
+    -------
+    numpy.ndarray complex (N,)
+        The pilots d_k.
+
+    Raises
+    ------
+    ValueError
+        ``pattern`` is not fully staggered (L_PRS ≠ K_comb).
     """
     if pattern.n_symbols != pattern.comb_size:
         raise ValueError(f"n_symbols must equal comb_size={pattern.comb_size} for one pilot per subcarrier (each "

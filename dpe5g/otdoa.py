@@ -44,14 +44,37 @@ POLISH_STOP_STEP_M = 1e-6
 
 # ---- ToA ------------------------------------------------------------------------------------------------------------
 
-def toa(y, prs, method: str = "peak", upsample: int = 8, threshold_db: float = -10.0,
+def toa(y, prs, method: str = "first_path", upsample: int = 8, threshold_db: float = -10.0,
         max_lead_samples: int = 64, num=PAPER) -> jax.Array:
-    """ToA of each BS in seconds from its LS CIR estimate.  y, prs : complex (M, N).  Returns (M,) in
-    [-N T_s / 2, N T_s / 2) (the correlation is periodic with period N T_s = 1/Δf).
+    """ToA of each BS from its LS CIR estimate (the correlation of eq. (10) with a one-tap window).
 
-    method "peak": the maximum of |ĥ(τ)|² on the T_s/upsample grid; "first_path": the first grid point, at most
-    ``max_lead_samples`` samples before that maximum, within ``threshold_db`` (< 0) of it, then the local maximum
-    that follows it.  Both refine with a parabola through the chosen grid point and its two neighbours.
+    Parameters
+    ----------
+    y, prs : complex (M, N)
+        Received samples and pilots of the M links.
+    method : str
+        "first_path" (the default, the book's detector): the first grid point, at most ``max_lead_samples`` samples
+        before the maximum of ``|ĥ(τ)|²`` on the T_s/upsample grid, within ``threshold_db`` of it, then the local
+        maximum that follows it; "peak" (the paper's reading, which fails under NLoS): that maximum itself.  Both
+        refine with a parabola through the chosen grid point and its two neighbours.
+    upsample : int
+        Grid points per sample T_s, 1 to 256.
+    threshold_db : float
+        The first path's threshold relative to the peak, dB, -60 to -0.1.
+    max_lead_samples : int
+        How far before the peak the first path may lie, samples, 1 to N/2.
+    num : Numerology
+        The numerology (``nr.PAPER`` by default).
+
+    Returns
+    -------
+    float (M,)
+        ToAs, seconds, in [-N T_s / 2, N T_s / 2) (the correlation is periodic with period N T_s = 1/Δf).
+
+    Raises
+    ------
+    ValueError
+        When the shapes do not match or a parameter is out of its range.
     """
     _checks.require_x64()
     y, prs = correlogram.check_inputs(y, prs, 1)
@@ -65,15 +88,44 @@ def toa(y, prs, method: str = "peak", upsample: int = 8, threshold_db: float = -
 
 @partial(jax.jit, static_argnames=("method", "upsample", "max_lead_samples", "dtype"))
 def toa_from_spectrum(g, method, upsample, threshold_db, max_lead_samples, ts, dtype=correlogram.GRID_DTYPE):
-    """``toa`` from the LS spectrum g (M, N) (``correlogram.ls_spectrum``), unvalidated and traceable (the Monte Carlo
-    engine's entry point); ts : T_s in seconds; dtype : of the correlogram (the benchmark compares two).  Returns (M,)
-    seconds."""
+    """``toa`` from the LS spectrum, unvalidated and traceable (the Monte Carlo engine's entry point).
+
+    Parameters
+    ----------
+    g : complex (M, N)
+        The LS spectrum (``correlogram.ls_spectrum``).
+    method, upsample, threshold_db, max_lead_samples
+        As for ``toa``.
+    ts : float
+        The sample period T_s, seconds.
+    dtype : numpy dtype
+        The correlogram's (the benchmark compares two); default ``correlogram.GRID_DTYPE``.
+
+    Returns
+    -------
+    float (M,)
+        ToAs, seconds.
+    """
     _checks.require_x64()
     e = correlogram.energy_grid(g.astype(dtype), 1, upsample)  # (M, N·U): |ĥ(j T_s/U)|² · N
     return jax.vmap(lambda row: toa_row(row, method, upsample, threshold_db, max_lead_samples, ts))(e)
 
 
 def toa_row(e, method, upsample, threshold_db, max_lead_samples, ts):
+    """The ToA of one link from its energy grid (``toa_from_spectrum``, traceable).
+
+    Parameters
+    ----------
+    e : float (N·U,)
+        ``|ĥ|²`` on the grid of T_s/U, periodic (``correlogram.energy_grid``).
+    method, upsample, threshold_db, max_lead_samples, ts
+        As for ``toa_from_spectrum``.
+
+    Returns
+    -------
+    float
+        The ToA, seconds, in [-N T_s / 2, N T_s / 2).
+    """
     j = e.shape[0]
     k = jnp.argmax(e)
     if method == "first_path":
@@ -99,8 +151,21 @@ def toa_row(e, method, upsample, threshold_db, max_lead_samples, ts):
 
 @dataclass(frozen=True)
 class Fix:
-    """An OTDoA fix: xyz (3,) m; ok: whether to trust it; reason: why not; gap_m: R_1 − ‖p − b_1‖ of the convex
-    solution (0 when the relaxation is tight); residual_m: RMS range-difference residual at the fix."""
+    """An OTDoA fix.
+
+    Attributes
+    ----------
+    xyz : float (3,)
+        The fix, metres.
+    ok : bool
+        Whether to trust it.
+    reason : str
+        Why not, when ``ok`` is False.
+    gap_m : float
+        R_1 − ‖p − b_1‖ of the convex solution, metres (0 when the relaxation is tight).
+    residual_m : float
+        The RMS range-difference residual at the fix, metres.
+    """
 
     xyz: np.ndarray
     ok: bool
@@ -110,7 +175,23 @@ class Fix:
 
 
 def check_geometry(bs_xyz) -> np.ndarray:
-    """Validate BS positions (M, 3) m for a 2-D fix: M ≥ 3, finite, not all on one line (in plan view)."""
+    """Validate base-station positions for a 2-D fix: M ≥ 3, finite, not all on one line (in plan view).
+
+    Parameters
+    ----------
+    bs_xyz : float (M, 3)
+        Base-station positions, metres.
+
+    Returns
+    -------
+    float (M, 3)
+        The positions, as a float64 array.
+
+    Raises
+    ------
+    ValueError
+        When they are not (M, 3), fewer than 3, not finite, or collinear in plan view.
+    """
     b = np.asarray(bs_xyz, dtype=np.float64)
     if b.ndim != 2 or b.shape[1] != 3:
         raise ValueError(f"bs_xyz must be (M, 3) metres, got shape {b.shape}")
@@ -126,20 +207,20 @@ def check_geometry(bs_xyz) -> np.ndarray:
 
 
 class Solver:
-    """The SOCP of the module docstring for M BSs, compiled once (DPP) and re-solved with new data.
+    """The SOCP of the module docstring for M BSs, compiled once (DPP) and re-solved with new data by Clarabel.
 
-    ``Solver(m).solve(bs_xyz, toa_s, ue_z)`` → ``Fix``.  Clarabel is the solver.
+    ``Solver(m).solve(bs_xyz, toa_s, ue_z)`` → ``Fix``.  DPP makes the map from the parameters to Clarabel's data
+    (c, A, b) affine: the constructor reads it from cvxpy once (``Problem.get_problem_data`` at the zero parameter and
+    at each unit parameter: the constant and one column per scalar parameter), ``data`` applies it (to the bit: each
+    entry is a constant or one parameter times ±1, ``tests/test_otdoa.py``) and ``solve`` hands the data to cvxpy's
+    solving chain, skipping the reduction ``Problem.solve`` repeats, which for a program this small costs more than
+    Clarabel's own solve (the engine chapter of the book).  ``solve`` leaves the Parameters alone; ``set_parameters``
+    writes them, for a variant of the problem built on them.
 
-    cvxpy compiles the problem once; each solve then needs Clarabel's data (c, A, b) at the new parameter values.
-    ``Problem.solve`` recomputes them through cvxpy's reduction chain, which for a program this small costs more than
-    Clarabel's own solve (``benchmarks/bench_engine.py`` times both).  DPP makes the map from the parameters to the
-    data affine, so the constructor reads it from cvxpy once — ``Problem.get_problem_data`` at the zero parameter
-    and at each unit parameter gives the constant and one column per scalar parameter — and ``solve`` applies it and
-    hands the data to cvxpy's solving chain (``SolvingChain.solve_via_data``, then ``Problem.unpack_results``: the
-    route ``get_problem_data``'s documentation gives), which reads the solution back into ``theta``.  Each entry of
-    this program's data is a constant or one parameter times ±1, so the map gives cvxpy's data to the bit and the
-    same fixes (``tests/test_otdoa.py`` compares both with cvxpy's own path).  ``solve`` leaves the Parameters
-    alone; ``set_parameters`` writes them, for a variant of the problem built on them.
+    Parameters
+    ----------
+    n_bs : int
+        The number M of BSs, 3 to 1024.
     """
 
     def __init__(self, n_bs: int):
@@ -185,8 +266,18 @@ class Solver:
         return (data, chain, inverse) if full else data
 
     def data(self, A, beta, ref, dz) -> dict:
-        """Clarabel's data for parameters (A (M−1, 3), β (M−1,), b_1 (2,), z − z_1) (``parameters``), in the scaled
-        units of ``system``: cvxpy's dict with c, A (CSC) and b from the affine map read at construction."""
+        """Clarabel's data for parameter values (``parameters``), from the affine map read at construction.
+
+        Parameters
+        ----------
+        A, beta, ref, dz : float (M−1, 3), (M−1,), (2,) and scalar
+            The matrix and β of ``system``, the reference BS's b_1 (x, y) and z − z_1, in its scaled units (1/1000 m).
+
+        Returns
+        -------
+        dict
+            cvxpy's data: c, A (CSC) and b.
+        """
         v = self._flat(A, beta, ref, dz)
         out = dict(self._template)
         for key, (b0, cols) in self._map.items():
@@ -201,19 +292,58 @@ class Solver:
         return np.concatenate([np.ravel(A), np.ravel(beta), np.ravel(ref), [float(dz)]])
 
     def parameters(self, bs_xyz, toa_s, ue_z) -> tuple:
-        """The values (A, β, b_1, z − z_1) of the problem's Parameters for this fix: ``system`` and the reference
-        BS's position, in its scaled units (1/1000 m)."""
+        """The values of the problem's Parameters for one fix: ``system`` and the reference BS's position.
+
+        Parameters
+        ----------
+        bs_xyz : float (M, 3)
+            Base-station positions, metres, the reference BS first.
+        toa_s : float (M,)
+            Their ToAs, seconds.
+        ue_z : float
+            The known UE height, metres.
+
+        Returns
+        -------
+        tuple
+            (A (M−1, 3), β (M−1,), b_1 (x, y) (2,), z − z_1), as ``data`` takes them, in the scaled units of ``system``
+            (1/1000 m).
+        """
         b = np.asarray(bs_xyz, dtype=np.float64)
         A, beta = self.system(b, np.asarray(toa_s, dtype=np.float64), ue_z)
         return A, beta, b[0, :2] / 1000.0, (ue_z - b[0, 2]) / 1000.0
 
     def set_parameters(self, bs_xyz, toa_s, ue_z) -> None:
-        """Write ``parameters`` into the cvxpy Parameters, for a variant of the problem built on them (the Fig. 10
-        chapter solves the squared residual); ``solve`` does not need them set."""
+        """Write ``parameters`` into the cvxpy Parameters, for a variant of the problem built on them.
+
+        The Fig. 10 chapter solves the squared residual; ``solve`` does not need them set.
+
+        Parameters
+        ----------
+        bs_xyz, toa_s, ue_z
+            As for ``parameters``.
+        """
         self._set(self._flat(*self.parameters(bs_xyz, toa_s, ue_z)))
 
     def system(self, bs_xyz, toa_s, ue_z):
-        """(A, β) of the linear equations, scaled by 1/1000 m (keeps the solver well conditioned)."""
+        """(A, β) of the module docstring's linear equations, scaled by 1/1000 m (keeps the solver well conditioned).
+
+        Parameters
+        ----------
+        bs_xyz : float (M, 3)
+            Base-station positions, metres, the reference BS first.
+        toa_s : float (M,)
+            Their ToAs, seconds.
+        ue_z : float
+            The known UE height, metres.
+
+        Returns
+        -------
+        A : float (M−1, 3)
+            Rows (2 (b_m − b_1)_x, 2 (b_m − b_1)_y, 2 r_m), m = 2 … M.
+        beta : float (M−1,)
+            ‖b_m‖² − ‖b_1‖² − r_m² − 2 (b_m − b_1)_z z.
+        """
         b = bs_xyz / 1000.0
         z = ue_z / 1000.0
         r = C * (toa_s[1:] - toa_s[0]) / 1000.0
@@ -223,6 +353,31 @@ class Solver:
         return A, beta
 
     def solve(self, bs_xyz, toa_s, ue_z: float, polish: bool = True) -> Fix:
+        """One OTDoA fix: the SOCP, then (with ``polish``) the Gauss–Newton polish.
+
+        Parameters
+        ----------
+        bs_xyz : float (M, 3)
+            Base-station positions, metres, M = ``n_bs``, the reference BS first.
+        toa_s : float (M,)
+            Their ToAs, seconds (``toa``).
+        ue_z : float
+            The known UE height, metres.
+        polish : bool
+            Polish the convex solution with ``gauss_newton``; without it, a relaxation that is not tight is flagged.
+
+        Returns
+        -------
+        Fix
+            The fix; a solver failure, a relaxation that is not tight (without polish) or a polish that moves more than
+            ``MAX_POLISH_MOVE_M`` from the convex solution is flagged (``ok`` False with the reason).
+
+        Raises
+        ------
+        ValueError
+            When the geometry is degenerate (``check_geometry``), the shapes do not match ``n_bs`` or a ToA or
+            ``ue_z`` is not finite.
+        """
         b = check_geometry(bs_xyz)
         t = np.asarray(toa_s, dtype=np.float64)
         if t.shape != (self.n_bs,) or b.shape[0] != self.n_bs:
@@ -268,8 +423,27 @@ def _rd_residual(b, t, ue_z, xy):
 
 
 def gauss_newton(bs_xyz, toa_s, ue_z, xy0, iters: int = 10) -> np.ndarray:
-    """Minimise Σ_m (‖p − b_m‖ − ‖p − b_1‖ − r_m)² over p_xy from xy0 by Gauss–Newton (step halving if the cost
-    rises).  Returns xy (2,)."""
+    """Minimise Σ_m (‖p − b_m‖ − ‖p − b_1‖ − r_m)² over p_xy by Gauss–Newton (step halving if the cost rises).
+
+    Parameters
+    ----------
+    bs_xyz : float (M, 3)
+        Base-station positions, metres, the reference BS first.
+    toa_s : float (M,)
+        Their ToAs, seconds.
+    ue_z : float
+        The known UE height, metres.
+    xy0 : float (2,)
+        The starting point, metres.
+    iters : int
+        At most this many steps; it stops earlier once a step is shorter than ``POLISH_STOP_STEP_M`` or when no
+        halved step lowers the cost.
+
+    Returns
+    -------
+    float (2,)
+        The polished (x, y), metres.
+    """
     b = np.asarray(bs_xyz, dtype=np.float64)
     t = np.asarray(toa_s, dtype=np.float64)
     xy = np.asarray(xy0, dtype=np.float64).copy()
@@ -294,7 +468,23 @@ def gauss_newton(bs_xyz, toa_s, ue_z, xy0, iters: int = 10) -> np.ndarray:
 
 
 def solve(bs_xyz, toa_s, ue_z: float, polish: bool = True) -> Fix:
-    """One OTDoA fix (convenience: builds a ``Solver`` for this M; reuse a Solver for many fixes)."""
+    """One OTDoA fix (convenience: builds a ``Solver`` for this M; reuse a Solver for many fixes).
+
+    Parameters
+    ----------
+    bs_xyz, toa_s, ue_z, polish
+        As for ``Solver.solve``.
+
+    Returns
+    -------
+    Fix
+        The fix, flagged as ``Solver.solve`` flags it.
+
+    Raises
+    ------
+    ValueError
+        As ``Solver.solve`` raises it.
+    """
     _checks.require_x64()
     b = check_geometry(bs_xyz)
     return Solver(b.shape[0]).solve(b, toa_s, ue_z, polish)

@@ -219,7 +219,7 @@ def first_path_comparison(fig9_trials: int = FIRST_PATH_FIG9_TRIALS,
 READING_SNRS_DB = (10.0, 25.0, 40.0)
 READING_TRIALS = 1000
 #: Table I's PRS frequency reuse factor (the urban-scenario to reproduction chapters): TS 38.211's comb 6 over 6
-#: symbols, each BS on one of 6 comb offsets (``deployment.prs_plan``), every BS of the deployment transmitting and the
+#: symbols, each BS on one of 6 comb offsets (``scenario.prs_plan``), every BS of the deployment transmitting and the
 #: co-channel ones interfering. Interference needs each BS's power: Fig. 9's variant puts the nearest link at each SNR
 #: of its axis and every other BS at its path-loss difference (snr_mode "nearest"); Fig. 10 already takes every link's
 #: power from the path loss

@@ -43,9 +43,19 @@ MAX_WIDTH_IN = 7.68
 
 
 def check_legible(fig) -> None:
-    """ValueError unless every visible text of ``fig`` is at least ``MIN_FONT_PT`` and the figure, as saved (its
-    size) and as the book shows it (its drawn extent plus the 0.1-inch margins of a tight crop), is at most
-    ``MAX_WIDTH_IN`` wide, so that the book shows it unshrunk."""
+    """Check that the book shows ``fig`` unshrunk with every text legible.
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+        The figure, drawn (without rendering) here to measure it.
+
+    Raises
+    ------
+    ValueError
+        When a visible text is smaller than ``MIN_FONT_PT``, or the figure, as saved (its size) or as the book shows it
+        (its drawn extent plus the 0.1-inch margins of a tight crop), is wider than ``MAX_WIDTH_IN``.
+    """
     fig.draw_without_rendering()
     small = [(t.get_fontsize(), t.get_text()) for t in fig.findobj(Text)
              if t.get_visible() and t.get_text().strip() and t.get_fontsize() < MIN_FONT_PT]
@@ -60,14 +70,32 @@ def check_legible(fig) -> None:
 
 @contextlib.contextmanager
 def style():
-    """Context with the project's plotting style."""
+    """Context with the project's plotting style: matplotlib's "default" style with ``RC`` on top.
+
+    Yields
+    ------
+    None
+        Figures created inside the context take the style.
+    """
     with plt.style.context("default"), matplotlib.rc_context(RC):
         yield
 
 
 def save_png(fig, path) -> None:
-    """Write ``fig`` as PNG with no timestamp or software metadata (byte-stable for the same inputs); ValueError
-    from ``check_legible`` first."""
+    """Write ``fig`` as PNG with no timestamp or software metadata (byte-stable for the same inputs).
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+        The figure.
+    path : str, pathlib.Path or file object
+        Where to write it (the format is PNG whatever the name).
+
+    Raises
+    ------
+    ValueError
+        When ``check_legible`` fails on ``fig`` (checked before anything is written).
+    """
     check_legible(fig)
     fig.savefig(path, format="png", metadata={"Software": None})
 
@@ -75,9 +103,18 @@ def save_png(fig, path) -> None:
 def plot_tdl(payload: dict):
     """Figs. 1–5: (a) one realised CIR of a TDL profile, (b) its normalized PDP.
 
-    (a) shows |h_l| of each drawn tap at its delay (stems; the specular LoS component of TDL-D/E in red) and the
+    (a) shows ``|h_l|`` of each drawn tap at its delay (stems; the specular LoS component of TDL-D/E in red) and the
     magnitude of the band-limited CIR the receiver sees on its 8.14 ns sample grid (crosses).
     (b) shows the mean tap powers 10 log10(P_l / max P) in dB against delay.
+
+    Parameters
+    ----------
+    payload : dict
+        The payload of ``figure_data.tdl_payload``.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
     """
     d = payload["data"]
     cfg = payload["config"]
@@ -122,8 +159,24 @@ def plot_tdl(payload: dict):
 
 
 def cir_span_ns(delays_ns, power, share: float = 0.99, floor_ns: float = 200.0) -> float:
-    """The delay (ns) by which the taps hold ``share`` of the total ``power``, rounded up to 50 ns and at least
-    ``floor_ns``: the span of the TDL figures' panel (a).  delays_ns, power : (n_taps,)."""
+    """The span of the TDL figures' panel (a): the delay by which the taps hold ``share`` of the total power.
+
+    Parameters
+    ----------
+    delays_ns : float (n_taps,)
+        The taps' delays, nanoseconds.
+    power : float (n_taps,)
+        The taps' powers (any linear unit).
+    share : float
+        The share of the total power to hold, 0 to 1.
+    floor_ns : float
+        The least span, nanoseconds.
+
+    Returns
+    -------
+    float
+        The delay, nanoseconds, rounded up to 50 ns and at least ``floor_ns``.
+    """
     order = np.argsort(delays_ns)
     cum = np.cumsum(np.asarray(power)[order]) / np.sum(power)
     t = float(np.asarray(delays_ns)[order][min(int(np.searchsorted(cum, share)), len(cum) - 1)])
@@ -131,7 +184,17 @@ def cir_span_ns(delays_ns, power, share: float = 0.99, floor_ns: float = 200.0) 
 
 
 def plot_cost_surface(payload: dict):
-    """Fig. 6: eq. (10) normalized to its maximum over (x, y), (a) as a map, (b) cuts through the peak."""
+    """Fig. 6: eq. (10) normalized to its maximum over (x, y), (a) as a map, (b) cuts through the peak.
+
+    Parameters
+    ----------
+    payload : dict
+        The payload of ``figure_data.cost_surface_payload``.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     d = payload["data"]
     cfg = payload["config"]
     x, y = np.asarray(d["x_m"]), np.asarray(d["y_m"])
@@ -169,14 +232,26 @@ def plot_cost_surface(payload: dict):
 def place_texts(fig, ax, texts, markers=(), pad_px: float = 1.5) -> None:
     """Greedy, deterministic placement of labels so that no two overlap and none leaves the axes.
 
-    texts : list of (Text, candidates), each candidate a dict of Text properties (``position``, ``ha``, ``va``, ...);
-        the texts are placed in order, each at its first candidate whose box (grown by ``pad_px``) lies inside the
-        axes and clear of the markers and of the texts placed before it; where no candidate is clear, the one with the
-        least overlap.
-    markers : (x, y, half_size_pt) in data coordinates: squares no label may cover.
     The layout is done first (``fig.draw_without_rendering``) and the texts are kept out of it (``in_layout`` off), so
     the boxes measured here are where the texts are drawn (up to the layout's last sub-pixel adjustments, which
-    ``pad_px`` absorbs).
+    ``pad_px`` absorbs).  ``plot_deployment`` places each street name along its street (the map's edge first, then
+    the blocks between the cross streets) and each BS number at one of eight spots around its marker, so that no two
+    labels overlap, none covers a marker and none is cut by the map's border.
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+        The figure holding ``ax``.
+    ax : matplotlib.axes.Axes
+        The axes the labels must stay inside.
+    texts : list of (matplotlib.text.Text, candidates)
+        Each candidate a dict of Text properties (``position``, ``ha``, ``va``, ...).  The texts are placed in order,
+        each at its first candidate whose box (grown by ``pad_px``) lies inside the axes and clear of the markers and
+        of the texts placed before it; where no candidate is clear, at the one with the least overlap.
+    markers : sequence of (x, y, half_size_pt)
+        Squares no label may cover: centre in data coordinates, half side in points.
+    pad_px : float
+        Margin added around each text's box, pixels.
     """
     from matplotlib.transforms import Bbox
 
@@ -213,9 +288,14 @@ def place_texts(fig, ax, texts, markers=(), pad_px: float = 1.5) -> None:
 def plot_deployment(payload: dict):
     """Fig. 7: buildings (shaded by height), streets, BSs, the example UE and its links (LoS solid, NLoS dashed).
 
-    Street names and BS numbers are placed by ``place_texts``: each street name along its street (the map's edge
-    first, then the blocks between the cross streets), each BS number at one of eight spots around its marker, so
-    that no two labels overlap, none covers a marker and none is cut by the map's border.
+    Parameters
+    ----------
+    payload : dict
+        The payload of ``figure_data.deployment_payload``; street names and BS numbers are placed by ``place_texts``.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
     """
     from matplotlib.patches import Rectangle
 
@@ -288,7 +368,17 @@ def plot_deployment(payload: dict):
 
 
 def plot_urban_correlogram(payload: dict):
-    """Fig. 8: the summed correlogram around the example UE with the truth and the DPE fix."""
+    """Fig. 8: the summed correlogram around the example UE with the truth and the DPE fix.
+
+    Parameters
+    ----------
+    payload : dict
+        The payload of ``figure_data.urban_correlogram_payload``.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     d = payload["data"]
     c = payload["config"]
     x, y = np.asarray(d["x_m"]), np.asarray(d["y_m"])
@@ -314,10 +404,21 @@ COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b")
 
 
 def plot_plateau(payload: dict):
-    """The DPE chapter: one BS term of eq. (10) against the candidate ToA offset c (τ − τ₀) for a TDL-D (LoS) and a
-    TDL-C (NLoS) link and several windows L (``studies.plateau_payload``), with the link's sampled CIR power as grey
-    stems.  A window of L taps sums the CIR power over [τ, τ + (L − 1) T_s], so where one tap holds the energy the
-    cost is flat for (L − 1) T_s before the first path and falls off a cliff after it."""
+    """The DPE chapter: one BS term of eq. (10) against the candidate ToA offset c (τ − τ₀), for several windows L.
+
+    For a TDL-D (LoS) and a TDL-C (NLoS) link, with the link's sampled CIR power as grey stems.  A window of L taps
+    sums the CIR power over [τ, τ + (L − 1) T_s], so where one tap holds the energy the cost is flat for (L − 1) T_s
+    before the first path and falls off a cliff after it.
+
+    Parameters
+    ----------
+    payload : dict
+        The payload of ``studies.plateau_payload``.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     d, c = payload["data"], payload["config"]
     x = np.asarray(d["offset_m"])
     titles = {"TDL-D": "TDL-D (LoS, K = {:g} dB)".format(c["k_factor_db"]), "TDL-C": "TDL-C (NLoS)"}

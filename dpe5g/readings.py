@@ -1,14 +1,15 @@
-"""The reproduction chapter's readings of the paper and its claims: each reading is a set-up the paper's text allows
-(or one of the NLoS chapter's), run on the figures' seeds; each claim about Figs. 9 and 10 is tested on every reading
-(``claim_intervals``: each claim's statistic with its 95 % interval, and ``claim_verdicts``).  ``dpe5g.figures``'
-"readings_table" runs them.
+"""The reproduction chapter's readings of the paper, and its claims about Figs. 9 and 10 tested on each reading.
+
+Each reading is a set-up the paper's text allows (or one of the NLoS chapter's), run on the figures' seeds; each claim
+is tested on every reading (``claim_intervals``: each claim's statistic with its 95 % interval, and
+``claim_verdicts``).  ``dpe5g.figures``' "readings_table" runs them.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from . import nlos_study, paper, results
+from . import intervals, nlos_study, paper
 from .experiment import Experiment
 
 #: the readings, in the order of the table: name → (label, changes to the paper's set-up as we read it).  Set-up as
@@ -36,20 +37,50 @@ READINGS = {
 
 
 def fig9_honest_readings(n_trials: int = paper.READING_TRIALS) -> Experiment:
-    """Fig. 9's honest receiver (``paper.fig9_honest``) at the readings' SNRs (``paper.READING_SNRS_DB``) with
-    ``paper.READING_TRIALS`` trials: the honest reading's Fig. 9 cells.  A trial's draws, and its noise (drawn once and
-    scaled to each SNR), do not depend on the SNR list, so its first trials are Fig. 9's signals at these SNRs."""
+    """The honest reading's Fig. 9 cells: ``paper.fig9_honest`` at the readings' SNRs (``paper.READING_SNRS_DB``).
+
+    A trial's draws, and its noise (drawn once and scaled to each SNR), do not depend on the SNR list, so its first
+    trials are Fig. 9's signals at these SNRs.
+
+    Parameters
+    ----------
+    n_trials : int
+        Trials; default ``paper.READING_TRIALS``.
+
+    Returns
+    -------
+    Experiment
+        The experiment "fig09-honest-readings".
+    """
     return paper.fig9_honest(n_trials).replace(name="fig09-honest-readings", snrs_db=paper.READING_SNRS_DB)
 
 
 def experiments(name: str, n_trials: int | None = None) -> dict:
-    """The experiments of reading ``name`` (``READINGS``): {"fig9": Experiment, "fig10_dpe": Experiment,
-    "fig10_otdoa": Experiment holding the OTDoA fixes, "otdoa_detector": "first_path" or "peak"}; Fig. 10 is its
-    stated case (two of the four nearest links LoS) except in the "nearest_los" reading.  A reading that changes
-    only what the figures' own runs or the NLoS chapter's already hold reads those experiments (and their stored
-    trials); the others run ``paper.READING_TRIALS`` trials of Fig. 9's set-up at ``paper.READING_SNRS_DB`` and of
-    Fig. 10's, with the OTDoA baseline on the same signals.  n_trials : run every experiment with this many trials
-    instead (a quick look; the book uses the defaults)."""
+    """The experiments of reading ``name`` (``READINGS``).
+
+    Fig. 10 is its stated case (two of the four nearest links LoS) except in the "nearest_los" reading.  A reading that
+    changes only what the figures' own runs or the NLoS chapter's already hold reads those experiments (and their
+    stored trials); the others run ``paper.READING_TRIALS`` trials of Fig. 9's set-up at ``paper.READING_SNRS_DB`` and
+    of Fig. 10's, with the OTDoA baseline on the same signals.
+
+    Parameters
+    ----------
+    name : str
+        A key of ``READINGS``.
+    n_trials : int or None
+        Run every experiment with this many trials instead (a quick look); None (the book's): the defaults.
+
+    Returns
+    -------
+    dict
+        {"fig9": Experiment, "fig10_dpe": Experiment, "fig10_otdoa": Experiment holding the OTDoA fixes,
+        "otdoa_detector": "first_path" or "peak"}.
+
+    Raises
+    ------
+    ValueError
+        When ``name`` is not a reading.
+    """
     if name not in READINGS:
         raise ValueError(f"reading must be one of {', '.join(READINGS)}, got {name!r}")
     kw = dict(READINGS[name][1])
@@ -60,9 +91,26 @@ def experiments(name: str, n_trials: int | None = None) -> dict:
 
 
 def honest_runs(kw: dict, n_trials: int | None) -> tuple[Experiment, Experiment, Experiment]:
-    """(Fig. 9, Fig. 10 DPE, Fig. 10 OTDoA) of an honest reading with the changes ``kw``: Fig. 10 centred on the
-    OTDoA fix, which holds the OTDoA fixes too.  kw : the reading's changes without the detector and the centring;
-    n_trials : every experiment's trial count instead of its default."""
+    """(Fig. 9, Fig. 10 DPE, Fig. 10 OTDoA) of an honest reading: Fig. 10 centred on the OTDoA fix, which it holds too.
+
+    Parameters
+    ----------
+    kw : dict
+        The reading's changes without the detector and the centring: at most one of prs_reuse and
+        nlos_excess_median_s.
+    n_trials : int or None
+        Every experiment's trial count instead of its default; None: the defaults.
+
+    Returns
+    -------
+    fig9, fig10_dpe, fig10_otdoa : Experiment
+        The reading's three experiments (the last two the same experiment).
+
+    Raises
+    ------
+    ValueError
+        When ``kw`` sets both prs_reuse and nlos_excess_median_s (not modelled together), or anything else.
+    """
     kw = dict(kw)
     n = lambda default: default if n_trials is None else n_trials
     reuse, excess = kw.pop("prs_reuse", 0), kw.pop("nlos_excess_median_s", 0.0)
@@ -83,8 +131,25 @@ def honest_runs(kw: dict, n_trials: int | None) -> tuple[Experiment, Experiment,
 
 
 def truth_centred_runs(kw: dict, n_trials: int | None) -> tuple[Experiment, Experiment, Experiment]:
-    """(Fig. 9, Fig. 10 DPE, Fig. 10 OTDoA) of a truth-centred reading with the changes ``kw`` (without the detector
-    and the centring); n_trials : every experiment's trial count instead of its default."""
+    """(Fig. 9, Fig. 10 DPE, Fig. 10 OTDoA) of a truth-centred reading with the changes ``kw``.
+
+    Parameters
+    ----------
+    kw : dict
+        The reading's changes without the detector and the centring.
+    n_trials : int or None
+        Every experiment's trial count instead of its default; None: the defaults.
+
+    Returns
+    -------
+    fig9, fig10_dpe, fig10_otdoa : Experiment
+        The reading's three experiments.
+
+    Raises
+    ------
+    ValueError
+        When ``kw`` sets los_mode or search_method and anything else.
+    """
     kw = dict(kw)
     n = lambda default: default if n_trials is None else n_trials
     f10 = paper.fig10(n(paper.FIG10_TRIALS))
@@ -143,10 +208,31 @@ CLAIMS = {
 
 
 def fig9_claim_intervals(fig9_err_m, snrs_db, m_values, n_boot: int = 2000) -> dict:
-    """The Fig. 9 claims of ``CLAIMS`` on one receiver's Fig. 9 errors, each with its 95 % bootstrap interval
-    (``results.paired_interval``, a trial resampled with all its cells).  fig9_err_m (T, S, J) horizontal errors (m)
-    at SNRs snrs_db (must hold 10, 25 and 40 dB) and M m_values (must hold 6, 18, 24).  Returns {claim id:
-    ``results.Interval``} in metres or a ratio, as the claim states it."""
+    """The Fig. 9 claims of ``CLAIMS`` on one receiver's Fig. 9 errors, each with its 95 % bootstrap interval.
+
+    The interval is ``intervals.paired_interval``'s, a trial resampled with all its cells.
+
+    Parameters
+    ----------
+    fig9_err_m : float (T, S, J)
+        Horizontal errors, metres, at the SNRs ``snrs_db`` and the M of ``m_values``.
+    snrs_db : sequence of float (S,)
+        The SNRs, dB; must hold 10, 25 and 40.
+    m_values : sequence of int (J,)
+        The numbers of links M; must hold 6, 18 and 24.
+    n_boot : int
+        Bootstrap draws.
+
+    Returns
+    -------
+    dict
+        {claim id: ``intervals.Interval``}, in metres or a ratio, as the claim states it.
+
+    Raises
+    ------
+    ValueError
+        When an SNR or M the claims need is missing, or ``fig9_err_m`` is not (T, S, J).
+    """
     snrs, ms = [float(s) for s in snrs_db], [int(m) for m in m_values]
     missing = {10.0, 25.0, 40.0} - set(snrs), {6, 18, 24} - set(ms)
     if missing[0] or missing[1]:
@@ -161,34 +247,86 @@ def fig9_claim_intervals(fig9_err_m, snrs_db, m_values, n_boot: int = 2000) -> d
              "fig9_more_hurts": lambda a: rmse(a, 10.0, 24) / rmse(a, 10.0, 6),
              "fig9_saturation": lambda a: np.maximum(*(np.abs(rmse(a, s, 24) / rmse(a, s, 18) - 1)
                                                        for s in (25.0, 40.0)))}
-    return {k: results.paired_interval(f, fig9_err_m, n_boot=n_boot) for k, f in stats.items()}
+    return {k: intervals.paired_interval(f, fig9_err_m, n_boot=n_boot) for k, f in stats.items()}
 
 
 def fig10_claim_intervals(dpe_err_m, otdoa_err_m, n_boot: int = 2000) -> dict:
-    """The Fig. 10 claims of ``CLAIMS`` on DPE's and OTDoA's errors (m) on the same trials, (T,) each, each with its
-    95 % bootstrap interval (both receivers resampled together).  Returns {claim id: ``results.Interval``}."""
+    """The Fig. 10 claims of ``CLAIMS`` on DPE's and OTDoA's errors, each with its 95 % bootstrap interval.
+
+    Parameters
+    ----------
+    dpe_err_m, otdoa_err_m : float (T,)
+        DPE's and OTDoA's horizontal errors, metres, on the same trials (resampled together).
+    n_boot : int
+        Bootstrap draws.
+
+    Returns
+    -------
+    dict
+        {claim id: ``intervals.Interval``}.
+    """
     q = lambda a, p: np.quantile(a, p, axis=1)
     stats = {"fig10_dpe_p90": lambda d, o: q(d, 0.9), "fig10_dpe_p99": lambda d, o: q(d, 0.99),
              "fig10_otdoa_p90": lambda d, o: q(o, 0.9), "fig10_gain": lambda d, o: 1 - q(d, 0.9) / q(o, 0.9)}
-    return {k: results.paired_interval(f, dpe_err_m, otdoa_err_m, n_boot=n_boot) for k, f in stats.items()}
+    return {k: intervals.paired_interval(f, dpe_err_m, otdoa_err_m, n_boot=n_boot) for k, f in stats.items()}
 
 
 def claim_intervals(fig9_err_m, snrs_db, m_values, dpe_err_m, otdoa_err_m, n_boot: int = 2000) -> dict:
-    """Every claim of ``CLAIMS`` on one reading's results, in the table's order: ``fig9_claim_intervals`` of its Fig. 9
-    errors (T, S, J) at snrs_db and m_values, and ``fig10_claim_intervals`` of its Fig. 10 errors of DPE and OTDoA
-    (T',) on the same trials.  Returns {claim id: ``results.Interval``}."""
+    """Every claim of ``CLAIMS`` on one reading's results, in the table's order.
+
+    ``fig9_claim_intervals`` of its Fig. 9 errors and ``fig10_claim_intervals`` of its Fig. 10 errors.
+
+    Parameters
+    ----------
+    fig9_err_m : float (T, S, J)
+        Fig. 9's horizontal errors, metres.
+    snrs_db : sequence of float (S,)
+        Fig. 9's SNRs, dB (10, 25 and 40 among them).
+    m_values : sequence of int (J,)
+        Fig. 9's M (6, 18 and 24 among them).
+    dpe_err_m, otdoa_err_m : float (T',)
+        Fig. 10's errors of DPE and OTDoA, metres, on the same trials.
+    n_boot : int
+        Bootstrap draws.
+
+    Returns
+    -------
+    dict
+        {claim id: ``intervals.Interval``}.
+    """
     out = fig9_claim_intervals(fig9_err_m, snrs_db, m_values, n_boot)
     out |= fig10_claim_intervals(dpe_err_m, otdoa_err_m, n_boot)
     return {k: out[k] for k in CLAIMS}
 
 
-def claim_verdicts(intervals: dict) -> dict:
-    """{claim id: verdict} of claim intervals (``claim_intervals`` or either half of it) against each claim's range
-    (``results.Interval.verdict``): "reproduces", "unresolved" or "fails"."""
-    return {k: iv.verdict(*CLAIMS[k][2]) for k, iv in intervals.items()}
+def claim_verdicts(claim_ivs: dict) -> dict:
+    """The verdict of each claim interval against the claim's range (``intervals.Interval.verdict``).
+
+    Parameters
+    ----------
+    claim_ivs : dict
+        {claim id: ``intervals.Interval``}: ``claim_intervals`` or either half of it.
+
+    Returns
+    -------
+    dict
+        {claim id: "reproduces", "unresolved" or "fails"}.
+    """
+    return {k: iv.verdict(*CLAIMS[k][2]) for k, iv in claim_ivs.items()}
 
 
 def verdict_counts(verdicts) -> dict:
-    """{verdict: how many} over an iterable of verdicts, every verdict of ``results.VERDICTS`` present."""
+    """How many of each verdict an iterable of verdicts holds.
+
+    Parameters
+    ----------
+    verdicts : iterable of str
+        Verdicts of ``intervals.VERDICTS``.
+
+    Returns
+    -------
+    dict
+        {verdict: how many}, every verdict of ``intervals.VERDICTS`` present.
+    """
     verdicts = list(verdicts)
-    return {v: verdicts.count(v) for v in results.VERDICTS}
+    return {v: verdicts.count(v) for v in intervals.VERDICTS}

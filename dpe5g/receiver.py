@@ -1,10 +1,10 @@
-"""The DPE receiver: correlograms from the received spectra, then a fix in a window whose centre is in metres, by
-one of two searches (``grid_search``: the paper's divide-and-conquer grid; ``certified_search``: branch and bound).
+"""The DPE receiver: correlograms from the received spectra, then a fix in a window whose centre is in metres.
 
-It also holds the engine's noise-mixing identity, in this one place.  The engine draws one unit noise spectrum η
-per trial and scales it to each SNR (``spectrum_at``); without PRS reuse the received spectrum at SNR index s is
-a_s·y0 + b_s·η for real scales (``noise_scales``).  Both receivers' correlograms are linear in the CIR estimate's
-energy, |a ĥ0 + b ĥη|² = a² |ĥ0|² + 2ab Re(ĥ0* ĥη) + b² |ĥη|², so a trial computes three parts once
+The fix is by one of two searches (``grid_search``: the paper's divide-and-conquer grid; ``certified_search``: branch
+and bound).  The module also holds the engine's noise-mixing identity, in this one place.  The engine draws one unit
+noise spectrum η per trial and scales it to each SNR (``spectrum_at``); without PRS reuse the received spectrum at SNR
+index s is a_s·y0 + b_s·η for real scales (``noise_scales``).  Both receivers' correlograms are linear in the CIR
+estimate's energy, ``|a ĥ0 + b ĥη|² = a² |ĥ0|² + 2ab Re(ĥ0* ĥη) + b² |ĥη|²``, so a trial computes three parts once
 (``energy_parts``, and their images ``energy_window_parts``, ``spline_noise_basis``) and every SNR's correlogram is
 their mixture (``mix_parts``) — two transforms per BS and trial instead of one per SNR.
 """
@@ -26,11 +26,27 @@ if TYPE_CHECKING:
 
 
 def receiver_correlogram(g, cfg: SearchConfig, window=None):
-    """The per-BS correlograms the chosen search reads (traceable), from the LS spectrum g (M, N):
+    """The per-BS correlograms the chosen search reads, from the LS spectrum (traceable).
+
     ``correlogram.energy_grid`` on T_s/upsample (in ``correlogram.GRID_DTYPE``) for "grid",
-    ``correlogram.spline_coefficients`` (float64) for "bnb".  Rows are per BS, so the M nearest of them serve any
-    M.  window : for "bnb", ``correlogram.window_spectrum(cfg.n_taps, N)`` passed as an array (then ``cfg.n_taps``
-    and ``cfg.window_decay_s`` are not read, and a compiled caller serves every window); None computes it from them."""
+    ``correlogram.spline_coefficients`` (float64) for "bnb".  Rows are per BS, so the M nearest of them serve any M.
+
+    Parameters
+    ----------
+    g : complex (M, N)
+        The LS spectrum (``correlogram.ls_spectrum``).
+    cfg : SearchConfig
+        The search; its ``method``, "grid" or "bnb", picks the correlogram.
+    window : complex (N + 1,) or None
+        For "bnb", ``correlogram.window_spectrum(cfg.n_taps, N)`` passed as an array (then ``cfg.n_taps`` and
+        ``cfg.window_decay_s`` are not read, and a compiled caller serves every window); None computes it from them.
+
+    Returns
+    -------
+    array (M, N·U)
+        The energy grid (complex64 energies on T_s/``cfg.upsample``) or the spline coefficients (float64, U =
+        ``cfg.spline_upsample``).
+    """
     if cfg.method == "bnb":
         if window is None:
             window = jnp.asarray(correlogram.window_spectrum(cfg.n_taps, g.shape[-1], cfg.tap_weights()))
@@ -39,10 +55,30 @@ def receiver_correlogram(g, cfg: SearchConfig, window=None):
 
 
 def fix_in_window(g, bs_xyz, center_m, cfg: SearchConfig, num: Numerology = PAPER, corr=None) -> WindowFix:
-    """One DPE fix with either search (traceable): g (M, N) the LS spectrum (``correlogram.ls_spectrum``);
-    bs_xyz (M, 3) m; center_m (4,) = [x, y, z, c δt] in metres.  corr : ``receiver_correlogram`` of g (or of more
-    BSs, of which the first M rows are read), a window of it (``grid_search.grid_window``,
-    ``certified_search.spline_window``), or None to compute it."""
+    """One DPE fix with either search (traceable).
+
+    Parameters
+    ----------
+    g : complex (M, N) or None
+        The LS spectrum (``correlogram.ls_spectrum``); None only where ``corr`` is given and the search does not
+        read it.
+    bs_xyz : float (M, 3)
+        Base-station positions, metres.
+    center_m : float (4,)
+        The window's centre [x, y, z, c δt], metres.
+    cfg : SearchConfig
+        The search and its window.
+    num : Numerology
+        The numerology.
+    corr : array or tuple or None
+        ``receiver_correlogram`` of g (or of more BSs, of which the first M rows are read), a window of it
+        (``grid_search.grid_window``, ``spline_bounds.spline_window``), or None to compute it.
+
+    Returns
+    -------
+    WindowFix
+        The fix in the window.
+    """
     _checks.require_x64()
     corr = receiver_correlogram(g, cfg) if corr is None else corr
     if cfg.method == "bnb":
@@ -52,11 +88,26 @@ def fix_in_window(g, bs_xyz, center_m, cfg: SearchConfig, num: Numerology = PAPE
 
 
 def receiver_window(cfg: SearchConfig, prs_reuse: int, num: Numerology = PAPER) -> np.ndarray:
-    """The certified search's window (``correlogram.window_spectrum``) of the receiver ``cfg``: L taps T_s apart for
-    the paper's full-band pilots; with PRS reuse (``prs_reuse`` > 0) the pilots fill only the carrier's contiguous
-    band of active subcarriers, and the taps are spaced ``correlogram.band_tap_spacing`` samples apart (their tap
-    weights too), so that the window's energy stays the ML cost of L free taps (eq. (8) with the band's own
-    orthogonal taps)."""
+    """The certified search's window (``correlogram.window_spectrum``) of the receiver ``cfg``.
+
+    L taps T_s apart for the paper's full-band pilots; with PRS reuse the pilots fill only the carrier's contiguous band
+    of active subcarriers, and the taps are spaced ``correlogram.band_tap_spacing`` samples apart (their tap weights
+    too), so that the window's energy stays the ML cost of L free taps (eq. (8) with the band's own orthogonal taps).
+
+    Parameters
+    ----------
+    cfg : SearchConfig
+        The receiver's search (L = ``n_taps`` and its tap weights).
+    prs_reuse : int
+        The PRS reuse factor; 0: none (full-band pilots).
+    num : Numerology
+        The numerology.
+
+    Returns
+    -------
+    numpy.ndarray, complex (N + 1,)
+        The window's multiplier on the energy's harmonics.
+    """
     if not prs_reuse:
         return correlogram.window_spectrum(cfg.n_taps, num.n_fft, cfg.tap_weights(num))
     s = correlogram.band_tap_spacing(num)
@@ -65,7 +116,7 @@ def receiver_window(cfg: SearchConfig, prs_reuse: int, num: Numerology = PAPER) 
 
 
 def spectrum_at(d: TrialDraw, s):
-    """Received spectrum (I, N) of SNR index s: the trial's noise-free spectrum plus σ_s times its unit noise.
+    """Received spectrum of SNR index s: the trial's noise-free spectrum plus σ_s times its unit noise.
 
     The noise is drawn in the frequency domain, CN(0, 1) per bin, once per trial (``draw.draw_fn``), and scaled to
     each SNR's variance (``signal.noise_variance``): the DFT is unitary, so this is exactly time-domain AWGN of
@@ -82,7 +133,20 @@ def spectrum_at(d: TrialDraw, s):
     With PRS reuse (``d.reuse``) the UE receives one signal per resource r, Y_r = Σ_{b on r} s_b/σ_b + η_r, and
     each link reads the Y_r of its resource: co-channel links read the same REs, so the same signal and the same
     noise (η_r is the unit noise of the nearest link on r).  Without ``co_channel`` the other BSs' signals are left
-    out."""
+    out.
+
+    Parameters
+    ----------
+    d : TrialDraw
+        The trial's draws.
+    s : int
+        The SNR index (may be traced).
+
+    Returns
+    -------
+    complex (I, N)
+        The received spectrum of the trial's I links.
+    """
     sigma = jnp.sqrt(signal.noise_variance(d.link_snr_db[s], d.prs))
     if not d.per_link_power:  # snr_mode "fixed": every link at the same SNR, unit signal power
         return d.y0 + sigma[:, None] * d.noise
@@ -101,9 +165,20 @@ def spectrum_at(d: TrialDraw, s):
 
 
 def noise_scales(d: TrialDraw):
-    """The scales (a, b), each (S, I), with ``spectrum_at(d, s)`` = a[s, :, None] · y0 + b[s, :, None] · noise:
-    every link reads its own noise-free spectrum and the trial's unit noise (no PRS reuse).  None with PRS reuse,
-    where a link reads a sum over the BSs of its resource."""
+    """The real scales (a, b) with ``spectrum_at(d, s)`` = a[s, :, None] · y0 + b[s, :, None] · noise.
+
+    Every link reads its own noise-free spectrum and the trial's unit noise (no PRS reuse).
+
+    Parameters
+    ----------
+    d : TrialDraw
+        The trial's draws.
+
+    Returns
+    -------
+    tuple of float (S, I), or None
+        (a, b); None with PRS reuse, where a link reads a sum over the BSs of its resource.
+    """
     if d.reuse is not None:
         return None
     sigma = jnp.sqrt(signal.noise_variance(d.link_snr_db, d.prs))  # (S, I), as ``spectrum_at``'s
@@ -113,35 +188,86 @@ def noise_scales(d: TrialDraw):
 
 
 def energy_parts(h0, hn) -> jax.Array:
-    """The three parts of the energy of a·ĥ0 + b·ĥn for real a, b: |a ĥ0 + b ĥn|² = a² |ĥ0|² + 2ab Re(ĥ0* ĥn) +
-    b² |ĥn|² (``mix_parts``).  h0, hn : complex (...), the CIR estimates of two spectra (the noise-free spectrum
-    and the unit noise, ``noise_scales``).  Returns real (3, ...)."""
+    """The three parts of the energy of a·ĥ0 + b·ĥn for real a, b, which ``mix_parts`` mixes.
+
+    ``|a ĥ0 + b ĥn|² = a² |ĥ0|² + 2ab Re(ĥ0* ĥn) + b² |ĥn|²``.
+
+    Parameters
+    ----------
+    h0, hn : complex (...)
+        The CIR estimates of two spectra (the noise-free spectrum and the unit noise, ``noise_scales``).
+
+    Returns
+    -------
+    float (3, ...)
+        ``|ĥ0|²``, Re(ĥ0* ĥn) and ``|ĥn|²``.
+    """
     return jnp.stack([h0.real**2 + h0.imag**2, h0.real * hn.real + h0.imag * hn.imag, hn.real**2 + hn.imag**2])
 
 
 def mix_parts(parts, a, b) -> jax.Array:
-    """a² P_0 + 2ab P_1 + b² P_2 from the three parts (3, ..., M, J) of a correlogram (``energy_parts`` after any
-    linear map: the L-tap window sum, the spline's transform), a, b real (..., M): the correlogram of the spectrum
-    a·g0 + b·gn.  Returns real (..., M, J)."""
+    """a² P_0 + 2ab P_1 + b² P_2: the correlogram of the spectrum a·g0 + b·gn from the three parts of its correlogram.
+
+    Parameters
+    ----------
+    parts : float (3, ..., M, J)
+        The parts P_0, P_1, P_2 (``energy_parts`` after any linear map: the L-tap window sum, the spline's transform).
+    a, b : float (..., M)
+        The real scales of g0 and gn.
+
+    Returns
+    -------
+    float (..., M, J)
+        The mixed correlogram.
+    """
     a, b = jnp.asarray(a)[..., None], jnp.asarray(b)[..., None]
     return (a * a) * parts[0] + (2.0 * a * b) * parts[1] + (b * b) * parts[2]
 
 
 def energy_window_parts(h0w, hnw, n_taps: int, n_fft: int) -> jax.Array:
-    """``correlogram.energy_window``'s three parts (``energy_parts``) for the windows h0w, hnw
-    (``correlogram.cir_window``) of two spectra g0, gn: ``mix_parts`` of the result is the window of the correlogram
-    of a·g0 + b·gn, for every a, b.  Returns real (3, ..., M, W)."""
+    """``correlogram.energy_window``'s three parts (``energy_parts``) for the windows of two spectra g0, gn.
+
+    ``mix_parts`` of the result is the window of the correlogram of a·g0 + b·gn, for every a, b.
+
+    Parameters
+    ----------
+    h0w, hnw : complex (..., M, U, W/U + L − 1)
+        The windows (``correlogram.cir_window``) of the CIR estimates of g0 and gn.
+    n_taps : int
+        The window L, taps.
+    n_fft : int
+        N.
+
+    Returns
+    -------
+    float (3, ..., M, W)
+        The three parts of the correlogram's window.
+    """
     return correlogram.window_sums(energy_parts(h0w, hnw) * n_fft, n_taps)
 
 
 def spline_noise_basis(g0, gn, window, upsample: int) -> jax.Array:
-    """The spline coefficients of the three parts of the energy (``energy_parts``) of the LS spectrum a·g0 + b·gn,
-    for any real scales a, b per BS: ``correlogram.spline_from_energy`` is linear, so the coefficients of
-    a·g0 + b·gn are ``mix_parts`` of these.  One basis per trial serves all its SNRs, 2 inverse FFTs and 3 spline
-    maps per BS instead of 1 and 1 per SNR.
+    """The spline coefficients of the three parts of the energy (``energy_parts``) of the LS spectrum a·g0 + b·gn.
 
-    g0, gn : complex (..., M, N); window : ``correlogram.window_spectrum``.  Returns real (3, ..., M, N·U), float64
-    as ``correlogram.spline_coefficients`` (round-off of the mixture, relative to the largest part, ~1e-16)."""
+    For any real scales a, b per BS: ``correlogram.spline_from_energy`` is linear, so the coefficients of
+    a·g0 + b·gn are ``mix_parts`` of these.  One basis per trial serves all its SNRs, 2 inverse FFTs and 3 spline maps
+    per BS instead of 1 and 1 per SNR.
+
+    Parameters
+    ----------
+    g0, gn : complex (..., M, N)
+        The LS spectra of the noise-free spectrum and of the unit noise.
+    window : complex (N + 1,)
+        ``correlogram.window_spectrum``.
+    upsample : int
+        U, knots per sample (even).
+
+    Returns
+    -------
+    float (3, ..., M, N·U)
+        The basis, float64 as ``correlogram.spline_coefficients`` (round-off of the mixture, relative to the largest
+        part, ~1e-16).
+    """
     # the two transforms in a loop, so that its input is computed once (XLA on the CPU would otherwise fuse the
     # producers of g0 and gn, such as the noise draw, into the transform's zero padding)
     h0, hn = jax.lax.map(correlogram.half_sample_cir, jnp.stack([g0, gn]))
@@ -149,10 +275,26 @@ def spline_noise_basis(g0, gn, window, upsample: int) -> jax.Array:
 
 
 def spline_correlograms(d: TrialDraw, cfg: SearchConfig, window):
-    """s → the certified search's spline coefficients (I, N·U) at SNR index s (``receiver_correlogram`` of
-    ``spectrum_at(d, s)``'s LS spectrum with ``window``), traceable.  Without PRS reuse they are mixed from a basis
-    of the trial computed once (``noise_scales``, ``spline_noise_basis``), equal to the per-SNR path up to
-    round-off (~1e-16 relative; a test checks it)."""
+    """s → the certified search's spline coefficients at SNR index s, traceable.
+
+    They are ``receiver_correlogram`` of ``spectrum_at(d, s)``'s LS spectrum with ``window``.  Without PRS reuse
+    they are mixed from a basis of the trial computed once (``noise_scales``, ``spline_noise_basis``), equal to the
+    per-SNR path up to round-off (~1e-16 relative; a test checks it).
+
+    Parameters
+    ----------
+    d : TrialDraw
+        The trial's draws.
+    cfg : SearchConfig
+        The certified search.
+    window : complex (N + 1,)
+        ``correlogram.window_spectrum``.
+
+    Returns
+    -------
+    callable
+        s → float (I, N·U).
+    """
     form = noise_scales(d)
     if form is None:
         return lambda s: receiver_correlogram(correlogram.ls_spectrum(spectrum_at(d, s), d.prs), cfg, window)
@@ -163,17 +305,30 @@ def spline_correlograms(d: TrialDraw, cfg: SearchConfig, window):
 
 
 def grid_windows(d: TrialDraw, cfg: SearchConfig):
-    """The grid search's correlograms of the trial d, read only in windows (``grid_search.grid_window``; W of N·U
-    points): returns (parts, windows).  windows(s, start) → the pair (values (I, W), start) that
-    ``grid_search.search`` reads at SNR index s for windows starting at grid points start (I,), traceable.  The CIR
-    estimates on T_s/U (``correlogram.cir_grid``, in ``correlogram.GRID_DTYPE``) are computed whole, the energies
-    only in the window.
+    """The grid search's correlograms of the trial d, read only in windows (``grid_search.grid_window``).
 
-    Without PRS reuse (``noise_scales``) the CIR estimates of y0 and η are computed once per trial (2 inverse FFTs
-    of length U·N per BS instead of one per SNR); parts(start) → the three parts (3, I, W) of the windows
-    (``energy_window_parts``), which ``mixed_grid_fixes`` reads for all SNRs at once, and windows mixes them
-    (``mix_parts``): equal to the per-SNR path up to complex64 round-off (~2e-7 relative; a test checks it).  With
-    PRS reuse parts is None."""
+    A window is W of the N·U grid points.  The CIR estimates on T_s/U (``correlogram.cir_grid``, in
+    ``correlogram.GRID_DTYPE``) are computed whole, the energies only in the window.  Without PRS reuse
+    (``noise_scales``) the CIR estimates of y0 and η are computed once per trial (2 inverse FFTs of length U·N per BS
+    instead of one per SNR), and windows mixes the parts (``mix_parts``): equal to the per-SNR path up to complex64
+    round-off (~2e-7 relative; a test checks it).
+
+    Parameters
+    ----------
+    d : TrialDraw
+        The trial's draws.
+    cfg : SearchConfig
+        The grid search.
+
+    Returns
+    -------
+    parts : callable or None
+        start → the three parts (3, I, W) of the windows (``energy_window_parts``), which ``mixed_grid_fixes`` reads for
+        all SNRs at once; None with PRS reuse.
+    windows : callable
+        (s, start) → the pair (values (I, W), start) that ``grid_search.search`` reads at SNR index s for windows
+        starting at grid points start (I,), traceable.
+    """
     dt, u, taps, n = correlogram.GRID_DTYPE, cfg.upsample, cfg.n_taps, d.prs.shape[-1]
     width = grid_search.grid_window_cells(cfg, PAPER)
     form = noise_scales(d)
@@ -201,9 +356,24 @@ def grid_windows(d: TrialDraw, cfg: SearchConfig):
 
 
 def parts_terms(parts, start, pos):
-    """The per-BS terms of ``cost.lookup`` for the three parts (3, M, W) of a correlogram window starting at grid
-    points start (M,) (``energy_window_parts``), at positions pos (..., M) in grid units: one gather of the 3 × 4
-    values and one set of cubic weights per lookup, for all parts.  Returns (3, ..., M)."""
+    """The per-BS terms of ``cost.lookup`` for the three parts of a correlogram window, at positions pos.
+
+    One gather of the 3 × 4 values and one set of cubic weights per lookup, for all parts.
+
+    Parameters
+    ----------
+    parts : float (3, M, W)
+        The window's parts (``energy_window_parts``).
+    start : int (M,)
+        The grid point where each BS's window starts.
+    pos : float (..., M)
+        Positions, grid units.
+
+    Returns
+    -------
+    float (3, ..., M)
+        The terms of each part.
+    """
     f = jnp.floor(pos)
     first = f.astype(jnp.int64) - start - 1
     rows = jnp.broadcast_to(jnp.arange(parts.shape[1]), first.shape)
@@ -217,18 +387,44 @@ def parts_terms(parts, start, pos):
 
 def mixed_grid_fixes(parts, start, a, b, bs_xyz, center_m, cfg: SearchConfig, m_values,
                      num: Numerology = PAPER) -> WindowFix:
-    """``grid_search.nested_grid_fixes`` for S received spectra a_s·g0 + b_s·gn at once (the engine's SNRs of one
-    trial), from the three parts of their correlograms' windows around one centre: the correlogram of spectrum s is
-    ``mix_parts(parts, a_s, b_s)``, and so is its cubic lookup, which is linear in the grid values.  The first
-    level — 94 % of Fig. 9's candidates — is looked up once for the three parts instead of once per spectrum, and
-    the cost of every (s, M) is one matrix product over the BSs; the finer levels run per (s, M) on the mixed
-    window.  Equal to ``nested_grid_fixes`` up to round-off (the weights form of the cubic and the order of the
-    sums; a test checks the fixes agree).
+    """``grid_search.nested_grid_fixes`` for S received spectra a_s·g0 + b_s·gn at once.
 
-    parts : (3, I, W) ``energy_window_parts`` of the I ≥ max(m_values) nearest BSs, starting at grid points start
-    (I,) (``grid_search.grid_window`` of center_m); a, b : (S, I); bs_xyz : (I, 3) m; center_m : (4,) =
-    [x, y, z, c δt] m.  Needs cfg.polish False (the polish reads each spectrum).  Returns a ``WindowFix`` with
-    leading axes (S, len(m_values))."""
+    The S spectra are the engine's SNRs of one trial, read from the three parts of their correlograms' windows around
+    one centre: the correlogram of spectrum s is ``mix_parts(parts, a_s, b_s)``, and so is its cubic lookup, which is
+    linear in the grid values.  The first level — 94 % of Fig. 9's candidates — is looked up once for the three parts
+    instead of once per spectrum, and the cost of every (s, M) is one matrix product over the BSs; the finer levels run
+    per (s, M) on the mixed window.  Equal to ``nested_grid_fixes`` up to round-off (the weights form of the cubic and
+    the order of the sums; a test checks the fixes agree).
+
+    Parameters
+    ----------
+    parts : float (3, I, W)
+        ``energy_window_parts`` of the I ≥ max(m_values) nearest BSs.
+    start : int (I,)
+        The grid points where the windows start (``grid_search.grid_window`` of center_m).
+    a, b : float (S, I)
+        The scales of each spectrum.
+    bs_xyz : float (I, 3)
+        Base-station positions, metres.
+    center_m : float (4,)
+        The window's centre [x, y, z, c δt], metres.
+    cfg : SearchConfig
+        The grid search, with ``polish`` False (the polish reads each spectrum).
+    m_values : sequence of int
+        The numbers M of nearest BSs to fix with.
+    num : Numerology
+        The numerology.
+
+    Returns
+    -------
+    WindowFix
+        With leading axes (S, len(m_values)).
+
+    Raises
+    ------
+    ValueError
+        When ``cfg`` is not the grid search or has ``polish`` set.
+    """
     _checks.require_x64()
     if cfg.method != "grid" or cfg.polish:
         raise ValueError(f"mixed_grid_fixes runs the grid search without polish; got method {cfg.method!r}, "

@@ -1,6 +1,9 @@
-"""Tables of results for people: the claim tables with each claim's interval and verdict (Markdown, for the book),
-the readings' verdict counts (for the book and README) and a run's summary (text, for ``dpe5g run``).  The numbers
-come from ``results``, ``readings`` and the figures' payloads."""
+"""Tables of results for people: claim tables, the readings' verdict counts and a run's summary.
+
+The claim tables give each claim's interval and verdict (Markdown, for the book), the verdict counts serve the book
+and README, the run summary is text for ``dpe5g run``.  The numbers come from ``results``, ``readings`` and the
+figures' payloads.
+"""
 
 from __future__ import annotations
 
@@ -9,8 +12,21 @@ from .results import Results
 
 
 def run_summary(res: Results) -> str:
-    """The study in one line, then the RMSE (m) per SNR (rows) and M (columns) of the DPE (and of the OTDoA fix
-    that centres it, for centring "otdoa"), and for the honest centrings the edge-flag and certified shares."""
+    """A run's summary as text: the study in one line, then its RMSE tables and shares.
+
+    The RMSE (metres) per SNR (rows) and M (columns) of the DPE (and of the OTDoA fix that centres it, for centring
+    "otdoa"), and for the honest centrings the edge-flag and certified shares.
+
+    Parameters
+    ----------
+    res : Results
+        The run's results.
+
+    Returns
+    -------
+    str
+        The summary, lines joined by newlines.
+    """
     e = res.experiment
     prior = f" (σ = {e.receiver.prior_scale_m:g} m)" if e.receiver.centring == "prior" else ""
     lines = [f"{e.run.n_trials} trials, seed {e.run.seed}, deployment {e.scenario.deployment}, delay spread "
@@ -18,9 +34,11 @@ def run_summary(res: Results) -> str:
     tables = [("DPE", res.rmse_m())]
     if res.otdoa_error_m is not None:
         tables.append((f"OTDoA, {e.receiver.toa_method} ToA", res.otdoa_rmse_m(e.receiver.toa_method)))
+    budget = e.links.snr_mode == "link_budget"  # one row: each link's SNR from its BS's power and the path loss
+    snrs = ["link budget"] if budget else [f"{snr:g}" for snr in e.links.snrs_db]
     for label, rmse in tables:
-        lines += [f"RMSE (m), {label}:", f"{'SNR (dB)':>9} " + " ".join(f"{f'M = {m}':>9}" for m in e.receiver.m_values)]
-        lines += [f"{snr:9g} " + " ".join(f"{v:9.3f}" for v in row) for snr, row in zip(e.links.snrs_db, rmse)]
+        lines += [f"RMSE (m), {label}:", f"{'SNR (dB)':>11} " + " ".join(f"{f'M = {m}':>9}" for m in e.receiver.m_values)]
+        lines += [f"{snr:>11} " + " ".join(f"{v:9.3f}" for v in row) for snr, row in zip(snrs, rmse)]
     if e.receiver.centring != "truth":
         lines.append(f"DPE fixes on the window's edge (flagged): {100 * res.edge.mean():.1f} %; certified: "
                      f"{100 * res.certified.mean():.1f} %")
@@ -28,9 +46,20 @@ def run_summary(res: Results) -> str:
 
 
 def readings_summary(p: dict) -> dict:
-    """Counts of a ``readings_payload``: {"verdicts": {reading: {verdict: claims}} (``readings.verdict_counts``),
-    "counts": {reading: claims reproduced}, "n_claims", "best" (the most reproduced by one reading),
-    "best_readings", "never": the claims no reading reproduces}."""
+    """Verdict counts of a ``figure_data.readings_payload``.
+
+    Parameters
+    ----------
+    p : dict
+        The readings payload.
+
+    Returns
+    -------
+    dict
+        ``"verdicts"``: {reading: {verdict: claims}} (``readings.verdict_counts``); ``"counts"``: {reading: claims
+        reproduced}; ``"n_claims"``; ``"best"``: the most claims reproduced by one reading; ``"best_readings"``: the
+        readings that reproduce that many; ``"never"``: the claims no reading reproduces.
+    """
     names = p["config"]["reading_order"]
     verdicts = {n: readings.verdict_counts(p["data"][n]["verdicts"].values()) for n in names}
     counts = {n: verdicts[n]["reproduces"] for n in names}
@@ -42,21 +71,58 @@ def readings_summary(p: dict) -> dict:
 
 
 def verdict_text(counts: dict) -> str:
-    """"k reproduce, u unresolved, f fail" of a {verdict: count} (``readings.verdict_counts``)."""
+    """The counts of verdicts as text: "k reproduce, u unresolved, f fail".
+
+    Parameters
+    ----------
+    counts : dict
+        {verdict: count}, as ``readings.verdict_counts`` gives.
+
+    Returns
+    -------
+    str
+        The text.
+    """
     return f"{counts['reproduces']} reproduce, {counts['unresolved']} unresolved, {counts['fails']} fail"
 
 
 def claim_text(claim_id: str, iv) -> str:
-    """A claim's value and 95 % interval (``results.Interval``) as the claim tables print it: "value [lo, hi]"."""
+    """A claim's value and 95 % interval as the claim tables print it: "value [lo, hi]".
+
+    Parameters
+    ----------
+    claim_id : str
+        The claim's id (a key of ``readings.CLAIMS``); sets the unit (``result_plots.format_claim``).
+    iv : intervals.Interval
+        The value and its 95 % interval.
+
+    Returns
+    -------
+    str
+        The text.
+    """
     f = lambda v: result_plots.format_claim(claim_id, v)
     return f"{f(iv.value)} [{f(iv.lo)}, {f(iv.hi)}]"
 
 
 def claims_markdown(intervals: dict, bracket: dict | None = None) -> str:
-    """A claim table: one row per claim id of ``intervals`` ({id: ``results.Interval``}, from
-    ``readings.claim_intervals`` or a half of it): the claim and its test, the paper's value, ours with its 95 %
-    interval (and ``bracket``'s value in brackets: a labelled comparison), and the verdict (``readings.CLAIMS``'
-    range against the interval)."""
+    """A claim table in Markdown, one row per claim.
+
+    Each row: the claim and its test, the paper's value, ours with its 95 % interval (and ``bracket``'s value in
+    brackets), and the verdict (the range of ``readings.CLAIMS`` against the interval).
+
+    Parameters
+    ----------
+    intervals : dict
+        {claim id: ``intervals.Interval``}, from ``readings.claim_intervals`` or a half of it.
+    bracket : dict or None
+        {claim id: ``intervals.Interval``} whose values are shown in brackets: a labelled comparison; None: none.
+
+    Returns
+    -------
+    str
+        The Markdown table.
+    """
     verdicts = readings.claim_verdicts(intervals)
     lines = ["| claim and its test | paper | ours [95 % interval] | verdict |", "|---|---|---|---|"]
     for c, iv in intervals.items():
@@ -67,11 +133,24 @@ def claims_markdown(intervals: dict, bracket: dict | None = None) -> str:
 
 
 def provenance_markdown(experiments, recomputed: dict | None = None) -> str:
-    """Where a chapter's Monte Carlo numbers come from, as a Markdown table: a row per experiment (listed once)
-    with the trials the chapter reads and the results store's entry that holds them (``figures/trials/<name>-<key>``:
-    its key, trials held, the code version and commit that computed it; "computed in this build" when the store lacks
-    it) and the trials recomputed in this build to check the entry (``recomputed``: {experiment name: trial
-    indices}, ``verify.verify_sample``)."""
+    """Where a chapter's Monte Carlo numbers come from, as a Markdown table.
+
+    A row per experiment (listed once): the trials the chapter reads, the results store's entry that holds them
+    (``figures/trials/<name>-<key>``: its key, trials held, the code version and commit that computed it; "computed
+    in this build" when the store lacks it) and the trials recomputed in this build to check the entry.
+
+    Parameters
+    ----------
+    experiments : iterable of experiment.Experiment
+        The chapter's experiments.
+    recomputed : dict or None
+        {experiment name: trial indices} recomputed in this build (``verify.verify_sample``); None: none.
+
+    Returns
+    -------
+    str
+        The Markdown table.
+    """
     from .store import stored
 
     recomputed = recomputed or {}
@@ -87,7 +166,7 @@ def provenance_markdown(experiments, recomputed: dict | None = None) -> str:
             lines.append(f"| {e.run.name} | {e.run.n_trials} | none: computed in this build | – | – | all |")
             continue
         c = hit.meta.get("commit") or ""
-        commit = c[:7] + (" + changes" if c.endswith("+changes") else "") if c else "outside git"
+        commit = c[:7] + (" + changes" if "+" in c else "") if c else "outside git"  # (+changes, +diff.<digest>)
         again = ", ".join(f"trial {t}" for t in recomputed.get(e.run.name, [])) or "–"
         lines.append(f"| {e.run.name} | {e.run.n_trials} ({hit.n_trials}) | `{hit.meta['config_key']}` | "
                      f"`{hit.meta['code_version']}` | {commit} | {again} |")
@@ -95,6 +174,19 @@ def provenance_markdown(experiments, recomputed: dict | None = None) -> str:
 
 
 def markdown_table(header, rows) -> str:
-    """A Markdown pipe table: ``header`` (columns) and ``rows`` (lists of cells), every cell str()-ed."""
+    """A Markdown pipe table, every cell converted with ``str()``.
+
+    Parameters
+    ----------
+    header : sequence
+        The column headings.
+    rows : iterable of sequence
+        The rows, each a list of cells.
+
+    Returns
+    -------
+    str
+        The Markdown table.
+    """
     lines = ["| " + " | ".join(map(str, header)) + " |", "|" + "---|" * len(header)]
     return "\n".join(lines + ["| " + " | ".join(map(str, r)) + " |" for r in rows])

@@ -1,5 +1,7 @@
-"""Drawing of the Monte Carlo results from their data (never from live computation): Figs. 9 and 10, the readings
-of the paper against its claims, and the studies of the Fig. 9 and bounds chapters, in the style of ``plots``."""
+"""Drawing of the Monte Carlo results from their data (never from live computation), in the style of ``plots``.
+
+Figs. 9 and 10, the readings of the paper against its claims, and the studies of the Fig. 9 and bounds chapters
+(the PRS reuse study's plots are in ``reuse_plots``)."""
 
 from __future__ import annotations
 
@@ -26,6 +28,13 @@ def log_ticks(ax, lo: float, hi: float) -> None:
     Within about a decade and a half: labels at 1, 1.2, 1.5, 2, 3, 4, 5, 6, 8 × 10^k and a light minor grid in
     between (steps of 0.1 × 10^k up to 2 × 10^k), so a value reads to 0.1 m around 1 m.  Up to three decades: labels
     at 1, 2, 5 × 10^k, minor grid at the other integers.  Wider: labels at the decades.
+
+    Parameters
+    ----------
+    ax : matplotlib.axes.Axes
+        The axes whose y axis is set.
+    lo, hi : float
+        The axis' limits, 0 < lo < hi.
     """
     ax.set_yscale("log")
     ax.set_ylim(lo, hi)
@@ -51,11 +60,41 @@ def log_ticks(ax, lo: float, hi: float) -> None:
     ax.grid(True, which="minor", alpha=0.15)
 
 
+def _paper_fig9_text(ax_top, ax, pv: dict) -> None:
+    """Fig. 9's values stated in the paper's text: its 6 m on the short top panel ``ax_top`` of a broken axis, its
+    sub-metre line on ``ax`` below, and the break marks between them."""
+    ax_top.plot([pv["snr_db"]], [pv["rmse_m"]], **PAPER_MARKER,
+                label=f"paper (text): within {pv['rmse_m']:g} m, M = {pv['m']} at {pv['snr_db']:g} dB")
+    ax_top.set_ylim(pv["rmse_m"] - 1.0, pv["rmse_m"] + 1.0)
+    ax_top.yaxis.set_major_locator(MultipleLocator(1.0))
+    ax_top.yaxis.set_major_formatter(FormatStrFormatter("%g"))
+    ax_top.grid(True, which="major", alpha=0.35)
+    ax_top.spines["bottom"].set_visible(False)
+    ax.spines["top"].set_visible(False)
+    ax_top.tick_params(bottom=False, labelbottom=False)
+    for a, y in ((ax_top, 0.0), (ax, 1.0)):  # the break marks
+        a.plot([0.0, 1.0], [y, y], transform=a.transAxes, ls="none", marker=[(-1, -0.5), (1, 0.5)],
+               markersize=10, color="k", mew=1, clip_on=False)
+    ax.axhline(PAPER_FIG9_SUB_METRE_M, color="k", lw=1.0, ls=(0, (1, 2)), zorder=1.5,
+               label="paper (text): sub-metre with more BSs at high SNR (no SNR given)")
+
+
 def plot_rmse_vs_snr(payload: dict):
-    """Fig. 9: RMSE of the horizontal error against the per-sample SNR, one colour per M; solid: the honest
-    receiver (window on a prior, certified search), dashed: the paper's truth-centred grid.  A payload with one
-    receiver only (the chapters' studies) is drawn solid.  Where the SNR axis holds 10 dB and M = 6 is drawn, the
-    values the paper's text states are drawn as well (``PAPER_FIG9_*``)."""
+    """Fig. 9: RMSE of the horizontal error against the per-sample SNR, one colour per M.
+
+    Solid: the honest receiver (window on a prior, certified search), dashed: the paper's truth-centred grid.  A
+    payload with one receiver only (the chapters' studies) is drawn solid.  Where the SNR axis holds 10 dB and M = 6
+    is drawn, the values the paper's text states are drawn as well (``PAPER_FIG9_*``).
+
+    Parameters
+    ----------
+    payload : dict
+        The payload of ``figure_data.rmse_payload``.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     d = payload["data"]
     c = payload["config"]
     snr = np.asarray(c["snrs_db"])
@@ -85,20 +124,7 @@ def plot_rmse_vs_snr(payload: dict):
                     label=f"{style_of[r][1]} ({c['receivers'][r]['n_trials']} trials)")
         vals = np.concatenate([np.asarray(d[r]["rmse_m"]).ravel() for r in recv])
         if paper_text:
-            ax_top.plot([pv["snr_db"]], [pv["rmse_m"]], **PAPER_MARKER,
-                        label=f"paper (text): within {pv['rmse_m']:g} m, M = {pv['m']} at {pv['snr_db']:g} dB")
-            ax_top.set_ylim(pv["rmse_m"] - 1.0, pv["rmse_m"] + 1.0)
-            ax_top.yaxis.set_major_locator(MultipleLocator(1.0))
-            ax_top.yaxis.set_major_formatter(FormatStrFormatter("%g"))
-            ax_top.grid(True, which="major", alpha=0.35)
-            ax_top.spines["bottom"].set_visible(False)
-            ax.spines["top"].set_visible(False)
-            ax_top.tick_params(bottom=False, labelbottom=False)
-            for a, y in ((ax_top, 0.0), (ax, 1.0)):  # the break marks
-                a.plot([0.0, 1.0], [y, y], transform=a.transAxes, ls="none", marker=[(-1, -0.5), (1, 0.5)],
-                       markersize=10, color="k", mew=1, clip_on=False)
-            ax.axhline(PAPER_FIG9_SUB_METRE_M, color="k", lw=1.0, ls=(0, (1, 2)), zorder=1.5,
-                       label="paper (text): sub-metre with more BSs at high SNR (no SNR given)")
+            _paper_fig9_text(ax_top, ax, pv)
             vals = np.concatenate([vals, [PAPER_FIG9_SUB_METRE_M]])
         lo, hi = vals.min(), vals.max()
         if hi / lo < 4:  # a narrow range: linear axis, labelled every 0.1 m
@@ -131,8 +157,19 @@ def plot_rmse_vs_snr(payload: dict):
 
 
 def plot_cdf(payload: dict):
-    """Fig. 10: error CDFs of the DPE receivers and of OTDoA; left the paper's case (2 of 4 links LoS), right LoS
-    from eq. (11).  Both panels carry the points the paper's text states (``PAPER_FIG10_*``) as stars."""
+    """Fig. 10: error CDFs of DPE and OTDoA: (a) the paper's case (2 of 4 links LoS), (b) LoS from eq. (11).
+
+    Both panels carry the points the paper's text states (``PAPER_FIG10_*``) as stars.
+
+    Parameters
+    ----------
+    payload : dict
+        The payload of ``figure_data.cdf_payload``.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     grid = np.asarray(payload["config"]["error_grid_m"])
     data = payload["data"]
     titles = {"two_of_four": "(a) 2 of 4 links LoS (paper's case)", "pr_los": "(b) LoS from eq. (11)"}
@@ -174,8 +211,17 @@ def plot_cdf(payload: dict):
 
 
 def plot_window_study(rows: list[dict]):
-    """The Fig. 9 chapter: RMSE (left) and 90 % error (right) of the honest receiver against the receiver window L, one
-    line per (set-up, M) of ``studies.urban_window_table``."""
+    """The Fig. 9 chapter: RMSE (left) and 90 % error (right) of the honest receiver against the receiver window L.
+
+    Parameters
+    ----------
+    rows : list of dict
+        The rows of ``studies.urban_window_table`` (errors in metres), a line per (set-up, M).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     cols = sorted({(r["setup"], r["m"]) for r in rows})
     with style():
         fig = Figure(figsize=(7.4, 4.4), layout="constrained")
@@ -223,9 +269,18 @@ def _draw_rmse_and_bound(ax, snr, m_values, curves: dict, bound, styles=("-", "-
 
 
 def plot_rmse_and_bound(payload: dict):
-    """The bounds chapter (not in the paper): RMSE of receivers against the per-sample SNR beside the Cramér–Rao bound,
-    log axis, one colour per M.  payload: snrs_db (S,), m_values (J,), curves {label: (S, J) RMSE in m} drawn solid,
-    dashed, …, bound (S, J) in m drawn dotted."""
+    """The bounds chapter (not in the paper): receivers' RMSE against the per-sample SNR beside the Cramér–Rao bound.
+
+    Parameters
+    ----------
+    payload : dict
+        ``"snrs_db"`` (S,), ``"m_values"`` (J,) (a colour each), ``"curves"`` {label: (S, J) RMSE, metres} drawn solid,
+        dashed, …, ``"bound_m"`` (S, J), metres, drawn dotted; log axis.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     snr = np.asarray(payload["snrs_db"])
     with style():
         fig = Figure(figsize=(7.4, 5.4), layout="constrained")
@@ -238,12 +293,24 @@ def plot_rmse_and_bound(payload: dict):
     return fig
 
 
-#: the mark of each verdict of ``results.VERDICTS`` in the readings table and its Markdown
+#: the mark of each verdict of ``intervals.VERDICTS`` in the readings table and its Markdown
 VERDICT_MARKS = {"reproduces": "✓", "unresolved": "?", "fails": "✗"}
 
 
 def format_claim(claim_id: str, value: float) -> str:
-    """A claim's value as the readings table prints it: metres, a ratio, or a percentage."""
+    """A claim's value as the readings table prints it: metres, a ratio, or a percentage.
+
+    Parameters
+    ----------
+    claim_id : str
+        The claim (a key of ``readings.CLAIMS``); sets the unit.
+    value : float
+        The value (metres, a ratio, or a fraction printed as a percentage).
+
+    Returns
+    -------
+    str
+    """
     if claim_id in ("fig9_falls", "fig9_more_hurts"):
         return f"{value:.2f}×"
     if claim_id in ("fig9_saturation", "fig10_gain"):
@@ -252,11 +319,22 @@ def format_claim(claim_id: str, value: float) -> str:
 
 
 def plot_readings(payload: dict):
-    """The readings table (the reproduction chapter): one column per reading of the paper, one row per claim of Figs.
-    9–10, each cell its value with its verdict (``VERDICT_MARKS``): ✓ blue where the value's 95 % interval meets the
+    """The readings table (the reproduction chapter): a column per reading of the paper, a row per claim of Figs. 9–10.
+
+    Each cell holds its value with its verdict (``VERDICT_MARKS``): ✓ blue where the value's 95 % interval meets the
     claim, ✗ orange where it misses it, ? white where the interval straddles the claim's bound (unresolved); the mark
     carries the verdict without the colour.  Two grey rows below give the share of each reading's DPE fixes on its
-    search window's edge (Fig. 9 over its cells, Fig. 10)."""
+    search window's edge (Fig. 9 over its cells, Fig. 10).
+
+    Parameters
+    ----------
+    payload : dict
+        The payload of ``figure_data.readings_payload``.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     claims, data = payload["config"]["claims"], payload["data"]
     ids, names = payload["config"]["claim_order"], payload["config"]["reading_order"]
     edge_rows = (("fig9", "Fig. 9: DPE fixes\non the window's edge"), ("fig10_dpe", "Fig. 10: DPE fixes\non the edge"))
@@ -297,90 +375,19 @@ def plot_readings(payload: dict):
     return fig
 
 
-def plot_link_sinr(groups: dict):
-    """The urban-scenario chapter: CDF of the per-link SNR (dashed) and SINR with PRS reuse (solid), one colour per
-    group of links.
-    groups : {label: {"snr_db": array, "sinr_db": array}} (per-sample dB, any shape, flattened)."""
-    with style():
-        fig = Figure(figsize=(7.4, 4.0), layout="constrained")
-        ax = fig.subplots()
-        lo, hi = np.inf, -np.inf
-        for (label, g), col in zip(groups.items(), COLORS):
-            for key, ls, what in (("snr_db", "--", "SNR"), ("sinr_db", "-", "SINR")):
-                v = np.sort(np.ravel(g[key]))
-                lo, hi = min(lo, np.quantile(v, 0.005)), max(hi, np.quantile(v, 0.995))
-                ax.step(v, np.arange(1, v.size + 1) / v.size, ls, where="post", color=col, label=f"{label}: {what}")
-        ax.axvline(0.0, color="k", lw=0.8, ls=":")
-        ax.set_xlim(lo - 2, hi + 2)
-        ax.set_ylim(0, 1)
-        ax.set_yticks(np.arange(0, 1.01, 0.1))
-        ax.set_xlabel("per-sample SNR / SINR of a link (dB)")
-        ax.set_ylabel("CDF over links")
-        fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=2, fontsize=9, frameon=False)
-    return fig
-
-
-def plot_reuse_rmse(payload: dict):
-    """The Fig. 9 chapter: RMSE against the nearest link's per-sample SNR for each M, one panel per set-up of the
-    payload {"snrs_db", "m_values", "setups": {label: (S, J) RMSE}} (the same trials in every panel), log axis."""
-    snr = np.asarray(payload["snrs_db"])
-    setups = payload["setups"]
-    vals = np.concatenate([np.ravel(v) for v in setups.values()])
-    with style():
-        ncol = min(2, len(setups))
-        nrow = -(-len(setups) // ncol)
-        fig = Figure(figsize=(7.4, 3.4 * nrow + 0.6), layout="constrained")
-        axes = np.atleast_1d(fig.subplots(nrow, ncol, sharey=True, squeeze=False).ravel())
-        for ax in axes[len(setups):]:
-            ax.set_visible(False)
-        for ax, (label, rmse) in zip(axes, setups.items()):
-            rmse = np.asarray(rmse)
-            for j, (m, marker, col) in enumerate(zip(payload["m_values"], "osd^v<>", COLORS)):
-                ax.plot(snr, rmse[:, j], "-", marker=marker, color=col, label=f"M = {m}")
-            ax.set_title(textwrap.fill(label, 42), fontsize=9)
-            ax.set_xticks(snr)
-            ax.set_xlabel("SNR of the nearest link (dB)")
-            log_ticks(ax, vals.min() / 1.15, vals.max() * 1.15)
-        for ax in axes[::ncol]:
-            ax.set_ylabel("RMSE (m)")
-        fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncol=len(payload["m_values"]),
-                   fontsize=9, frameon=False)
-    return fig
-
-
-def plot_reuse_cdf(payload: dict):
-    """The Fig. 10 chapter: error CDFs of the OTDoA-centred DPE (solid) and first-path OTDoA (dashed) with and without
-    PRS reuse, one panel per LoS case.  payload {"cases": {case: {label: {"dpe": errors, "otdoa": errors}}}}."""
-    titles = {"two_of_four": "(a) 2 of 4 links LoS (paper's case)", "pr_los": "(b) LoS from eq. (11)"}
-    n_cases = len(payload["cases"])
-    if n_cases == 0:
-        raise ValueError("plot_reuse_cdf: payload['cases'] is empty, need at least one LoS case")
-    with style():
-        fig = Figure(figsize=(7.4, 4.6 * n_cases), layout="constrained")
-        axes = np.atleast_1d(fig.subplots(n_cases, 1))
-        for ax, (case, runs) in zip(axes, payload["cases"].items()):
-            for (label, errs), col in zip(runs.items(), COLORS):
-                for key, ls, what in (("dpe", "-", "DPE on OTDoA fix"), ("otdoa", "--", "OTDoA, first path")):
-                    v = np.sort(np.asarray(errs[key]))
-                    ax.step(v, np.arange(1, v.size + 1) / v.size, ls, where="post", color=col,
-                            label=f"{what}, {label}: 90 % {np.quantile(v, 0.9):.1f} m")
-            ax.axhline(0.9, color="0.5", lw=0.7, ls=":")
-            ax.set_xscale("log")
-            ax.set_xlim(0.03, 1000)
-            ax.set_ylim(0, 1)
-            ax.set_yticks(np.arange(0, 1.01, 0.1))
-            ax.set_xlabel("horizontal position error (m)")
-            title = titles.get(case, case)
-            ax.set_title(title if n_cases > 1 else title.removeprefix("(a) ").removeprefix("(b) "), fontsize=10)
-            ax.set_ylabel("CDF")
-            ax.legend(fontsize=9, loc="upper left", bbox_to_anchor=(0.0, -0.14), frameon=False)
-    return fig
-
-
 def plot_p90_sweep(payload: dict):
-    """The NLoS-bias chapter: 90 % error (log axis) with its 95 % bootstrap interval against a swept setting, one
-    line per receiver, one panel per case.  payload {"x": (K,), "xlabel", "panels": {title: {receiver: {"p90_m",
-    "lo_m", "hi_m": (K,)}}}, "marks": {label: metres}} (the paper's stated values, dotted horizontal lines)."""
+    """The NLoS-bias chapter: 90 % error (log axis) with its 95 % bootstrap interval against a swept setting.
+
+    Parameters
+    ----------
+    payload : dict
+        ``"x"`` (K,), ``"xlabel"``, ``"panels"`` {title (a panel per case): {receiver (a line each): {``"p90_m"``,
+        ``"lo_m"``, ``"hi_m"``: (K,) metres}}}, ``"marks"`` {label: metres} (the paper's stated values, dotted).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     x = np.asarray(payload["x"], dtype=float)
     panels = payload["panels"]
     styles = ("-o", "--s", "-.d", "-^", ":v")

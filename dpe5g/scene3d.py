@@ -9,6 +9,7 @@ for ``static_html()``).
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -34,9 +35,19 @@ class _Recorder:
         self.commands.append(umsgpack.packb(command.lower()))
 
 
-def _visualizer():
-    import meshcat
+def _meshcat():
+    """meshcat, imported without the DeprecationWarning its import of pyzmq's old tornado event loop raises (an
+    error under the tests' warnings filter, and noise on a reader's console)."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="zmq.eventloop.ioloop is deprecated", category=DeprecationWarning)
+        import meshcat
+        import meshcat.geometry  # noqa: F401  (the scene's objects)
+        import meshcat.servers.zmqserver  # noqa: F401  (create_command)
+    return meshcat
 
+
+def _visualizer():
+    meshcat = _meshcat()
     rec = _Recorder()
     return meshcat.Visualizer(window=rec), rec
 
@@ -48,12 +59,22 @@ def _translation(x, y, z):
 
 
 def build(payload7: dict, payload8: dict):
-    """Build the scene from the Fig. 7 payload (deployment, example UE, links) and the Fig. 8 payload (correlogram
-    of the example fix).  Coordinates: local ENU metres, the region's centre moved to the origin.  Returns the
-    recorder holding the commands."""
-    import meshcat.geometry as g
+    """Build the scene from the payloads of Figs. 7 and 8, in local ENU metres with the region's centre at the origin.
 
+    Parameters
+    ----------
+    payload7 : dict
+        The Fig. 7 payload (``figure_data.deployment_payload``): deployment, example UE, links.
+    payload8 : dict
+        The Fig. 8 payload (``figure_data.urban_correlogram_payload``): the correlogram of the example fix.
+
+    Returns
+    -------
+    _Recorder
+        The recorder holding the scene's packed meshcat commands.
+    """
     top, rec = _visualizer()
+    g = _meshcat().geometry
     vis = top["urban"]
     vis.set_transform(np.diag([SCALE, SCALE, SCALE, 1.0]))
     top["/Grid"].set_property("visible", False)
@@ -106,9 +127,20 @@ def build(payload7: dict, payload8: dict):
 
 
 def html(rec: _Recorder) -> str:
-    """The standalone page: meshcat's viewer JavaScript (bundled with the package) replaying the commands."""
-    import meshcat
-    from meshcat.servers.zmqserver import create_command  # what meshcat's own server emits for each command
+    """The standalone page: meshcat's viewer JavaScript (bundled with the package) replaying the commands.
+
+    Parameters
+    ----------
+    rec : _Recorder
+        The recorder of ``build``.
+
+    Returns
+    -------
+    str
+        The HTML page.
+    """
+    meshcat = _meshcat()
+    create_command = meshcat.servers.zmqserver.create_command  # what meshcat's own server emits for each command
 
     js = (Path(meshcat.__file__).parent / "viewer" / "dist" / "main.min.js").read_text()
     cmds = "".join(create_command(c) for c in rec.commands)
@@ -120,7 +152,20 @@ def html(rec: _Recorder) -> str:
 
 
 def iframe(payload7: dict, payload8: dict, height_px: int = 520) -> str:
-    """The scene as an ``<iframe srcdoc=...>`` element, self-contained, for embedding in a notebook or page."""
+    """The scene as an ``<iframe srcdoc=...>`` element, self-contained, for embedding in a notebook or page.
+
+    Parameters
+    ----------
+    payload7, payload8 : dict
+        The Fig. 7 and Fig. 8 payloads, as for ``build``.
+    height_px : int
+        The frame's height, pixels (its width is the page's).
+
+    Returns
+    -------
+    str
+        The ``<iframe>`` element.
+    """
     from meshcat.visualizer import srcdoc_escape
 
     page = srcdoc_escape(html(build(payload7, payload8)))
@@ -129,8 +174,22 @@ def iframe(payload7: dict, payload8: dict, height_px: int = 520) -> str:
 
 
 def export(payload7: dict, payload8: dict, path, exclusive: bool = False) -> Path:
-    """Write the scene's static HTML to ``path`` atomically (``_io.atomic_write``; exclusive: ``FileExistsError``
-    rather than replace an existing file); returns the path."""
+    """Write the scene's static HTML to ``path`` atomically (``_io.atomic_write``).
+
+    Parameters
+    ----------
+    payload7, payload8 : dict
+        The Fig. 7 and Fig. 8 payloads, as for ``build``.
+    path : str or pathlib.Path
+        The HTML file to write.
+    exclusive : bool
+        Raise ``FileExistsError`` rather than replace an existing file.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
     from ._io import atomic_write
 
     path = Path(path)

@@ -27,42 +27,73 @@ SEARCH_METHODS = ("grid", "bnb")
 
 @dataclass(frozen=True)
 class SearchConfig:
-    """Divide-and-conquer grid search of eq. (10) over (x, y, c δt) at known UE height (the paper's set-up), or over
-    (x, y, z, c δt) with ``z_half_width_m`` > 0.
+    """The window of eq. (10) and its search: the paper's divide-and-conquer grid or the certified branch and bound.
 
-    n_taps : receiver window L in taps (default ``DEFAULT_TAPS``; the DPE chapter shows the bias-vs-L study behind it).
-    upsample : correlogram grid T_s / upsample (4 → 0.61 m of range; cubic interpolation between grid points).
-    half_width_m : the grid spans centre ± half_width_m in x and y.
-    bias_half_width_m : and centre ± this in c δt (the paper's clock bias: σ = 5 ns = 1.5 m); 0 fixes δt.
-    z_half_width_m : 0 (default, the paper's set-up) keeps the UE height at the centre's z; > 0 searches z too,
-        over centre ± this (the 3-D option).
-    coarse_step_m : step of the first grid; each further level is a 5-point-per-axis grid around the best point,
-        with the step divided by 2.5, until the step is ≤ final_step_m.
-    final_step_m : resolution reached by the grid (0.1 m by default).
-    polish : after the grid, Newton steps on the exact ``ml_cost`` with JAX autodiff (accepted only if the cost rises).
-        Off by default, as in the paper, whose search ends on the grid: on the DPE chapter's ring study it moves fixes
-        by 4 cm (median, 13 cm at most) and costs about as much as the grid search.
-    method : "grid" — the coarse-to-fine grid above (``grid_search``: the paper's divide-and-conquer search; no
-        guarantee); "bnb" — ``certified_search.certified_search``: branch-and-bound over (x, y, c δt) boxes that returns
-        the global maximum of eq. (10) (cubic-spline form) inside the window with a certified gap.  The fields below
-        apply to "bnb" only, which searches (x, y, c δt) at the known UE height (``z_half_width_m`` must be 0).
-    spline_upsample : T_s / spline_upsample is the knot spacing of the spline form of eq. (10) (8 → 0.305 m).
-    box_m : side of the first boxes in x and y (the c δt window is split into ``bias_boxes`` boxes).
-    box_final_m : boxes are halved until their x, y side is ≤ this (m).
-    capacity : boxes kept per level (the highest bounds); a box dropped for lack of room makes the fix uncertified
-        (counted, not hidden).  A level's work follows the boxes alive, not the capacity: they are refined
-        ``chunk_boxes`` at a time, in order of bound, while any is left.
-    chunk_boxes : boxes refined together (a divisor of ``capacity``).  A level's loop evaluates all 8 × chunk_boxes
-        children of a chunk, live or not, and the levels of Fig. 9's fixes keep a few tens of boxes alive, so small
-        chunks waste less: measured on the 2-core CI machine (interleaved runs), 16 took 0.85 of the time of 64 on
-        Fig. 9's honest receiver and 0.82 on Fig. 10's; 8 was within 5 % of 16, and keeps more loop steps where
-        many boxes stay alive (wide windows, low SNR).  Where no box is dropped the fix does not depend on it: every
-        box holding a point better than the best cost found is refined, whatever the order (ties aside); its gap,
-        the bound left over the final boxes, does.
-    gap_tol : a fix is certified when its upper bound exceeds its cost by at most gap_tol × cost.
-    window_decay_s : 0 (default) — eq. (10)'s window, its L taps weighted equally; > 0 (seconds, "bnb" only) — the
-        first-path-aware window, our extension and not the paper's (the bounds chapter): tap l weighted by
-        exp(−l T_s / window_decay_s) (``correlogram.tap_weights``).
+    The grid searches (x, y, c δt) at known UE height (the paper's set-up), or (x, y, z, c δt) with
+    ``z_half_width_m`` > 0; the branch and bound searches (x, y, c δt) at the known height.
+
+    Attributes
+    ----------
+    n_taps : int
+        Receiver window L in taps, 1 to 4096 (default ``DEFAULT_TAPS``; the DPE chapter shows the bias-vs-L study
+        behind it).
+    upsample : int
+        Correlogram grid T_s / upsample, 1 to 256 (4 → 0.61 m of range; cubic interpolation between grid points).
+    half_width_m : float
+        The window spans centre ± half_width_m in x and y, metres, 0.1 to 1000.
+    bias_half_width_m : float
+        And centre ± this in c δt, metres, 0 to 1000 (the paper's clock bias: σ = 5 ns = 1.5 m); 0 fixes δt.
+    z_half_width_m : float
+        0 (default, the paper's set-up) keeps the UE height at the centre's z; > 0 (up to 1000 m) searches z too, over
+        centre ± this (the 3-D option).
+    coarse_step_m : float
+        Step of the first grid, metres, 0.01 to 100; each further level is a 5-point-per-axis grid around the best
+        point, with the step divided by 2.5, until the step is ≤ ``final_step_m``.
+    final_step_m : float
+        Resolution reached by the grid, metres, 1e-4 to ``coarse_step_m`` (0.1 m by default).
+    polish : bool
+        After the grid, Newton steps on the exact ``ml_cost`` with JAX autodiff (accepted only if the cost rises).  Off
+        by default, as in the paper, whose search ends on the grid: on the DPE chapter's ring study it moves fixes by
+        4 cm (median, 13 cm at most) and costs about as much as the grid search.
+    polish_iters : int
+        Newton steps of ``polish``, 0 to 20.
+    method : str
+        ``"grid"``: the coarse-to-fine grid above (``grid_search``: the paper's divide-and-conquer search; no
+        guarantee).  ``"bnb"``: ``certified_search.certified_search``, branch and bound over (x, y, c δt) boxes that
+        returns the global maximum of eq. (10) (cubic-spline form) inside the window with a certified gap; the fields
+        below apply to it only, and ``z_half_width_m`` must be 0.
+    spline_upsample : int
+        T_s / spline_upsample is the knot spacing of the spline form of eq. (10), even, 2 to 64 (8 → 0.305 m).
+    box_m : float
+        Side of the first boxes in x and y, metres, 0.1 to 100.
+    bias_boxes : int
+        Boxes the c δt window is split into at the start, 1 to 64.
+    box_final_m : float
+        Boxes are halved until their x, y side is ≤ this, metres, 1e-3 to ``box_m``.
+    capacity : int
+        Boxes kept per level (the highest bounds), 8 to 65536; a box dropped for lack of room makes the fix
+        uncertified (counted, not hidden).  A level's work follows the boxes alive, not the capacity: they are
+        refined ``chunk_boxes`` at a time, in order of bound, while any is left.
+    chunk_boxes : int
+        Boxes refined together, a divisor of ``capacity``.  A level's loop evaluates all 8 × chunk_boxes children of a
+        chunk, live or not, and the levels of Fig. 9's fixes keep a few tens of boxes alive, so small chunks waste
+        less: measured on the 2-core CI machine (interleaved runs), 16 took 0.85 of the time of 64 on Fig. 9's honest
+        receiver and 0.82 on Fig. 10's; 8 was within 5 % of 16, and keeps more loop steps where many boxes stay alive
+        (wide windows, low SNR).  Where no box is dropped the fix does not depend on it: every box holding a point
+        better than the best cost found is refined, whatever the order (ties aside); its gap, the bound left over
+        the final boxes, does.
+    gap_tol : float
+        A fix is certified when its upper bound exceeds its cost by at most gap_tol × cost, 0 to 1.
+    window_decay_s : float
+        0 (default): eq. (10)'s window, its L taps weighted equally.  > 0 (seconds, up to
+        ``correlogram.MAX_WINDOW_DECAY_S``, ``"bnb"`` only): the first-path-aware window, our extension and not the
+        paper's (the bounds chapter), tap l weighted by exp(−l T_s / window_decay_s) (``correlogram.tap_weights``).
+
+    Raises
+    ------
+    ValueError
+        A field outside its range, or a combination the search cannot run (``window_decay_s`` > 0 or
+        ``z_half_width_m`` > 0 with the other method).
     """
 
     n_taps: int = DEFAULT_TAPS
@@ -114,24 +145,55 @@ class SearchConfig:
             raise ValueError("z_half_width_m must be 0 with method 'bnb' (it searches x, y, c δt at the known height)")
 
     def tap_weights(self, num: Numerology = PAPER) -> np.ndarray:
-        """The weights (L,) of the window's taps (``correlogram.tap_weights``)."""
+        """The weights of the window's taps (``correlogram.tap_weights``).
+
+        Parameters
+        ----------
+        num : Numerology
+            The numerology, for the sample period T_s (``nr.PAPER`` by default).
+
+        Returns
+        -------
+        numpy.ndarray float (L,)
+            Weight of each of the L = ``n_taps`` taps.
+        """
         return correlogram.tap_weights(self.n_taps, self.window_decay_s, num.sample_period_s)
 
     def steps(self) -> tuple[float, ...]:
-        """Grid step of each level in metres."""
+        """Grid step of each level of the grid search.
+
+        Returns
+        -------
+        tuple of float
+            The steps in metres, from ``coarse_step_m`` down to the first ≤ ``final_step_m``.
+        """
         s = [self.coarse_step_m]
         while s[-1] > self.final_step_m + 1e-12:
             s.append(s[-1] / 2.5)
         return tuple(s)
 
 
+#: the paper's search, a labelled comparison only: its divide-and-conquer grid, ±10 m around the window's centre,
+#: nothing certified (``SearchConfig()``).  The book's receiver, ``dpe.fix``'s default, is ``dpe.honest_search()``.
+PAPER_GRID = SearchConfig()
+
+
 @jax.tree_util.register_dataclass
 @dataclass(frozen=True)
 class WindowFix:
-    """A search's fix in its window (any leading shape (...), e.g. (S, J) for an engine trial's SNRs and M values).
+    """A search's fix in its window (a JAX pytree), leading shape (...): e.g. (S, J), an engine trial's SNRs and M's.
 
-    q (..., 4) = (x, y, z, c δt) in metres; gap (...) the certified relative gap (NaN for the grid search, which
-    certifies nothing); certified (...) bool; edge (...) bool, the fix lies on the window's boundary (flagged)."""
+    Attributes
+    ----------
+    q : jax.Array float (..., 4)
+        The fix (x, y, z, c δt), metres.
+    gap : jax.Array float (...)
+        The certified relative gap; NaN for the grid search, which certifies nothing.
+    certified : jax.Array bool (...)
+        The search proved the fix the window's maximum within ``gap``.
+    edge : jax.Array bool (...)
+        The fix lies on the window's boundary (flagged: the maximum may lie outside).
+    """
 
     q: jax.Array
     gap: jax.Array

@@ -10,8 +10,8 @@ Conventions (used by every module):
 * The ToA of BS m is τ_m = ‖p - b_m‖/c + δt with a clock bias δt common to all BSs.
 
 SNR (``snr_db``) is the per-sample signal-to-noise ratio over the sampled band N Δf: the mean received signal
-power per time-domain sample, for a channel of unit mean total power (E Σ_l |h_l|² = 1) and the transmitted
-pilots' mean power per sample mean_k |d_k|², divided by the complex noise variance σ² = E|η[n]|².  With the
+power per time-domain sample, for a channel of unit mean total power (``E Σ_l |h_l|² = 1``) and the transmitted
+pilots' mean power per sample ``mean_k |d_k|²``, divided by the complex noise variance ``σ² = E|η[n]|²``.  With the
 paper's full-band unit-modulus PRS, σ² = 10^(-SNR/10).  Because the DFT is unitary it is also the per-subcarrier
 SNR.  It is the SNR before correlation: the correlation gain of N = 4096 samples (36 dB) comes on top.
 """
@@ -30,29 +30,79 @@ from .nr import PAPER, Numerology
 def ofdm_symbol(prs) -> jax.Array:
     """Eq. (3) sampled at t = nT_s after CP removal: x[n] = (1/√N) Σ_k d_k e^{j2πkn/N}.
 
-    prs : complex (..., N) PRS symbols d_{m,k} in FFT-bin order.  Returns complex (..., N).
+    Parameters
+    ----------
+    prs : complex (..., N)
+        PRS symbols d_{m,k} in FFT-bin order.
+
+    Returns
+    -------
+    jax.Array complex (..., N)
+        The samples x[n].
     """
     _checks.require_x64()
     return jnp.fft.ifft(jnp.asarray(prs), axis=-1, norm="ortho")
 
 
 def delay_phasor(tau_s, num: Numerology = PAPER) -> jax.Array:
-    """Diagonal of Γ(τ) in eq. (6): e^{-j2πkΔfτ}, k = 0 … N-1.  tau_s : real (...) seconds → complex (..., N)."""
+    """Diagonal of Γ(τ) in eq. (6): e^{-j2πkΔfτ}, k = 0 … N-1.
+
+    Parameters
+    ----------
+    tau_s : float (...)
+        Delays τ, seconds.
+    num : Numerology
+        The numerology (``nr.PAPER`` by default).
+
+    Returns
+    -------
+    jax.Array complex (..., N)
+        The phasors.
+    """
     _checks.require_x64()
     k = jnp.arange(num.n_fft)
     return unit_phasor(-2 * jnp.pi * num.scs_hz * jnp.asarray(tau_s)[..., None] * k)
 
 
 def unit_phasor(phase) -> jax.Array:
-    """e^{jφ} = cos φ + j sin φ for real phases φ (...) in radians: the same numbers as ``jnp.exp(1j * φ)``, whose
-    complex exponential also evaluates e^0 twice and guards overflow per element (measured 2× slower in the
-    Monte Carlo draws).  Returns complex (...)."""
+    """e^{jφ} = cos φ + j sin φ: the same numbers as ``jnp.exp(1j * φ)``, faster.
+
+    ``jnp.exp`` of a complex argument also evaluates e^0 twice and guards overflow per element (measured 2× slower
+    in the Monte Carlo draws).
+
+    Parameters
+    ----------
+    phase : float (...)
+        Real phases φ, radians.
+
+    Returns
+    -------
+    jax.Array complex (...)
+        e^{jφ}.
+    """
     return jax.lax.complex(jnp.cos(phase), jnp.sin(phase))
 
 
 def noise_variance(snr_db, prs) -> jax.Array:
-    """σ² of the complex AWGN for per-sample SNR ``snr_db`` (dB, scalar or (M,), in [-50, 100]), see the module
-    docstring."""
+    """σ² of the complex AWGN for a per-sample SNR (the module docstring defines it).
+
+    Parameters
+    ----------
+    snr_db : float or float (M,)
+        Per-sample SNR, dB, in [-50, 100] (not checked when traced).
+    prs : complex (..., N)
+        The pilots, whose mean power per sample scales σ².
+
+    Returns
+    -------
+    jax.Array float (...)
+        σ², per link.
+
+    Raises
+    ------
+    ValueError
+        ``snr_db`` not real, not finite or outside [-50, 100] dB.
+    """
     if not isinstance(snr_db, jax.core.Tracer):  # (traced: the engine checked its SNRs before tracing)
         check_snr_db(snr_db)
     pilot_power = jnp.mean(jnp.abs(jnp.asarray(prs)) ** 2, axis=-1)
@@ -67,15 +117,51 @@ SNR_CONVENTIONS = ("per_sample", "total")
 
 
 def per_sample_snr_db(snr_db, convention: str, num: Numerology = PAPER):
-    """The per-sample SNR (dB) of an SNR ``snr_db`` stated in ``convention`` (``SNR_CONVENTIONS``): unchanged for
-    "per_sample", minus 10 log10 N (36.1 dB for the paper's N = 4096) for "total".  Traceable in ``snr_db``."""
+    """The per-sample SNR of an SNR stated in ``convention``: unchanged for "per_sample", 10 log10 N lower for "total".
+
+    10 log10 N is 36.1 dB for the paper's N = 4096.  Traceable in ``snr_db``.
+
+    Parameters
+    ----------
+    snr_db : float or array
+        The stated SNR, dB.
+    convention : str
+        One of ``SNR_CONVENTIONS``.
+    num : Numerology
+        The numerology, for N (``nr.PAPER`` by default).
+
+    Returns
+    -------
+    float or array
+        The per-sample SNR, dB.
+
+    Raises
+    ------
+    ValueError
+        An unknown ``convention``.
+    """
     _checks.one_of("convention", convention, SNR_CONVENTIONS)
     return snr_db - 10.0 * np.log10(num.n_fft) if convention == "total" else snr_db
 
 
 def check_snr_db(snr_db) -> np.ndarray:
-    """Validate an SNR in dB (scalar or array): real numbers (not text or True/False), finite and within
-    [-50, 100] dB."""
+    """Validate an SNR in dB: real numbers (not text or True/False), finite and within [-50, 100] dB.
+
+    Parameters
+    ----------
+    snr_db : float or array
+        The SNR, dB.
+
+    Returns
+    -------
+    numpy.ndarray float
+        ``snr_db`` as float64.
+
+    Raises
+    ------
+    ValueError
+        ``snr_db`` not real, not finite or outside [-50, 100] dB.
+    """
     if isinstance(snr_db, (str, bytes)) or np.asarray(snr_db).dtype.kind not in "iuf":
         raise ValueError(f"snr_db must be real numbers (dB, in [-50, 100]), got {snr_db!r}")
     s = np.asarray(snr_db, dtype=np.float64)
@@ -87,24 +173,50 @@ def check_snr_db(snr_db) -> np.ndarray:
 
 
 def demodulate(y) -> jax.Array:
-    """The receiver's OFDM demodulation, the inverse of ``ofdm_symbol``: Y_k = (1/√N) Σ_n y[n] e^{-j2πkn/N} (the
-    unitary DFT, F^H y in eq. (6)).  y : complex (..., N) → complex (..., N), bins in FFT order."""
+    """The receiver's OFDM demodulation, the inverse of ``ofdm_symbol``: Y_k = (1/√N) Σ_n y[n] e^{-j2πkn/N}.
+
+    This is the unitary DFT, F^H y in eq. (6).
+
+    Parameters
+    ----------
+    y : complex (..., N)
+        Received samples.
+
+    Returns
+    -------
+    jax.Array complex (..., N)
+        Y_k, bins in FFT order.
+    """
     _checks.require_x64()
     return jnp.fft.fft(jnp.asarray(y), axis=-1, norm="ortho")
 
 
 def received_spectrum(prs, freq_response, toa_s, clock_bias_s=0.0, num: Numerology = PAPER) -> jax.Array:
-    """Noise-free received signal of eq. (5) in the frequency domain, the unitary DFT of its samples (eq. (6)):
+    """Noise-free received signal of eq. (5) in the frequency domain, the unitary DFT of its samples (eq. (6)).
 
     Y_{m,k} = d_{m,k} H_{m,k} e^{-j2πkΔf(τ_m + δt)}.
 
-    prs : complex (..., M, N); freq_response : complex (..., M, N) channel responses H_{m,k}
-    (``channel.frequency_response``); toa_s : real (..., M) ToA τ_m of the first path in seconds; clock_bias_s :
-    δt in seconds, scalar or (...,), common to the M base stations.  Returns complex (..., M, N).
-
     This is the one signal path of the package: ``received_noiseless`` is its inverse DFT, and the Monte Carlo
-    engine (``dpe5g.receiver.spectrum_at``) adds its noise here, in the frequency domain, where the receivers start (the
-    DFT is unitary, so CN(0, σ²) per bin is exactly the time-domain AWGN of the same variance).
+    engine (``dpe5g.receiver.spectrum_at``) adds its noise here, in the frequency domain, where the receivers start
+    (the DFT is unitary, so CN(0, σ²) per bin is exactly the time-domain AWGN of the same variance).
+
+    Parameters
+    ----------
+    prs : complex (..., M, N)
+        PRS symbols d_{m,k}.
+    freq_response : complex (..., M, N)
+        Channel responses H_{m,k} (``channel.frequency_response``).
+    toa_s : float (..., M)
+        ToA τ_m of the first path, seconds.
+    clock_bias_s : float or float (...)
+        Clock bias δt, seconds, common to the M base stations (0 by default).
+    num : Numerology
+        The numerology (``nr.PAPER`` by default).
+
+    Returns
+    -------
+    jax.Array complex (..., M, N)
+        Y_{m,k}.
     """
     _checks.require_x64()
     tau = jnp.asarray(toa_s) + jnp.asarray(clock_bias_s)[..., None]
@@ -114,24 +226,61 @@ def received_spectrum(prs, freq_response, toa_s, clock_bias_s=0.0, num: Numerolo
 def received_noiseless(prs, gains, tap_delays_s, toa_s, clock_bias_s=0.0, num: Numerology = PAPER) -> jax.Array:
     """Noise-free received samples of eq. (5): the inverse DFT of ``received_spectrum``.
 
-    y_m[n] = (1/√N) Σ_k d_{m,k} H_{m,k} e^{-j2πkΔf(τ_m + δt)} e^{j2πkn/N},  H_{m,k} = Σ_l h_{m,l} e^{-j2πkΔf τ_l}.
+    y_m[n] = (1/√N) Σ_k d_{m,k} H_{m,k} e^{-j2πkΔf(τ_m + δt)} e^{j2πkn/N},
+    H_{m,k} = Σ_l h_{m,l} e^{-j2πkΔf τ_l}.
 
-    prs : complex (M, N); gains : complex (M, L) tap gains h_{m,l}; tap_delays_s : real (M, L) excess delays τ_l in
-    seconds (first arrival at 0); toa_s : real (M,) ToA τ_m of the first path in seconds; clock_bias_s : UE clock
-    bias δt in seconds, common to all BSs.  Returns complex (M, N).
+    Parameters
+    ----------
+    prs : complex (M, N)
+        PRS symbols d_{m,k}.
+    gains : complex (M, L)
+        Tap gains h_{m,l}.
+    tap_delays_s : float (M, L)
+        Excess delays τ_l, seconds (first arrival at 0).
+    toa_s : float (M,)
+        ToA τ_m of the first path, seconds.
+    clock_bias_s : float
+        UE clock bias δt, seconds, common to all BSs (0 by default).
+    num : Numerology
+        The numerology (``nr.PAPER`` by default).
+
+    Returns
+    -------
+    jax.Array complex (M, N)
+        y_m[n].
     """
     H = frequency_response(gains, tap_delays_s, num)
     return ofdm_symbol(received_spectrum(prs, H, toa_s, clock_bias_s, num))
 
 
 def awgn(key: jax.Array, shape, variance) -> jax.Array:
-    """Circular complex Gaussian noise CN(0, variance); variance broadcast against ``shape[:-1]``.
+    """Circular complex Gaussian noise CN(0, variance).
 
-    The real and imaginary parts are the two halves of one standard normal draw of shape (*shape, 2), paired by
+    The real and imaginary parts are the two halves of one standard normal draw of shape ``(*shape, 2)``, paired by
     ``lax.complex``.  Precision: the normals are drawn in float32 and widened (float64 normals took 2.8× as long,
     most of the Monte Carlo draws' time on this CPU): each is a Gaussian sample to float32 round-off (~6e-8
-    relative), with the tails cut where float32 uniforms end, |x| ≲ 5.4 (a probability of ~7e-8 per sample), far
-    below what any figure of the book resolves."""
+    relative), with the tails cut where float32 uniforms end, ``|x| ≲ 5.4`` (a probability of ~7e-8 per sample),
+    far below what any figure of the book resolves.
+
+    Parameters
+    ----------
+    key : jax PRNG key
+        The random key.
+    shape : tuple of int
+        Shape of the noise.
+    variance : float (...)
+        ``σ² = E|η|²``, non-negative, broadcast against ``shape[:-1]``.
+
+    Returns
+    -------
+    jax.Array complex (shape)
+        The noise.
+
+    Raises
+    ------
+    ValueError
+        A negative or non-finite ``variance``.
+    """
     _checks.values_in_range("variance", variance, 0.0, np.inf)
     x = jax.random.normal(key, (*shape, 2), jnp.float32).astype(jnp.float64)
     z = jax.lax.complex(x[..., 0], x[..., 1])
@@ -148,11 +297,30 @@ def received_samples(
     clock_bias_s: float = 0.0,
     num: Numerology = PAPER,
 ) -> jax.Array:
-    """Received samples y_m = F D_m Γ_m(p) H_m + η_m of eqs. (5)–(6) with AWGN at ``snr_db``, F the unitary inverse
-    DFT (the synthesis of eq. (5); the module docstring says how this reads eq. (6)).
+    """Received samples y_m = F D_m Γ_m(p) H_m + η_m of eqs. (5)–(6) with AWGN at ``snr_db``.
 
-    key : jax.random key for the noise; snr_db : dB, scalar or (M,), per-sample SNR as defined in the module
-    docstring.  Other arguments as ``received_noiseless``.  Returns complex (M, N).
+    F is the unitary inverse DFT (the synthesis of eq. (5); the module docstring says how this reads eq. (6)).
+
+    Parameters
+    ----------
+    key : jax PRNG key
+        The random key for the noise.
+    prs, gains, tap_delays_s, toa_s, num
+        As ``received_noiseless``.
+    snr_db : float or float (M,)
+        Per-sample SNR as defined in the module docstring, dB, in [-50, 100].
+    clock_bias_s : float
+        UE clock bias δt, seconds, in [-1e-3, 1e-3] (0 by default).
+
+    Returns
+    -------
+    jax.Array complex (M, N)
+        y_m[n].
+
+    Raises
+    ------
+    ValueError
+        ``snr_db`` or ``clock_bias_s`` invalid or outside its range.
     """
     check_snr_db(snr_db)
     _checks.in_range("clock_bias_s", clock_bias_s, -1e-3, 1e-3, "s")
@@ -161,12 +329,21 @@ def received_samples(
 
 
 def received_noiseless_direct(prs, gains, tap_delays_s, toa_s, clock_bias_s=0.0, num: Numerology = PAPER):
-    """Eq. (4) sampled at t = nT_s, i.e. eq. (5), evaluated term by term in the time domain, for verification on
-    small N (O(L N²) memory N²).
+    """Eq. (4) sampled at t = nT_s, i.e. eq. (5), evaluated term by term in the time domain, for verification.
 
     y_m[n] = (1/√N) Σ_l h_{m,l} Σ_k d_{m,k} exp(j2πk n/N) exp(-j2πkΔf(τ_m + δt + τ_l)).
 
-    Same arguments and result as ``received_noiseless``; uses NumPy, no FFT.
+    For small N only (O(L N²) time, memory N²); uses NumPy, no FFT.
+
+    Parameters
+    ----------
+    prs, gains, tap_delays_s, toa_s, clock_bias_s, num
+        As ``received_noiseless``.
+
+    Returns
+    -------
+    numpy.ndarray complex (M, N)
+        y_m[n], as ``received_noiseless``.
     """
     d = np.asarray(prs)
     g = np.asarray(gains)

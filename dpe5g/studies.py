@@ -9,15 +9,29 @@ from __future__ import annotations
 import jax
 import numpy as np
 
-from . import channel, correlogram, engine, nr, results, signal
+from . import channel, correlogram, engine, intervals, nr, results, signal
 from .experiment import OTDOA_DETECTORS
 from .nr import C
 
 
 def ring_window_table(experiments: dict, progress: bool = False) -> list[dict]:
-    """Run (or load) ``paper.ring_window_experiments`` ({L: experiment}, the same trials for every L) and score
-    each window L: the horizontal error's RMSE, median, 90 % and 99 % points, and the RMSE of the fixes' clock bias
-    c (δt̂ − δt) in metres."""
+    """Run (or load) ``paper.ring_window_experiments`` and score each window L.
+
+    The scores are the horizontal error's RMSE, median, 90 % and 99 % points, and the RMSE of the fixes' clock bias
+    c (δt̂ − δt) in metres.
+
+    Parameters
+    ----------
+    experiments : dict
+        {L: experiment}, the same trials for every L.
+    progress : bool
+        Show the engine's progress.
+
+    Returns
+    -------
+    list of dict
+        One row per L: "n_taps", the error summary (``results.error_summary``, metres) and "bias_rmse_m".
+    """
     rows = []
     for n_taps, e in experiments.items():
         res = engine.run(e, progress=progress)
@@ -37,13 +51,30 @@ PLATEAU_CIR_SAMPLES = 40
 
 def plateau_payload(seed: int = 5, delay_spread_s: float = 65e-9, k_factor_db: float = 13.3,
                     span_m: tuple[float, float] = (-40.0, 15.0)) -> dict:
-    """One BS term of eq. (10), ‖S_m(τ)^H y_m‖², against the candidate ToA for a TDL-D (LoS) and a TDL-C (NLoS)
-    link, noise-free, for the windows L of ``PLATEAU_TAPS``.
+    """One BS term of eq. (10), ``‖S_m(τ)^H y_m‖²``, against the candidate ToA for a LoS and an NLoS link.
 
-    Each link is one draw of its profile's tap gains (key ``fold_in(PRNGKey(seed), i)``, i = 0 TDL-D, 1 TDL-C) at
-    the given RMS delay spread; its first path arrives at τ₀ = 0.  Returns a payload: offset_m (K,) the candidate
-    c (τ − τ₀) in metres over ``span_m``; per profile and L the cost normalised to its maximum over the whole
-    correlogram, and the realised CIR power |h[n]|² on the first ``PLATEAU_CIR_SAMPLES`` samples (normalised).
+    The links are TDL-D (LoS) and TDL-C (NLoS), noise-free, for the windows L of ``PLATEAU_TAPS``.  Each link is one
+    draw of its profile's tap gains (key ``fold_in(PRNGKey(seed), i)``, i = 0 TDL-D, 1 TDL-C) at the given RMS delay
+    spread; its first path arrives at τ₀ = 0.
+
+    Parameters
+    ----------
+    seed : int
+        The seed of the tap gains.
+    delay_spread_s : float
+        The RMS delay spread, seconds.
+    k_factor_db : float
+        TDL-D's K-factor, dB.
+    span_m : (float, float)
+        The range of candidate offsets c (τ − τ₀) shown, metres.
+
+    Returns
+    -------
+    dict
+        "config" (seed, delay spread, K-factor, ``PLATEAU_TAPS``, ``PLATEAU_UPSAMPLE``, the sample in metres) and
+        "data": offset_m (K,) the candidate c (τ − τ₀) in metres over ``span_m``; per profile and L the cost normalised
+        to its maximum over the whole correlogram, and the realised CIR power ``|h[n]|²`` on the first
+        ``PLATEAU_CIR_SAMPLES`` samples (normalised).
     """
     num = nr.PAPER
     prs = nr.prs_matrix([1])
@@ -69,9 +100,23 @@ def plateau_payload(seed: int = 5, delay_spread_s: float = 65e-9, k_factor_db: f
 
 
 def urban_window_table(experiments: dict, progress: bool = False) -> list[dict]:
-    """Run (or load) ``paper.urban_window_experiments`` and score every (set-up, M, L): RMSE, median, 90 % error, edge
-    and certified shares, and the median certified gap (how far, relative, the window's maximum can lie above the
-    fix's cost).  Adds ``rmse_rel``: the RMSE over the smallest RMSE of the same (set-up, M) column."""
+    """Run (or load) ``paper.urban_window_experiments`` and score every (set-up, M, L).
+
+    The scores are the RMSE, median, 90 % error, edge and certified shares, and the median certified gap (how far,
+    relative, the window's maximum can lie above the fix's cost).
+
+    Parameters
+    ----------
+    experiments : dict
+        {(set-up name, L): experiment}.
+    progress : bool
+        Show the engine's progress.
+
+    Returns
+    -------
+    list of dict
+        One row per (set-up, M, L), with ``rmse_rel``: the RMSE over the smallest RMSE of the same (set-up, M) column.
+    """
 
     rows = []
     for (name, n), e in experiments.items():
@@ -87,17 +132,41 @@ def urban_window_table(experiments: dict, progress: bool = False) -> list[dict]:
 
 
 def choose_window(rows: list[dict]) -> int:
-    """The rule fixed before the study ran: the L with the smallest mean of ``rmse_rel`` over all (set-up, M)
-    columns, i.e. the window that is closest to the best in every set-up at once."""
+    """The rule fixed before the study ran: the L with the smallest mean of ``rmse_rel`` over all (set-up, M) columns.
+
+    That is, the window that is closest to the best in every set-up at once.
+
+    Parameters
+    ----------
+    rows : list of dict
+        ``urban_window_table``'s rows.
+
+    Returns
+    -------
+    int
+        The chosen L.
+    """
     taps = sorted({r["n_taps"] for r in rows})
     score = {n: np.mean([r["rmse_rel"] for r in rows if r["n_taps"] == n]) for n in taps}
     return min(taps, key=lambda n: score[n])
 
 
 def range_offsets_m(res) -> np.ndarray:
-    """c·(τ_m(fix) − τ_m(truth)) in metres for every link of a ``results.Results``: the ToA each fix assigns to a
-    link (its clock bias included) minus the true one, (T, S, J, I); links beyond the J-th M are NaN.  A positive
-    offset means the fix places the link's window start after its first path."""
+    """c·(τ_m(fix) − τ_m(truth)) for every link: the ToA each fix assigns to a link minus the true one.
+
+    The fix's ToA includes its clock bias.  A positive offset means the fix places the link's window start after its
+    first path.
+
+    Parameters
+    ----------
+    res : results.Results
+        The run.
+
+    Returns
+    -------
+    numpy.ndarray, float (T, S, J, I)
+        The offsets, metres; links beyond the J-th M are NaN.
+    """
     bs = res.experiment.load_deployment().bs_xyz[res.bs_index]  # (T, I, 3)
     true = np.linalg.norm(res.ue_xyz[:, None, :] - bs, axis=-1) + C * res.clock_bias_s[:, None]  # (T, I)
     est = (np.linalg.norm(res.est_xyz[..., None, :] - bs[:, None, None], axis=-1)
@@ -112,9 +181,18 @@ FIG10_RECEIVERS = ("dpe_otdoa", "dpe_prior", "dpe_truth", "otdoa_first_path", "o
 
 
 def fig10_errors(by_centring: dict) -> dict:
-    """The per-trial errors of each receiver of Fig. 10-like experiments {centring: Experiment} on the same trials
-    (the "otdoa" one holding both OTDoA detectors' fixes): {receiver of ``FIG10_RECEIVERS``: (error (T,) m, DPE's
-    window-edge flags (T,) or None for OTDoA)}, run or loaded from the store."""
+    """The per-trial errors of each receiver of Fig. 10-like experiments on the same trials, run or loaded.
+
+    Parameters
+    ----------
+    by_centring : dict
+        {centring: Experiment}, the "otdoa" one holding both OTDoA detectors' fixes.
+
+    Returns
+    -------
+    dict
+        {receiver of ``FIG10_RECEIVERS``: (error (T,) m, DPE's window-edge flags (T,) or None for OTDoA)}.
+    """
     out = {}
     for cen, e in by_centring.items():
         res = engine.run(e)
@@ -125,14 +203,26 @@ def fig10_errors(by_centring: dict) -> dict:
 
 
 def fig10_rows(experiments: dict, n_boot: int = 1000) -> list[dict]:
-    """One row per (key, receiver) of Fig. 10-like experiments {key: {centring: Experiment}} (``fig10_errors``): the
-    key, the receiver, its 50 / 90 / 99 % errors (m), the 95 % bootstrap interval of its 90 % error
-    (``results.bootstrap_interval``) and, for DPE, the share of fixes on the window's edge."""
+    """One row per (key, receiver) of Fig. 10-like experiments (``fig10_errors``).
+
+    Parameters
+    ----------
+    experiments : dict
+        {key: {centring: Experiment}}.
+    n_boot : int
+        Bootstrap resamples.
+
+    Returns
+    -------
+    list of dict
+        The key, the receiver, its 50 / 90 / 99 % errors (m), the 95 % bootstrap interval of its 90 % error
+        (``intervals.bootstrap_interval``) and, for DPE, the share of fixes on the window's edge.
+    """
     rows = []
     for key, by_centring in experiments.items():
         for rx, (err, edge) in fig10_errors(by_centring).items():
             p50, p90, p99 = results.quantiles(err)
-            lo, hi = results.bootstrap_interval(err, n_boot=n_boot)
+            lo, hi = intervals.bootstrap_interval(err, n_boot=n_boot)
             rows.append({"key": key, "receiver": rx, "n_trials": int(err.size), "p50_m": p50, "p90_m": p90,
                          "p99_m": p99, "p90_lo_m": lo, "p90_hi_m": hi,
                          "edge_share": None if edge is None else float(np.mean(edge))})
@@ -140,9 +230,24 @@ def fig10_rows(experiments: dict, n_boot: int = 1000) -> list[dict]:
 
 
 def clock_edge(res, tol_m: float = 0.1) -> np.ndarray:
-    """(T, S, J) whether each DPE fix's clock bias lies within ``tol_m`` m of its search window's c δt boundary
-    (``Experiment.receiver_search``: ± bias_half_width_m around 0 for a receiver not centred on the truth, around the
-    true bias for one centred on it): the fixes whose clock estimate the window stopped."""
+    """Whether each DPE fix's clock bias lies within ``tol_m`` of its search window's c δt boundary.
+
+    The boundary is ± bias_half_width_m (``Experiment.receiver_search``) around 0 for a receiver not centred on the
+    truth, around the true bias for one centred on it: the flagged fixes are those whose clock estimate the window
+    stopped.
+
+    Parameters
+    ----------
+    res : results.Results
+        The run.
+    tol_m : float
+        The tolerance, metres.
+
+    Returns
+    -------
+    numpy.ndarray, bool (T, S, J)
+        The flags.
+    """
     e = res.experiment
     half_b = e.receiver_search().bias_half_width_m
     centre = res.clock_bias_s[:, None, None] * C if e.receiver.centring == "truth" else 0.0
@@ -150,8 +255,30 @@ def clock_edge(res, tol_m: float = 0.1) -> np.ndarray:
 
 
 def rising_crossings(xs, values, level: float) -> list[tuple]:
-    """The consecutive pairs (xs[i], xs[i + 1]) between which ``values`` rises through ``level``: values[i] < level
-    ≤ values[i + 1] (e.g. the SNR offsets between which a receiver's 90 % error passes the paper's 42 m)."""
+    """The consecutive pairs (xs[i], xs[i + 1]) between which ``values`` rises through ``level``.
+
+    That is, values[i] < level ≤ values[i + 1] (e.g. the SNR offsets between which a receiver's 90 % error passes the
+    paper's 42 m).
+
+    Parameters
+    ----------
+    xs : sequence
+        The x values.
+    values : sequence of float
+        One value per x.
+    level : float
+        The level.
+
+    Returns
+    -------
+    list of tuple
+        The pairs, in order.
+
+    Raises
+    ------
+    ValueError
+        When ``xs`` and ``values`` differ in length.
+    """
     xs, values = list(xs), [float(v) for v in values]
     if len(xs) != len(values):
         raise ValueError(f"crossings needs one value per x, got {len(xs)} x and {len(values)} values")
@@ -159,11 +286,29 @@ def rising_crossings(xs, values, level: float) -> list[tuple]:
 
 
 def window_misses(blind, reference, margin_m: float = 1.0) -> dict:
-    """Where a receiver whose window is centred on each trial's OTDoA fix (``blind``, Results) does worse than one
-    on the same trials centred elsewhere (``reference``, Results): per (SNR, M), (S, J) integer counts of the trials
-    whose fix is more than ``margin_m`` m worse ("worse"), of those whose window does not contain the UE (its centre
-    more than the search's half-width off in x or y: "outside") and of both ("worse_outside"), and the (T, S, J)
-    boolean mask of the worse trials ("worse_mask")."""
+    """Where a receiver whose window is centred on each trial's OTDoA fix does worse than one centred elsewhere.
+
+    Parameters
+    ----------
+    blind : results.Results
+        The receiver centred on each trial's OTDoA fix.
+    reference : results.Results
+        The same trials with the window centred elsewhere.
+    margin_m : float
+        How much worse a fix must be to count, metres.
+
+    Returns
+    -------
+    dict
+        Per (SNR, M), (S, J) integer counts of the trials whose fix is more than ``margin_m`` worse ("worse"), of those
+        whose window does not contain the UE (its centre more than the search's half-width off in x or y: "outside")
+        and of both ("worse_outside"), and the (T, S, J) boolean mask of the worse trials ("worse_mask").
+
+    Raises
+    ------
+    ValueError
+        When the two runs' errors differ in shape (not the same trials, SNRs and M).
+    """
     if blind.error_m.shape != reference.error_m.shape:
         raise ValueError(f"window_misses compares the same trials, SNRs and M: got errors of shape "
                          f"{blind.error_m.shape} and {reference.error_m.shape}")

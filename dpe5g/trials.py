@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _checks, correlogram, deployment, grid_search, otdoa, receiver, signal
-from .certified_search import spline_window
+from .spline_bounds import spline_window
 from .draw import CoChannelDraw, ReuseDraw, TrialDraw, draw_fn, prior_center, trial_key
 from .experiment import OTDOA_DETECTORS, Experiment, Receiver
 from .nr import C, PAPER
@@ -35,14 +35,32 @@ PROGRAMS = ("grid_trial", "bnb_prep", "bnb_fix", "toa", "prior")
 
 
 def program_config(e: Experiment, program: str) -> Experiment | tuple[SearchConfig, tuple[int, ...]]:
-    """The part of ``e`` that ``program`` (``PROGRAMS``) reads; the one key of compiled programs.
+    """The part of ``e`` that ``program`` reads; the one key of compiled programs.
 
-    Every program: not the name, the seed (it enters through the trial keys), nor the trial and chunk counts.
-    "toa", "prior": nothing else is cleared.  "grid_trial", "bnb_prep": nor how a non-truth window centre is
-    obtained (it enters as an input), and for the certified search the receiver window L and its weights (they enter
-    as ``correlogram.window_spectrum``, an input).  "bnb_fix": the receiver's ``SearchConfig`` without its window (it
-    enters through the coefficients) and the M values, a pair.  Experiments that differ only in what is cleared share one compiled
-    program (and, through JAX's persistent compilation cache, one compiled executable across processes)."""
+    Every program: not the name, the seed (it enters through the trial keys), nor the trial and chunk counts. "toa",
+    "prior": nothing else is cleared.  "grid_trial", "bnb_prep": nor how a non-truth window centre is obtained (it
+    enters as an input), and for the certified search the receiver window L and its weights (they enter as
+    ``correlogram.window_spectrum``, an input).  "bnb_fix": the receiver's ``SearchConfig`` without its window (it
+    enters through the coefficients) and the M values, a pair.  Experiments that differ only in what is cleared share
+    one compiled program (and, through JAX's persistent compilation cache, one compiled executable across processes).
+
+    Parameters
+    ----------
+    e : Experiment
+        The experiment.
+    program : str
+        One of ``PROGRAMS``.
+
+    Returns
+    -------
+    Experiment or tuple of (SearchConfig, tuple of int)
+        ``e`` with what ``program`` does not read cleared; for "bnb_fix", the pair (search, M values).
+
+    Raises
+    ------
+    ValueError
+        When ``program`` is not one of ``PROGRAMS``.
+    """
     if program not in PROGRAMS:
         raise ValueError(f"program must be one of {PROGRAMS}, got {program!r}")
     run_free = e.replace(name="", seed=0, n_trials=1, chunk_trials=1)
@@ -60,21 +78,54 @@ def program_config(e: Experiment, program: str) -> Experiment | tuple[SearchConf
 
 
 def truth_center(d: TrialDraw) -> jax.Array:
-    """The window centre of centring "truth" (the paper's set-up, a labelled comparison): the true position and
-    c δt, (4,) m."""
+    """The window centre of centring "truth" (the paper's set-up, a labelled comparison): the true position and c δt.
+
+    Parameters
+    ----------
+    d : TrialDraw
+        The trial's draws.
+
+    Returns
+    -------
+    float (4,)
+        [x, y, z, c δt], metres.
+    """
     return jnp.concatenate([d.ue_xyz, d.clock_bias_s[None] * C])
 
 
 def trial_fields(d: TrialDraw) -> dict:
-    """The per-trial fields of ``results.Results`` that come from the draws."""
+    """The per-trial fields of ``results.Results`` that come from the draws.
+
+    Parameters
+    ----------
+    d : TrialDraw
+        The trial's draws.
+
+    Returns
+    -------
+    dict
+        {field name: array}.
+    """
     return {"ue_xyz": d.ue_xyz, "clock_bias_s": d.clock_bias_s, "bs_index": d.bs_index, "los": d.los,
             "link_snr_db": d.link_snr_db, "link_sinr_db": d.link_sinr_db}
 
 
 def grid_trial_fn(e: Experiment, dep: deployment.Deployment):
-    """The traceable per-trial function of the grid search: (trial key, ext_center (S, J, 4) m) → the trial's
-    fields of ``results.Results``.  ext_center is the window centre of every (SNR, M) in the non-truth centrings:
-    the trial's prior centre, or its OTDoA fixes."""
+    """The traceable per-trial function of the grid search.
+
+    Parameters
+    ----------
+    e : Experiment
+        The experiment.
+    dep : deployment.Deployment
+        Its deployment.
+
+    Returns
+    -------
+    callable
+        (trial key, ext_center (S, J, 4) m) → the trial's fields of ``results.Results``.  ext_center is the window
+        centre of every (SNR, M) in the non-truth centrings: the trial's prior centre, or its OTDoA fixes.
+    """
     draw = draw_fn(e, dep)
     cfg = e.receiver_search()
     # one window centre for every M only when it is the truth: the experiment this function is built from
@@ -112,8 +163,22 @@ def grid_trial_fn(e: Experiment, dep: deployment.Deployment):
 
 
 def scored_fields(d: TrialDraw, r: WindowFix, centers) -> dict:
-    """The trial's fields of ``results.Results`` from its draws d, its fixes r (arrays (S, J, ...)) and window
-    centres (S, J, 4) m, scored against the truth."""
+    """The trial's fields of ``results.Results`` from its draws, fixes and window centres, scored against the truth.
+
+    Parameters
+    ----------
+    d : TrialDraw
+        The trial's draws.
+    r : WindowFix
+        Its fixes, arrays (S, J, ...).
+    centers : float (S, J, 4)
+        The window centres, metres.
+
+    Returns
+    -------
+    dict
+        {field name: array}.
+    """
     return trial_fields(d) | {"est_xyz": r.q[..., :3], "est_bias_s": r.q[..., 3] / C,
                               "error_m": jnp.linalg.norm(r.q[..., :2] - d.ue_xyz[:2], axis=-1),
                               "center_xyz": centers[..., :3], "edge": r.edge, "gap": r.gap,
@@ -121,11 +186,23 @@ def scored_fields(d: TrialDraw, r: WindowFix, centers) -> dict:
 
 
 def bnb_prep_fn(e: Experiment, dep: deployment.Deployment):
-    """The certified search's first program, jitted: (trial key, window, window centres ext (S, J, 4) m of the
-    non-truth centrings) → (the trial's draw fields (``trial_fields``), BS positions (I, 3) m, the window centres
-    (S, J, 4) m, the part of each BS's spline correlogram each window reaches (``spline_window``: coefficients
-    (S, J, I, cells + 3) and their first knots (S, J, I))).  Only the windows, not the whole correlograms, pass to
-    ``bnb_fix_fn``."""
+    """The certified search's first program, jitted: only the windows, not the whole correlograms, go to ``bnb_fix_fn``.
+
+    Parameters
+    ----------
+    e : Experiment
+        The experiment.
+    dep : deployment.Deployment
+        Its deployment.
+
+    Returns
+    -------
+    callable
+        (trial key, window, window centres ext (S, J, 4) m of the non-truth centrings) → (the trial's draw fields
+        (``trial_fields``), BS positions (I, 3) m, the window centres (S, J, 4) m, the part of each BS's spline
+        correlogram each window reaches (``spline_window``: coefficients (S, J, I, cells + 3) and their first knots
+        (S, J, I))).
+    """
     draw = draw_fn(e, dep)
     cfg = e.receiver_search()
 
@@ -146,11 +223,22 @@ def bnb_prep_fn(e: Experiment, dep: deployment.Deployment):
 
 
 def bnb_fix_fn(cfg: SearchConfig, m_values: tuple[int, ...]):
-    """The certified search's fixes of one trial, jitted: (BS positions (I, 3) m, window centres (S, J, 4) m, the
-    windows of the spline correlograms (``spline_window``: (S, J, I, cells + 3) and (S, J, I))) → ``WindowFix``
-    (S, J, ...), with the M nearest BSs for each M of ``m_values``.  cfg is the receiver's search without its window
-    L (``program_config`` "bnb_fix"), so one program serves every experiment with that search, those M and as many
-    SNRs."""
+    """The certified search's fixes of one trial, jitted: one program per search, M values and number of SNRs.
+
+    Parameters
+    ----------
+    cfg : SearchConfig
+        The receiver's search without its window L (``program_config`` "bnb_fix").
+    m_values : tuple of int
+        The numbers M of nearest BSs to fix with.
+
+    Returns
+    -------
+    callable
+        (BS positions (I, 3) m, window centres (S, J, 4) m, the windows of the spline correlograms (``spline_window``:
+        (S, J, I, cells + 3) and (S, J, I))) → ``WindowFix`` (S, J, ...), with the M nearest BSs for each M of
+        ``m_values``.
+    """
     def certified_fix(bs, centers, sls, starts):
         def per_snr(a):
             cen, sl, st = a
@@ -165,21 +253,62 @@ def bnb_fix_fn(cfg: SearchConfig, m_values: tuple[int, ...]):
 
 @jax.jit
 def score(q, ue):
-    """Fixes q (..., 4) (x, y, z, c δt in metres) → their clock bias (...) s and horizontal error (...) m against
-    the true UE position ue (3,): scored as ``scored_fields`` scores them, in XLA (NumPy rounds the same
-    expressions differently in the last bit)."""
+    """Fixes' clock bias and horizontal error against the true UE position, in XLA.
+
+    Scored as ``scored_fields`` scores them (NumPy rounds the same expressions differently in the last bit).
+
+    Parameters
+    ----------
+    q : float (..., 4)
+        Fixes (x, y, z, c δt), metres.
+    ue : float (3,)
+        The true UE position, metres.
+
+    Returns
+    -------
+    bias_s : float (...)
+        The clock bias, seconds.
+    error_m : float (...)
+        The horizontal error, metres.
+    """
     return q[..., 3] / C, jnp.linalg.norm(q[..., :2] - ue[:2], axis=-1)
 
 
 def prior_fn(e: Experiment, dep: deployment.Deployment):
-    """Traceable key → the trial's "prior" window centre (4,) m (``draw.prior_center``)."""
+    """Traceable key → the trial's "prior" window centre (``draw.prior_center``).
+
+    Parameters
+    ----------
+    e : Experiment
+        The experiment.
+    dep : deployment.Deployment
+        Its deployment.
+
+    Returns
+    -------
+    callable
+        key → float (4,), metres.
+    """
     draw = draw_fn(e, dep)
     return lambda key: prior_center(e, draw(key).ue_xyz, key)
 
 
 def toa_fn(e: Experiment, dep: deployment.Deployment):
-    """Traceable key → (ToAs (S, D, I) of every link with each detector of ``OTDOA_DETECTORS`` (OTDoA step 1),
-    the true UE position (3,) (to score the fixes), the indices (I,) of the nearest BSs)."""
+    """Traceable key → the ToAs of every link with each OTDoA detector (OTDoA step 1).
+
+    Parameters
+    ----------
+    e : Experiment
+        The experiment.
+    dep : deployment.Deployment
+        Its deployment.
+
+    Returns
+    -------
+    callable
+        key → (ToAs (S, D, I) in seconds with each detector of ``OTDOA_DETECTORS``, the true UE position (3,) m (to
+        score the fixes), the indices (I,) of the nearest BSs).
+    """
     draw = draw_fn(e, dep)
 
     def one(key):
@@ -197,9 +326,28 @@ def toa_fn(e: Experiment, dep: deployment.Deployment):
 
 def otdoa_fixes(e: Experiment, dep: deployment.Deployment, toas: np.ndarray, ue: np.ndarray, idx: np.ndarray,
                 solvers: dict) -> dict:
-    """OTDoA fixes (cvxpy, one compiled problem per M: ``solvers`` {M: ``otdoa.Solver``}) from a chunk's ToAs
-    (T, S, D, I) of every detector, the true UE positions (T, 3) (for the error only) and the nearest BSs' indices
-    (T, I); flagged, never dropped.  Returns the OTDoA fields of ``results.Results``."""
+    """OTDoA fixes from a chunk's ToAs (cvxpy, one compiled problem per M), flagged, never dropped.
+
+    Parameters
+    ----------
+    e : Experiment
+        The experiment.
+    dep : deployment.Deployment
+        Its deployment.
+    toas : numpy.ndarray, float (T, S, D, I)
+        The ToAs of every detector, seconds.
+    ue : numpy.ndarray, float (T, 3)
+        The true UE positions, metres (for the error only).
+    idx : numpy.ndarray, int (T, I)
+        The nearest BSs' indices.
+    solvers : dict
+        {M: ``otdoa.Solver``}.
+
+    Returns
+    -------
+    dict
+        The OTDoA fields of ``results.Results``.
+    """
     n_t, n_s, n_d = toas.shape[:3]
     xyz = np.full((n_t, n_s, n_d, len(e.receiver.m_values), 3), np.nan)
     ok = np.zeros((n_t, n_s, n_d, len(e.receiver.m_values)), dtype=bool)
@@ -215,9 +363,27 @@ def otdoa_fixes(e: Experiment, dep: deployment.Deployment, toas: np.ndarray, ue:
 
 
 def otdoa_centers(e: Experiment, dep: deployment.Deployment, ot: dict, idx: np.ndarray) -> np.ndarray:
-    """Centring "otdoa": the window centre of each (trial, SNR, M) is the OTDoA fix of detector ``toa_method`` at
-    the known UE height with c δt = 0; where that fix is not finite (solver failure), the centroid of the M BSs
-    used (known to the receiver).  Returns (T, S, J, 4) metres."""
+    """Centring "otdoa": the window centre of each (trial, SNR, M) is the OTDoA fix of detector ``toa_method``.
+
+    At the known UE height with c δt = 0; where that fix is not finite (solver failure), the centroid of the M BSs used
+    (known to the receiver).
+
+    Parameters
+    ----------
+    e : Experiment
+        The experiment.
+    dep : deployment.Deployment
+        Its deployment.
+    ot : dict
+        The OTDoA fields (``otdoa_fixes``).
+    idx : numpy.ndarray, int (T, I)
+        The nearest BSs' indices.
+
+    Returns
+    -------
+    numpy.ndarray, float (T, S, J, 4)
+        The centres, metres.
+    """
     k = OTDOA_DETECTORS.index(e.receiver.toa_method)
     xyz = ot["otdoa_xyz"][:, :, k]  # (T, S, J, 3)
     out = np.zeros(xyz.shape[:3] + (4,))
@@ -233,10 +399,36 @@ def otdoa_centers(e: Experiment, dep: deployment.Deployment, ot: dict, idx: np.n
 class TrialExample:
     """One trial at one SNR index exactly as the receivers see it, as NumPy arrays (``example``).
 
-    The fields of ``TrialDraw`` (the SNR and SINR at that index only: link_snr_db, link_sinr_db (I,); with PRS
-    reuse, ``reuse.co_channel.snr_db`` (X,)), without the unit noise, and y (I, N) the received samples (the inverse
-    DFT of ``receiver.spectrum_at``; in units of the noise where the links' powers differ), y0 (I, N) the links'
-    noise-free samples at unit power."""
+    The fields of ``TrialDraw`` without the unit noise, the SNR and SINR at that index only, and the received samples.
+
+    Attributes
+    ----------
+    ue_xyz : float (3,)
+        The UE position, metres.
+    clock_bias_s : float ()
+        The clock bias δt, seconds.
+    bs_index : int (I,)
+        The BSs' deployment indices.
+    bs_xyz : float (I, 3)
+        The BSs' positions, metres.
+    los : bool (I,)
+        The links' LoS states.
+    prs : complex (I, N)
+        Pilots.
+    gains : complex (I, L)
+        Tap gains.
+    delays_s : float (I, L)
+        Tap delays, seconds.
+    y : complex (I, N)
+        The received samples (the inverse DFT of ``receiver.spectrum_at``; in units of the noise where the links'
+        powers differ).
+    y0 : complex (I, N)
+        The links' noise-free samples at unit power.
+    link_snr_db, link_sinr_db : float (I,)
+        Per-sample SNR and SINR of each link at that index, dB.
+    reuse : ReuseDraw or None
+        With PRS reuse (its ``co_channel.snr_db`` (X,) at that index only), else None.
+    """
 
     ue_xyz: np.ndarray
     clock_bias_s: np.ndarray
@@ -254,8 +446,29 @@ class TrialExample:
 
 
 def example(e: Experiment, trial: int, snr_index: int = 0) -> TrialExample:
-    """The draws and received samples of trial ``trial`` at SNR index ``snr_index``, from the engine's own key and
-    draw (``draw.trial_key``, ``draw.draw_fn``, ``receiver.spectrum_at``)."""
+    """The draws and received samples of trial ``trial`` at SNR index ``snr_index``.
+
+    From the engine's own key and draw (``draw.trial_key``, ``draw.draw_fn``, ``receiver.spectrum_at``).
+
+    Parameters
+    ----------
+    e : Experiment
+        The experiment.
+    trial : int
+        The trial, 0 to ``n_trials`` − 1.
+    snr_index : int
+        The SNR index, 0 to ``n_snr`` − 1.
+
+    Returns
+    -------
+    TrialExample
+        The trial as the receivers see it.
+
+    Raises
+    ------
+    ValueError
+        When ``trial`` or ``snr_index`` is out of range.
+    """
     dep = e.load_deployment()
     _checks.integer("trial", trial, 0, e.run.n_trials - 1)
     _checks.integer("snr_index", snr_index, 0, e.n_snr - 1)

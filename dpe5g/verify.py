@@ -1,5 +1,7 @@
-"""The results store checked against today's code: recompute a random sample of stored trials and compare every
-stored field (``verify_sample``), or recompute every stored experiment and rewrite the store (``reproduce``).
+"""The results store checked against today's code: a random sample of stored trials recomputed, or every experiment.
+
+``verify_sample`` recomputes a sample and compares every stored field; ``reproduce`` recomputes every stored
+experiment and rewrites the store.
 
 Trial t of an experiment depends only on its config, its seed and t (``draw.trial_key``), so one trial recomputed
 on its own equals the stored one.  A float agrees within ``VERIFY_RTOL`` of the stored value (the machine that
@@ -44,11 +46,18 @@ SAMPLE_FAMILIES, SAMPLE_TRIALS = 3, 2
 
 
 def store_experiments() -> list[Experiment]:
-    """Every Monte Carlo experiment the book's chapters and figures run, which the results store holds, at the trial
-    counts they read, in the order they first need them (the DPE chapter and the Fig. 9 to NLoS chapters; ``run``
-    reuses a longer run's first trials, so an experiment whose first trials a chapter reads at a smaller count appears
-    once, at its largest).  ``dpe5g warm`` and ``dpe5g reproduce`` run them; ``tests/test_warm.py`` checks the list
-    against the runs a book build recorded."""
+    """Every Monte Carlo experiment the book's chapters and figures run, which the results store holds.
+
+    They come at the trial counts the chapters read, in the order they first need them (the DPE chapter and the
+    Fig. 9 to NLoS chapters); ``run`` reuses a longer run's first trials, so an experiment whose first trials a chapter
+    reads at a smaller count appears once, at its largest.  ``dpe5g warm`` and ``dpe5g reproduce`` run them;
+    ``tests/test_warm.py`` checks the list against the runs a book build recorded.
+
+    Returns
+    -------
+    list of Experiment
+        One per stored entry.
+    """
     out = [*paper.ring_window_experiments().values(), *paper.ring_centring_experiments().values(),
            paper.fig9_honest(), paper.fig9_truth(), *paper.urban_window_experiments().values(),
            paper.fig9_low_snr(), paper.fig9_link_budget(), paper.fig9_power(paper.REUSE_COMPARE_TRIALS),
@@ -76,7 +85,21 @@ def store_experiments() -> list[Experiment]:
 
 @dataclass(frozen=True)
 class Mismatch:
-    """A stored trial whose field differs from what the code computes today."""
+    """A stored trial whose field differs from what the code computes today; ``str()`` gives its one-line report.
+
+    Attributes
+    ----------
+    experiment : str
+        The experiment's name.
+    trial : int
+        The trial; -1 for the whole entry, or a whole field whose dtype or shape differs.
+    field : str
+        The stored field ("entry" for the entry itself).
+    stored, computed : str
+        The stored and the computed value (or dtype and shape), as text.
+    message : str
+        The whole line, where the entry itself is at fault (damaged); "" otherwise.
+    """
 
     experiment: str
     trial: int
@@ -92,10 +115,27 @@ class Mismatch:
 
 
 def differences(name: str, rows, stored: dict, computed: dict, position_atol_m: float = 0.0) -> list[Mismatch]:
-    """The (trial, field) pairs of ``computed`` (trials on the leading axis) that differ from ``stored`` (beyond
-    ``VERIFY_RTOL`` for floats, relative, and absolute too for ``ABSOLUTE_FIELDS``; beyond ``position_atol_m`` m
-    absolute too for the positions and distances, ``OTDOA_POSITION_FIELDS``: ``position_atol`` of the experiment);
-    ``rows`` the trial index of each row."""
+    """The (trial, field) pairs of ``computed`` that differ from ``stored``.
+
+    A float differs beyond ``VERIFY_RTOL``, relative, and absolute too for ``ABSOLUTE_FIELDS``; beyond
+    ``position_atol_m`` absolute too for the positions and distances (``OTDOA_POSITION_FIELDS``).
+
+    Parameters
+    ----------
+    name : str
+        The experiment's name, for the report.
+    rows : sequence of int
+        The trial index of each row.
+    stored, computed : dict
+        {field: array}, trials on the leading axis.
+    position_atol_m : float
+        Absolute tolerance of positions and distances, metres (``position_atol`` of the experiment).
+
+    Returns
+    -------
+    list of Mismatch
+        One per (trial, field) that differs (its first differing element).
+    """
     out = []
     for k in sorted(stored):
         s = np.asarray(stored[k])
@@ -117,13 +157,37 @@ def differences(name: str, rows, stored: dict, computed: dict, position_atol_m: 
 
 
 def position_atol(e: Experiment) -> float:
-    """The absolute tolerance (m) of ``e``'s positions and distances: ``OTDOA_POSITION_ATOL_M`` where it computes
-    OTDoA fixes or centres its window on them, else 0 (relative ``VERIFY_RTOL`` only)."""
+    """The absolute tolerance of ``e``'s positions and distances.
+
+    Parameters
+    ----------
+    e : Experiment
+        The experiment.
+
+    Returns
+    -------
+    float
+        ``OTDOA_POSITION_ATOL_M`` (metres) where it computes OTDoA fixes or centres its window on them, else 0
+        (relative ``VERIFY_RTOL`` only).
+    """
     return OTDOA_POSITION_ATOL_M if e.receiver.otdoa or e.receiver.centring == "otdoa" else 0.0
 
 
 def recompute(e: Experiment, picked) -> dict:
-    """``e``'s trials ``picked`` (indices) computed now, each on its own, full precision; {field: (T, ...)}."""
+    """``e``'s trials ``picked`` computed now, each on its own, full precision.
+
+    Parameters
+    ----------
+    e : Experiment
+        The experiment.
+    picked : sequence of int
+        Trial indices.
+
+    Returns
+    -------
+    dict
+        {field: (T, ...)}, the stored fields.
+    """
     runner = engine.ChunkRunner(e)
     batch = engine.BATCH_SIZE[e.receiver.search.method]
     parts = [runner(t, t + 1, batch, workers=1) for t in picked]
@@ -131,16 +195,39 @@ def recompute(e: Experiment, picked) -> dict:
 
 
 def family(e: Experiment) -> tuple:
-    """The programs whose compiles dominate ``e``'s cost (``trials.program_config`` of each: the searches and the
-    OTDoA detector; the prior's draw compiles in moments): experiments of one family share their compiles, so
-    recomputing a trial of each costs little more than one."""
+    """The programs whose compiles dominate ``e``'s cost: experiments of one family share their compiles.
+
+    So recomputing a trial of each experiment of a family costs little more than one.
+
+    Parameters
+    ----------
+    e : Experiment
+        The experiment.
+
+    Returns
+    -------
+    tuple
+        ``trials.program_config`` of each program: the searches and the OTDoA detector (the prior's draw compiles in
+        moments).
+    """
     progs = ("bnb_prep", "bnb_fix") if e.receiver.search.method == "bnb" else ("grid_trial",)
     progs += ("toa",) if e.receiver.otdoa else ()
     return tuple(trials.program_config(e, p) for p in progs)
 
 
 def families(experiments) -> list[list[Experiment]]:
-    """The experiments grouped by ``family``, in the order each family first appears."""
+    """The experiments grouped by ``family``, in the order each family first appears.
+
+    Parameters
+    ----------
+    experiments : iterable of Experiment
+        The experiments.
+
+    Returns
+    -------
+    list of list of Experiment
+        The families.
+    """
     groups: dict = {}
     for e in experiments:
         groups.setdefault(family(e), []).append(e)
@@ -148,9 +235,24 @@ def families(experiments) -> list[list[Experiment]]:
 
 
 def sample(seed: int, n_families: int, n_trials: int, experiments=None) -> list[tuple[Experiment, list[int]]]:
-    """The sample ``verify_sample`` recomputes: ``n_families`` families (``families``) of the stored experiments
-    drawn without replacement, and ``n_trials`` trials of every experiment in them, all drawn from
-    ``random.Random(seed)``."""
+    """The sample ``verify_sample`` recomputes, all drawn from ``random.Random(seed)``.
+
+    Parameters
+    ----------
+    seed : int
+        The draws' seed.
+    n_families : int
+        Families (``families``) of the stored experiments, drawn without replacement.
+    n_trials : int
+        Trials of every experiment in them.
+    experiments : list of Experiment or None
+        The experiments; None: ``store_experiments()``.
+
+    Returns
+    -------
+    list of (Experiment, list of int)
+        Each experiment with its trials.
+    """
     rng = random.Random(seed)
     groups = families(store_experiments() if experiments is None else experiments)
     picks = rng.sample(range(len(groups)), min(n_families, len(groups)))
@@ -160,11 +262,28 @@ def sample(seed: int, n_families: int, n_trials: int, experiments=None) -> list[
 
 def verify_sample(seed: int, n_families: int = SAMPLE_FAMILIES, n_trials: int = SAMPLE_TRIALS, experiments=None,
                   log=sys.stderr, report=None) -> tuple[list[Mismatch], list[tuple[str, list[int]]]]:
-    """Recompute ``sample(seed, n_families, n_trials, experiments)`` and compare it with the store; log: where to
-    print each experiment's time (None: nowhere); report: called with each ``Mismatch`` as soon as it is found (the
-    command line prints it then, so that a check cut off part-way has still told what it found).  An experiment the
-    store lacks, or whose entry is damaged (``errors.DamagedEntry``), is itself a mismatch (field "entry").  Returns
-    (mismatches, [(experiment name, trials recomputed)])."""
+    """Recompute ``sample(seed, n_families, n_trials, experiments)`` and compare it with the store.
+
+    An experiment the store lacks, or whose entry is damaged (``errors.DamagedEntry``), is itself a mismatch (field
+    "entry").
+
+    Parameters
+    ----------
+    seed, n_families, n_trials, experiments
+        As in ``sample``.
+    log : file or None
+        Where to print each experiment's time; None: nowhere.
+    report : callable or None
+        Called with each ``Mismatch`` as soon as it is found (the command line prints it then, so that a check cut off
+        part-way has still told what it found).
+
+    Returns
+    -------
+    mismatches : list of Mismatch
+        Every difference found.
+    done : list of (str, list of int)
+        (experiment name, trials recomputed).
+    """
     out, done = [], []
     for e, picked in sample(seed, n_families, n_trials, experiments):
         t0 = time.perf_counter()
@@ -188,11 +307,28 @@ def verify_sample(seed: int, n_families: int = SAMPLE_FAMILIES, n_trials: int = 
 
 
 def coverage_runs(n_stored: int, n_per_run: int, quantile: float = 0.95) -> tuple[float, int]:
-    """Runs of ``verify_sample`` (``n_per_run`` distinct families of ``n_stored`` each, independent seeds)
-    until every family, so every stored experiment, has been verified at least once: (mean, the ``quantile`` point).
+    """Runs of ``verify_sample`` until every family, so every stored experiment, has been verified at least once.
+
     Exact up to rounding, from the chain of the number of families not yet drawn: a run that finds k of them undrawn
-    draws i of those with the hypergeometric probability C(k, i) C(n − k, m − i) / C(n, m) (all terms positive, so
-    no cancellation, unlike inclusion–exclusion over the families never drawn)."""
+    draws i of those with the hypergeometric probability C(k, i) C(n − k, m − i) / C(n, m) (all terms positive, so no
+    cancellation, unlike inclusion–exclusion over the families never drawn).
+
+    Parameters
+    ----------
+    n_stored : int
+        Families n.
+    n_per_run : int
+        Distinct families m a run draws (independent seeds).
+    quantile : float
+        The quantile of the runs reported.
+
+    Returns
+    -------
+    mean : float
+        The mean number of runs.
+    q_point : int
+        The ``quantile`` point of the number of runs.
+    """
     from math import comb
 
     n, m = n_stored, min(n_per_run, n_stored)
@@ -214,11 +350,28 @@ def coverage_runs(n_stored: int, n_per_run: int, quantile: float = 0.95) -> tupl
 
 
 def reproduce(experiments=None, progress: bool = True, client=None, log=sys.stdout) -> list[Mismatch]:
-    """Recompute every stored experiment from its seeds (the cache's chunks of today's code are reused: they are
-    what this code computes; client: a Dask client, ``cluster``), report the trials that differ from the store,
-    then rewrite the store.  A damaged entry is replaced without being read, and a damaged file that is no stored
-    experiment's entry (a stray or stale file, which would stop every later read of the store) is removed.  Returns
-    the mismatches found (before rewriting)."""
+    """Recompute every stored experiment from its seeds, report the trials that differ from the store, then rewrite it.
+
+    The cache's chunks of today's code are reused: they are what this code computes.  A damaged entry is replaced
+    without being read, and a damaged file that is no stored experiment's entry (a stray or stale file, which would stop
+    every later read of the store) is removed.
+
+    Parameters
+    ----------
+    experiments : iterable of Experiment or None
+        The experiments; None: ``store_experiments()``.
+    progress : bool
+        Show each run's progress bar.
+    client : distributed.Client or None
+        A Dask client (``cluster``); None: this process computes.
+    log : file
+        Where to print each experiment's line.
+
+    Returns
+    -------
+    list of Mismatch
+        The mismatches found (before rewriting).
+    """
     exps = store_experiments() if experiments is None else list(experiments)
     found = []
     t_all = time.perf_counter()
@@ -256,8 +409,17 @@ def reproduce(experiments=None, progress: bool = True, client=None, log=sys.stdo
 
 @dataclass(frozen=True)
 class Provenance:
-    """Where a chapter's Monte Carlo numbers come from (``provenance``): the sample's seed, the trials recomputed
-    per experiment and the table of entries (Markdown, ``report.provenance_markdown``)."""
+    """Where a chapter's Monte Carlo numbers come from (``provenance``).
+
+    Attributes
+    ----------
+    seed : int
+        The sample's seed.
+    recomputed : dict
+        {experiment name: trials recomputed}.
+    table_md : str
+        The table of entries, Markdown (``report.provenance_markdown``).
+    """
 
     seed: int
     recomputed: dict
@@ -265,13 +427,34 @@ class Provenance:
 
     @property
     def n_recomputed(self) -> int:
+        """The number of trials recomputed, over every experiment."""
         return sum(len(v) for v in self.recomputed.values())
 
 
 def provenance(experiments, seed: int | None = None, n_families: int = 1, n_trials: int = 1) -> Provenance:
-    """Check a chapter's experiments against the store on a random sample (``verify_sample``: ``n_trials`` trials
-    of every experiment in ``n_families`` of their families) and describe where their numbers come from.  seed:
-    DPE5G_VERIFY_SEED if set, else a new one.  AssertionError naming every mismatch (and ``make reproduce``)."""
+    """Check a chapter's experiments against the store on a random sample and describe where their numbers come from.
+
+    The sample is ``verify_sample``'s: ``n_trials`` trials of every experiment in ``n_families`` of their families.
+
+    Parameters
+    ----------
+    experiments : iterable of Experiment
+        The chapter's experiments (those the store lacks are left out).
+    seed : int or None
+        The sample's seed; None: DPE5G_VERIFY_SEED if set, else a new one.
+    n_families, n_trials : int
+        Families sampled, and trials of each of their experiments.
+
+    Returns
+    -------
+    Provenance
+        The seed, the trials recomputed and the table.
+
+    Raises
+    ------
+    AssertionError
+        Naming every mismatch (and ``make reproduce``).
+    """
     from . import report
 
     if seed is None:

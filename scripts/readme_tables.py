@@ -312,7 +312,7 @@ def store_text() -> str:
     metas = [json.loads(m.read_text()) for m in sorted((ROOT / "figures" / "trials").glob("*.json"))]
     size = sum(f.stat().st_size for f in (ROOT / "figures" / "trials").iterdir())
     trials = sum(m["n_trials"] for m in metas)
-    short = lambda c: "outside git" if not c else c[:7] + ("+changes" if c.endswith("+changes") else "")
+    short = lambda c: "outside git" if not c else c[:7] + ("+changes" if "+" in c else "")
     versions = sorted({(m["code_version"], short(m["commit"])) for m in metas})
     return (f"Now: {len(metas)} entries, {trials} trials, {size / 1e6:.1f} MB in all (the budget is 30 MB), computed by "
             f"code version{'s' if len(versions) > 1 else ''} "

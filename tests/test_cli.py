@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from dpe5g import cli, experiment, paper, search_config, store, verify
+from dpe5g import chunk_cache, cli, experiment, paper, search_config, verify
 
 ROOT = cli.BASELINE_DIR.parent
 
@@ -23,6 +23,7 @@ FILES = {
     "list.json": "[1, 2, 3]",
     "layout.txt": "x y\n",
     "existing.csv": "keep me\n",
+    "existing2.json": "keep me, the provenance of existing2.csv\n",
     "afile": "not a folder\n",
     "existing.html": "keep me too\n",
 }
@@ -39,8 +40,8 @@ BAD_JSON = {
     "line": {"base_stations": [{**b, "y_m": 0.0} for b in _BS4], "region": _REGION},
     "region5": {"base_stations": _BS4, "region": 5},
 }
-TABLE_COLUMNS = ["trial", "snr_db", "m", "error_m", "est_x_m", "est_y_m", "true_x_m", "true_y_m", "n_los",
-                 "los_flags", "link_snr_db", "link_sinr_db", "edge", "certified"]
+TABLE_COLUMNS = ["trial", "snr_db", "m", "error_m", "est_x_m", "est_y_m", "true_x_m", "true_y_m", "n_los", "edge",
+                 "certified"]
 RUN = ("run", "--trials", "2", "--out", "r.csv")
 
 
@@ -53,6 +54,7 @@ def workdir(tmp_path, monkeypatch):
     (tmp_path / "notutf.json").write_bytes(b"\xff\xfe\x00{")
     (tmp_path / "adir").mkdir()
     (tmp_path / "folder.json").mkdir()
+    (tmp_path / "folder.csv").mkdir()
     (tmp_path / "folder.html").mkdir()
     for name, doc in BAD_JSON.items():
         (tmp_path / f"{name}.json").write_text(json.dumps(doc))
@@ -95,6 +97,8 @@ BAD = [
     (("scene", "--out", "/proc/x.html"), "--out /proc/x.html: cannot write in /proc"),
     (("scene", "--out", "afile/x.html"), "--out afile/x.html: afile exists and is not a folder"),
     (("scene", "--out", "scene.png"), "--out scene.png: must end in .html or .htm"),
+    (("scene", "--out", "s.html", "--deployment", "missing.csv"), "--deployment: deployment file missing.csv"),
+    (("scene", "--out", "s.html", "--deployment", "line.json"), "--deployment: deployment file line.json: the 4 base stations lie on"),
     # deployment files
     (("deployment", "missing.json"), "deployment file missing.json does not exist"),
     (("deployment", "adir"), "deployment file adir is not a file"),
@@ -133,9 +137,12 @@ BAD = [
     (("run",), "required: --trials, --out"),
     (("run", "--trials", "x", "--out", "r.csv"), "argument --trials: invalid int value"),
     (("run", "--trials", "0", "--out", "r.csv"), "--trials: n_trials must be an integer"),
-    (("run", "--trials", "2", "--out", "r.txt"), "--out r.txt: must end in .csv or .json"),
+    (("run", "--trials", "2", "--out", "r.txt"), "--out r.txt: must end in .csv"),
+    (("run", "--trials", "2", "--out", "r.json"), "--out r.json: must end in .csv"),
+    (("run", "--trials", "2", "--out", "existing2.csv"), "--out existing2.csv: existing2.json beside it (where its "
+                                                          "provenance goes) exists; pass --force"),
     (("run", "--trials", "2", "--out", "existing.csv"), "--out existing.csv: exists; pass --force"),
-    (("run", "--trials", "2", "--out", "folder.json", "--force"), "--out folder.json: is a folder"),
+    (("run", "--trials", "2", "--out", "folder.csv", "--force"), "--out folder.csv: is a folder"),
     (("run", "--trials", "2", "--out", "/proc/r.csv"), "--out /proc/r.csv: cannot write in /proc"),
     (RUN + ("--snr",), "argument --snr: expected at least one argument"),
     (RUN + ("--snr", "nan"), "--snr: snr_db must be finite"),
@@ -152,6 +159,8 @@ BAD = [
     (RUN + ("--prior-sigma", "nan"), "--prior-sigma must be in (0, 1000] m, got nan"),
     (RUN + ("--seed", "-1"), "--seed: seed must be an integer"),
     (RUN + ("--reuse", "5"), "--reuse: prs_reuse must be one of 0, 2, 4, 6, 12"),
+    (RUN + ("--snr-mode", "budget"), "--snr-mode must be one of fixed, link-budget; got 'budget'"),
+    (RUN + ("--snr-mode", "link-budget", "--snr", "20"), "--snr does not apply to --snr-mode link-budget"),
     (RUN + ("--deployment", "watts.csv"), "--deployment: deployment file"),
     (RUN + ("--deployment", "missing.csv"), "--deployment: deployment file"),
 ]
@@ -168,6 +177,7 @@ def test_bad_input_is_one_line_naming_the_parameter_exit_2(args, needle, workdir
     assert lines[0].startswith("dpe5g"), err
     assert sorted(p.name for p in workdir.iterdir()) == before  # nothing written
     assert (workdir / "existing.csv").read_text() == FILES["existing.csv"]
+    assert (workdir / "existing2.json").read_text() == FILES["existing2.json"]
     assert (workdir / "existing.html").read_text() == FILES["existing.html"]
 
 
@@ -254,37 +264,34 @@ def test_run_defaults_are_the_papers_experiments():
 
 
 def read_csv(path):
-    """The rows of a results CSV, after its comment line (``Results.write_csv``), and that line's config."""
+    """The rows of a results CSV, read with the csv module's defaults (``Results.write_csv``)."""
     with open(path, newline="") as f:
-        head = f.readline()
-        assert head.startswith("# dpe5g experiment: ")
         return list(csv.DictReader(f))
 
 
 def csv_config(path) -> dict:
-    with open(path) as f:
-        return json.loads(f.readline().removeprefix("# dpe5g experiment: "))
+    """The experiment's settings from the sidecar JSON beside a results CSV (``Results.write_provenance``)."""
+    return json.loads(Path(path).with_suffix(".json").read_text())["experiment"]
 
 
-def test_run_writes_csv_and_json_and_refuses_to_overwrite(workdir, capsys):
+def test_run_writes_csv_and_its_provenance_and_refuses_to_overwrite(workdir, capsys):
     args = ["run", "--trials", "2", "--snr", "10", "30", "--m", "6", "--centring", "truth"]
     assert cli.main(args + ["--out", "r.csv"]) == 0
     out = capsys.readouterr().out
-    assert "RMSE (m), DPE:" in out and "M = 6" in out and "wrote r.csv (4 rows" in out
+    assert "RMSE (m), DPE:" in out and "M = 6" in out and "wrote r.csv (4 rows" in out and "r.json" in out
     rows = read_csv(workdir / "r.csv")
-    assert list(rows[0]) == TABLE_COLUMNS
+    links = [f"link{k}_{q}" for k in range(1, 7) for q in ("los", "snr_db", "sinr_db")]
+    assert list(rows[0]) == TABLE_COLUMNS + links
     assert len(rows) == 2 * 2 * 1
     assert {(r["trial"], r["snr_db"], r["m"]) for r in rows} == {(t, s, "6") for t in "01" for s in ("10.0", "30.0")}
-    cfg = csv_config(workdir / "r.csv")  # the file says what produced it
+    assert all(float(r["link1_snr_db"]) == float(r["snr_db"]) and r["link6_los"] in ("0", "1") for r in rows)
+    assert all(sum(int(r[f"link{k}_los"]) for k in range(1, 7)) == int(r["n_los"]) for r in rows)
+    doc = json.loads((workdir / "r.json").read_text())  # the file beside it says what produced it
+    cfg = doc["experiment"]
     assert cfg["seed"] == paper.URBAN_SEED and cfg["n_trials"] == 2 and cfg["snrs_db"] == [10.0, 30.0]
     assert cfg["centring"] == "truth" and cfg["m_values"] == [6]
-
-    assert cli.main(args + ["--out", "r.json"]) == 0  # from the cache
-    doc = json.loads((workdir / "r.json").read_text())
-    assert doc["experiment"]["n_trials"] == 2 and doc["experiment"]["centring"] == "truth"
-    assert doc["experiment"]["snrs_db"] == [10.0, 30.0] and doc["experiment"]["m_values"] == [6]
-    assert len(doc["rows"]) == 4 and list(doc["rows"][0]) == TABLE_COLUMNS
-    assert [float(r["error_m"]) for r in rows] == pytest.approx([r["error_m"] for r in doc["rows"]], rel=1e-12)
+    assert set(doc["columns"]) == set(rows[0]) and all(doc["columns"].values())
+    assert doc["provenance"]["dpe5g"] and "commit" in doc["provenance"]
     capsys.readouterr()
 
     before = (workdir / "r.csv").read_bytes()
@@ -293,20 +300,63 @@ def test_run_writes_csv_and_json_and_refuses_to_overwrite(workdir, capsys):
     assert err.count("\n") == 1 and "--out r.csv: exists; pass --force" in err
     assert cli.main(args + ["--out", "r.csv", "--force"]) == 0
     assert (workdir / "r.csv").read_bytes() == before  # same seed, same results
-    assert not list(workdir.glob(".r.csv.*"))  # no temporary file left
+    assert not list(workdir.glob(".r.*"))  # no temporary file left
 
 
 def test_run_otdoa_centring_on_a_users_deployment(workdir, capsys):
-    """Centring on the OTDoA fix (the honest certified search) on a 4-BS CSV deployment, JSON output."""
+    """Centring on the OTDoA fix (the honest certified search) on a 4-BS CSV deployment."""
     assert cli.main(["run", "--trials", "1", "--snr", "20", "--m", "4", "--centring", "otdoa",
-                     "--deployment", "four.csv", "--out", "sub/o.json"]) == 0
+                     "--deployment", "four.csv", "--out", "sub/o.csv"]) == 0
     out = capsys.readouterr().out
     assert "RMSE (m), OTDoA, first_path ToA:" in out and "certified:" in out
-    doc = json.loads((workdir / "sub" / "o.json").read_text())
-    assert doc["experiment"]["deployment"] == str(workdir / "four.csv")
-    assert doc["experiment"]["otdoa"] is True and doc["experiment"]["search"]["method"] == "bnb"
-    (row,) = doc["rows"]
-    assert set(TABLE_COLUMNS) < set(row) and "otdoa_first_path_error_m" in row and row["m"] == 4
+    cfg = csv_config(workdir / "sub" / "o.csv")
+    assert cfg["deployment"] == str(workdir / "four.csv")
+    assert cfg["otdoa"] is True and cfg["search"]["method"] == "bnb"
+    (row,) = read_csv(workdir / "sub" / "o.csv")
+    assert set(TABLE_COLUMNS) < set(row) and "otdoa_first_path_error_m" in row and row["m"] == "4"
+
+
+def test_scene_of_a_users_deployment(workdir, monkeypatch, capsys):
+    """``dpe5g scene --deployment FILE``: the 3-D scene of the user's 4-BS deployment (its BSs, the example UE's
+    links to all 4, the correlogram of its fix), not ours."""
+    from dpe5g import scene3d
+
+    real, drawn = scene3d.export, []
+    monkeypatch.setattr(scene3d, "export", lambda p7, p8, *a, **kw: drawn.append((p7, p8)) or real(p7, p8, *a, **kw))
+    assert cli.main(["scene", "--deployment", "four.csv", "--out", "s.html"]) == 0
+    assert "wrote s.html" in capsys.readouterr().out
+    (p7, p8), = drawn
+    assert p7["data"]["bs_ids"] == ["A", "B", "C", "D"] and p7["config"]["m"] == 4 and p8["config"]["m"] == 4
+    assert (workdir / "s.html").read_text().startswith("<!DOCTYPE html>")
+
+
+def test_run_m_defaults_to_what_the_deployment_holds():
+    assert cli.default_m_values(26) == (6, 12, 18, 24)
+    assert cli.default_m_values(24) == (6, 12, 18, 24)
+    assert cli.default_m_values(8) == (6, 8)
+    assert cli.default_m_values(12) == (6, 12)
+    assert cli.default_m_values(4) == (4,)
+    assert cli.default_m_values(26, "link_budget") == (4,) and cli.default_m_values(3, "link_budget") == (3,)
+
+
+def test_run_link_budget_uses_the_deployments_powers(workdir, capsys):
+    """--snr-mode link-budget: Fig. 10's set-up on a user's deployment, each link's SNR from its BS's power_dbm
+    (the same deployment 36 dB stronger: every link's SNR 36 dB higher), one row per trial."""
+    strong = FILES["four.csv"].replace(",24\n", ",60\n")
+    assert strong.count(",60\n") == 4
+    (workdir / "strong.csv").write_text(strong)
+    runs = {}
+    for name in ("four", "strong"):
+        assert cli.main(["run", "--trials", "2", "--snr-mode", "link-budget", "--deployment", f"{name}.csv",
+                         "--out", f"{name}_lb.csv"]) == 0
+        runs[name] = read_csv(workdir / f"{name}_lb.csv")
+    out = capsys.readouterr().out
+    assert "link budget" in out
+    assert [r["m"] for r in runs["four"]] == ["4", "4"] and {r["snr_db"] for r in runs["four"]} == {"link_budget"}
+    for weak, strong in zip(runs["four"], runs["strong"]):
+        for k in range(1, 5):
+            assert float(strong[f"link{k}_snr_db"]) - float(weak[f"link{k}_snr_db"]) == pytest.approx(36.0, abs=0.02)
+    assert csv_config(workdir / "four_lb.csv")["snr_mode"] == "link_budget"
 
 
 def test_figures_out_writes_there(tmp_path, capsys):
@@ -359,7 +409,7 @@ def test_warm_fills_the_cache_with_the_books_runs(workdir, monkeypatch, capsys):
     out = capsys.readouterr().out
     assert out.index("warm2") < out.index("warm1") and "warm: 2 experiments" in out  # the last one first
     for e in tiny:
-        assert len(list(store.cache_dir(e).glob("trials-*.npz"))) == 2
+        assert len(list(chunk_cache.cache_dir(e).glob("trials-*.npz"))) == 2
 
 
 def test_a_concurrent_writer_of_the_same_out_is_refused_never_replaced(workdir, monkeypatch, capsys):
@@ -384,14 +434,14 @@ def test_a_concurrent_writer_of_the_same_out_is_refused_never_replaced(workdir, 
 
 def test_output_files_get_the_mode_the_umask_gives(workdir, capsys):
     """Not mkstemp's 0600: a new --out gets 0666 less the umask, and --force on an existing file too."""
-    args = ["run", "--trials", "1", "--snr", "20", "--m", "6", "--centring", "truth", "--out", "r.json"]
+    args = ["run", "--trials", "1", "--snr", "20", "--m", "6", "--centring", "truth", "--out", "r.csv"]
     old = os.umask(0o027)
     try:
         assert cli.main(args) == 0
-        assert (workdir / "r.json").stat().st_mode & 0o777 == 0o640
+        assert {(workdir / f).stat().st_mode & 0o777 for f in ("r.csv", "r.json")} == {0o640}
         os.umask(0o022)
         assert cli.main(args + ["--force"]) == 0
-        assert (workdir / "r.json").stat().st_mode & 0o777 == 0o644
+        assert {(workdir / f).stat().st_mode & 0o777 for f in ("r.csv", "r.json")} == {0o644}
     finally:
         os.umask(old)
 

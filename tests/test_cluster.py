@@ -4,7 +4,7 @@ clear errors for bad cluster options."""
 import numpy as np
 import pytest
 
-from dpe5g import cluster, engine, experiment, search_config, store
+from dpe5g import chunk_cache, cluster, engine, experiment, search_config, store
 
 #: the truth-centred grid search: the quickest engine to compile, in each worker as in this process
 SMALL = dict(n_trials=6, chunk_trials=2, snrs_db=(10.0, 30.0), m_values=(4, 6),
@@ -20,7 +20,7 @@ def test_a_local_cluster_gives_the_results_of_one_process(tmp_path):
         two = engine.run(e, cache=tmp_path / "two", progress=False, use_store=False, client=client)
     finally:
         cluster.close(client)
-    assert sorted(p.name for p in store.cache_dir(e, tmp_path / "two").glob("*.npz")) == [
+    assert sorted(p.name for p in chunk_cache.cache_dir(e, tmp_path / "two").glob("*.npz")) == [
         "trials-0000000-0000002.npz", "trials-0000002-0000004.npz", "trials-0000004-0000006.npz"]
     for k in store.stored_fields(e):
         np.testing.assert_array_equal(getattr(one, k), getattr(two, k), err_msg=k)
@@ -95,7 +95,7 @@ def test_a_worker_running_other_code_is_refused(tmp_path):
         finally:
             worker.kill()
             worker.wait()
-    assert not list(store.cache_dir(e, tmp_path / "cache").glob("*.npz"))
+    assert not list(chunk_cache.cache_dir(e, tmp_path / "cache").glob("*.npz"))
 
 
 def test_a_worker_killed_repeatedly_is_one_line(tmp_path):
@@ -108,7 +108,7 @@ def test_a_worker_killed_repeatedly_is_one_line(tmp_path):
 
     from dpe5g.errors import ClusterFailed
 
-    chunks = store.ChunkCache(experiment.Experiment.build(name="dask", **SMALL), tmp_path).open()
+    chunks = chunk_cache.ChunkCache(experiment.Experiment.build(name="dask", **SMALL), tmp_path).open()
     with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
         with cluster.local_cluster(1) as lc, Client(lc) as client:
             with pytest.raises(ClusterFailed, match="trials 0-1 died repeatedly .*0 of the run's 3 chunks are "

@@ -4,7 +4,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dpe5g import certified_search, correlogram, cost, dpe, grid_search, nr, search_config, signal
+from dpe5g import correlogram, cost, dpe, grid_search, nr, search_config, signal, spline_bounds
 from dpe5g.nr import C, PAPER, Numerology
 
 
@@ -128,12 +128,32 @@ def test_fix_batched_equals_single():
         for k, u in zip(keys, ues)
     ])
     center = np.array([0.0, 0.0, 2.0, 0.0])
-    batch = dpe.fix(ys, np.stack([prs] * 2), np.stack([bs] * 2), np.stack([center] * 2))
-    chunked = dpe.fix(ys, np.stack([prs] * 2), np.stack([bs] * 2), np.stack([center] * 2), batch_size=1)
+    grid = search_config.SearchConfig()  # (the paper's grid: batching is the same for either search, and it compiles fast)
+    batch = dpe.fix(ys, np.stack([prs] * 2), np.stack([bs] * 2), np.stack([center] * 2), grid)
+    chunked = dpe.fix(ys, np.stack([prs] * 2), np.stack([bs] * 2), np.stack([center] * 2), grid, batch_size=1)
     for i in range(2):
-        one = dpe.fix(ys[i], prs, bs, center)
+        one = dpe.fix(ys[i], prs, bs, center, grid)
         assert np.allclose(batch.xyz[i], one.xyz, atol=1e-9)
         assert np.allclose(chunked.xyz[i], one.xyz, atol=1e-9)
+
+
+def test_the_default_fix_is_the_honest_certified_receiver():
+    """With no search given, ``fix`` runs the book's honest receiver: the certified branch and bound in a window
+    that covers the clock prior (± 3 σ of the paper's 5 ns), the search Fig. 9's honest experiment runs."""
+    from dpe5g import paper
+
+    assert dpe.honest_search() == paper.fig9_honest().receiver_search()
+    assert dpe.honest_search().method == "bnb" and dpe.honest_search().bias_half_width_m >= 3 * 5e-9 * C - 1e-9
+    # 4 BSs, pure delay, 10 dB per sample, a 3 ns clock bias, the window centred 5.6 m off the UE.  (With L = 12
+    # taps a pure delay leaves c δt free over a plateau of a few samples: the bias is not what is checked.)
+    bs = _geometry(4)
+    prs = nr.prs_matrix(range(4))
+    ue, bias = np.array([3.0, -2.0, 2.0]), 3e-9
+    y = signal.received_samples(jax.random.PRNGKey(7), prs, np.ones((4, 1)), np.zeros((4, 1)),
+                                cost.toa(ue, bs, bias), 10.0)
+    est = dpe.fix(y, prs, bs, np.array([6.0, 2.0, 2.0, 0.0]))
+    assert bool(est.certified) and not bool(est.edge) and float(est.gap) <= dpe.honest_search().gap_tol
+    assert np.linalg.norm(est.xyz[:2] - ue[:2]) < 0.1
 
 
 def test_bad_inputs():
@@ -193,8 +213,8 @@ def test_window_taps_on_the_band_spacing_keep_the_first_path(spacing):
     window = jnp.asarray(correlogram.window_spectrum(taps, n, None, s))
     coef = correlogram.spline_coefficients(jnp.asarray(g)[None], window, u)
     t = tau0 + np.arange(-20.0, 3.0, 1 / 64)
-    values = np.asarray(certified_search.spline_values(coef, jnp.asarray(t * u)[:, None]))
-    at_path = float(certified_search.spline_values(coef, jnp.asarray([[tau0 * u]]))[0])
+    values = np.asarray(spline_bounds.spline_values(coef, jnp.asarray(t * u)[:, None]))
+    at_path = float(spline_bounds.spline_values(coef, jnp.asarray([[tau0 * u]]))[0])
     if spacing == "band":
         assert at_path >= values.max() * (1 - 5e-5)  # the spline's own error is ≤ 2e-5 of the peak (Chapter 3)
     else:

@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 
-from dpe5g import (correlogram, cost, deployment, dpe, draw, engine, experiment, grid_search, receiver, results,
+from dpe5g import (chunk_cache, correlogram, cost, deployment, dpe, draw, engine, experiment, grid_search, receiver, results,
                    search_config, signal, store, trials)
 
 SMALL = dict(name="test", n_trials=6, seed=1, snrs_db=(15.0, 30.0), m_values=(4, 6),
@@ -87,7 +87,7 @@ def test_reverse_order_and_chunks_written_meanwhile(tmp_path, monkeypatch):
     for f in results.Results.FIELDS:
         np.testing.assert_array_equal(getattr(fwd, f), getattr(rev, f), err_msg=f)
     calls = []
-    monkeypatch.setattr(store.ChunkCache, "missing", lambda self: list(self.chunks))  # "not there yet"
+    monkeypatch.setattr(chunk_cache.ChunkCache, "missing", lambda self: list(self.chunks))  # "not there yet"
     monkeypatch.setattr(engine.ChunkRunner, "__call__", lambda self, *a: calls.append(a))
     again = engine.run(e, cache=tmp_path / "f", progress=False)
     assert calls == []
@@ -134,7 +134,7 @@ def test_interrupted_run_resumes_to_identical_results(tmp_path):
     with open(err, "wb") as f:
         proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.DEVNULL, stderr=f)
     e = experiment.Experiment.build(chunk_trials=1, **cfg)
-    d = store.cache_dir(e, cache)
+    d = chunk_cache.cache_dir(e, cache)
     t0 = time.time()
     while time.time() - t0 < 240:
         if d.exists() and len(list(d.glob("trials-*.npz"))) >= 2:
@@ -171,11 +171,12 @@ def test_two_of_four_and_link_budget_modes(tmp_path):
     assert len(rows) == 4 and {"trial", "snr_db", "m", "error_m", "n_los", "edge", "otdoa_first_path_error_m",
                               "otdoa_peak_ok"} <= set(rows[0])
     r.write_csv(tmp_path / "t.csv")
-    assert (tmp_path / "t.csv").read_text().count("\n") == 6  # the config line, the header, 4 rows
-    assert sorted(rows[0]["los_flags"]) == ["L", "L", "N", "N"]
-    r.write_json(tmp_path / "t.json")
+    assert (tmp_path / "t.csv").read_text().count("\n") == 5  # the header, 4 rows
+    assert sorted(rows[0][f"link{k}_los"] for k in range(1, 5)) == [0, 0, 1, 1]
+    r.write_provenance(tmp_path / "t.json", "abc1234")
     doc = json.loads((tmp_path / "t.json").read_text())
-    assert doc["experiment"]["los_mode"] == "two_of_four" and len(doc["rows"]) == 4
+    assert doc["experiment"]["los_mode"] == "two_of_four" and set(doc["columns"]) == set(rows[0])
+    assert doc["provenance"]["commit"] == "abc1234"
 
 
 @pytest.mark.parametrize("kwargs, needle", [
@@ -354,11 +355,11 @@ def test_code_version_does_not_depend_on_the_locale():
 def test_a_damaged_cache_chunk_is_named_set_aside_and_computed_again(tmp_path, capsys):
     e = experiment.Experiment.build(**{**SMALL, "chunk_trials": 2})
     good = engine.run(e, cache=tmp_path, progress=False)
-    d = store.cache_dir(e, tmp_path)
+    d = chunk_cache.cache_dir(e, tmp_path)
     chunk = d / "trials-0000002-0000004.npz"
     other = experiment.Experiment.build(**{**SMALL, "seed": 2, "chunk_trials": 2})
     engine.run(other, cache=tmp_path, progress=False)
-    foreign = (store.cache_dir(other, tmp_path) / chunk.name).read_bytes()  # another experiment's chunk
+    foreign = (chunk_cache.cache_dir(other, tmp_path) / chunk.name).read_bytes()  # another experiment's chunk
     capsys.readouterr()
     moved = (d / "trials-0000000-0000002.npz").read_bytes()  # this experiment's chunk of other trials
     for kind, bad in (("truncated", chunk.read_bytes()[:300]), ("foreign", foreign), ("moved", moved),
@@ -376,12 +377,12 @@ def test_a_damaged_file_another_process_set_aside_or_rewrote_is_left_alone(tmp_p
     """Two processes reading one cache: the second to find a damaged file either finds it gone (set aside by the
     first) or rewritten since it read it (computed again by the first); neither is an error or moved."""
     path = tmp_path / "trials-0000000-0000002.npz"
-    assert store.set_aside(path, "gone") is None and not list(tmp_path.iterdir())
+    assert chunk_cache.set_aside(path, "gone") is None and not list(tmp_path.iterdir())
     path.write_bytes(b"damaged")
     seen = path.stat()
     time.sleep(0.01)
     path.write_bytes(b"computed again by another process")
-    assert store.set_aside(path, "read before the rewrite", seen) is None
+    assert chunk_cache.set_aside(path, "read before the rewrite", seen) is None
     assert path.read_bytes() == b"computed again by another process" and not path.with_name(path.name + ".damaged").exists()
 
 
@@ -392,7 +393,7 @@ def test_a_damaged_chunk_that_cannot_be_set_aside_says_so(tmp_path, monkeypatch)
 
     e = experiment.Experiment.build(**{**SMALL, "chunk_trials": 2})
     engine.run(e, cache=tmp_path, progress=False)
-    chunk = store.cache_dir(e, tmp_path) / "trials-0000002-0000004.npz"
+    chunk = chunk_cache.cache_dir(e, tmp_path) / "trials-0000002-0000004.npz"
     chunk.write_bytes(chunk.read_bytes()[:300])
 
     real = os.replace
@@ -551,7 +552,9 @@ def test_prs_reuse_runs_and_reports_sinr(tmp_path):
     r = engine.run(e, cache=tmp_path, progress=False)
     assert r.link_sinr_db.shape == (2, 1, 6) and np.all(r.link_sinr_db <= r.link_snr_db)
     row = r.table()[0]
-    assert len(row["link_sinr_db"].split(";")) == 4 and len(row["link_snr_db"].split(";")) == 4
+    assert [k for k in row if k.startswith("link")] == [f"link{k}_{q}" for k in range(1, 7)
+                                                        for q in ("los", "snr_db", "sinr_db")]  # (M = 4 and 6)
+    assert all(row[f"link{k}_sinr_db"] <= row[f"link{k}_snr_db"] for k in range(1, 7))
 
 
 def test_links_keep_their_received_power_where_it_differs():

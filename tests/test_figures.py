@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 from matplotlib.testing.compare import compare_images
 
-from dpe5g import figures, store
+from dpe5g import figures
 from figure_diff import compare_data
 
 pytestmark = pytest.mark.book  # reads the figures' Monte Carlo results, which the book's chapters compute
@@ -176,16 +176,16 @@ def test_payload_is_computed_once_per_state_of_the_code(tmp_path, monkeypatch):
     instead of computing it again: the stored payload is what a new computation gives, and a different figure or trial
     count has its own entry."""
     monkeypatch.setenv("DPE5G_CACHE", str(tmp_path))
-    path = store.payload_path("fig01_tdl_a")
+    path = figures.payload_path("fig01_tdl_a")
     assert path.parent == tmp_path / "payloads" and not path.exists()
     first = figures.compute("fig01_tdl_a")
-    assert path.exists() and store.load_payload("fig01_tdl_a") == first
+    assert path.exists() and figures.load_payload("fig01_tdl_a") == first
     marked = json.loads(json.dumps(first))
     marked["data"]["pdp_db"][0] = 123.0  # a marker: a second compute must return the stored payload
-    store.save_payload("fig01_tdl_a", None, marked)
+    figures.save_payload("fig01_tdl_a", None, marked)
     assert figures.compute("fig01_tdl_a")["data"]["pdp_db"][0] == 123.0
-    others = {store.payload_path("fig02_tdl_b"), store.payload_path("fig09_rmse_vs_snr", 50),
-              store.payload_path("fig09_rmse_vs_snr", 60), path}
+    others = {figures.payload_path("fig02_tdl_b"), figures.payload_path("fig09_rmse_vs_snr", 50),
+              figures.payload_path("fig09_rmse_vs_snr", 60), path}
     assert len(others) == 4
     path.unlink()
     assert figures.compute("fig01_tdl_a") == first

@@ -78,6 +78,7 @@ def test_toa_peak_and_first_path():
     assert abs(first - tau) * C < 0.5  # the first path (its estimate pulled 0.3 m by the second path's tail)
     y1 = signal.received_noiseless(prs, np.array([[1.0]]), np.array([[0.0]]), np.array([tau]))
     assert abs(float(otdoa.toa(y1, prs)[0]) - tau) * C < 0.05  # single path: parabola on the T_s/8 grid
+    assert float(otdoa.toa(y, prs)[0]) == first  # the default is the first-path detector, not the paper's peak
 
 
 def test_runaway_polish_is_flagged_not_silent():

@@ -4,7 +4,7 @@ every experiment the store holds (``dpe5g.verify.store_experiments``)."""
 import numpy as np
 import pytest
 
-from dpe5g import channel, nlos_study, paper, readings, scenario, signal, store, verify
+from dpe5g import channel, chunk_cache, nlos_study, paper, readings, scenario, signal, verify
 
 
 def test_claim_intervals_give_each_claim_its_verdict_from_its_interval():
@@ -117,15 +117,15 @@ def test_the_nlos_chapters_readings_change_what_they_name():
 
 def test_store_experiments_one_entry_per_run_at_its_largest_count():
     exps = verify.store_experiments()
-    dirs = [store.cache_dir(e).name for e in exps]
+    dirs = [chunk_cache.cache_dir(e).name for e in exps]
     assert len(dirs) == len(set(dirs))
     by_dir = dict(zip(dirs, exps))
     # Chapter 5 reads the first REUSE_COMPARE_TRIALS of the reuse reading's run: listed once, at the reading's count
-    assert by_dir[store.cache_dir(paper.fig9_power(reuse=paper.REUSE)).name].run.n_trials == paper.READING_TRIALS
+    assert by_dir[chunk_cache.cache_dir(paper.fig9_power(reuse=paper.REUSE)).name].run.n_trials == paper.READING_TRIALS
     for e in (paper.fig9_honest(), paper.fig9_truth(), paper.fig10()[("pr_los", "truth")], readings.fig9_honest_readings(),
               paper.fig9_all_los(*paper.ALL_LOS_CASES[-1])):
-        assert by_dir[store.cache_dir(e).name].run.n_trials >= e.run.n_trials
+        assert by_dir[chunk_cache.cache_dir(e).name].run.n_trials >= e.run.n_trials
     # the NLoS chapter's runs and the readings built on them are all listed
     for e in (*nlos_study.all_experiments(), nlos_study.fig9_blind_readings(),
               *(readings.experiments(n)["fig9"] for n in readings.READINGS)):
-        assert store.cache_dir(e).name in by_dir, e.run.name
+        assert chunk_cache.cache_dir(e).name in by_dir, e.run.name

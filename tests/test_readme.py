@@ -75,3 +75,59 @@ def test_the_landing_page_and_readme_list_every_page_of_the_toc():
     assert linked == pages, (linked, pages)
     readme = (ROOT / "README.md").read_text()
     assert all(f"`{p}.md`" in readme for p in pages)
+
+
+def _readme_block(language: str, after: str) -> str:
+    """The first ```language block of README.md after the line containing ``after``."""
+    text = (ROOT / "README.md").read_text()
+    rest = text[text.index(after):]
+    start = rest.index(f"```{language}\n") + len(language) + 4
+    return rest[start:rest.index("```\n", start)]
+
+
+#: a small deployment of the issue that found README's first run failing: 8 BSs in a 300 m square
+SMALL_DEPLOYMENT = {
+    "base_stations": [{"id": f"bs{i}", "x_m": x, "y_m": y, "height_m": 10.0, "power_dbm": 24.0}
+                      for i, (x, y) in enumerate([(20, 20), (150, 10), (280, 25), (15, 150), (285, 145), (25, 280),
+                                                  (150, 290), (275, 275)])],
+    "region": {"x_min_m": 0.0, "y_min_m": 0.0, "x_max_m": 300.0, "y_max_m": 300.0}}
+
+
+def test_readme_first_run_works_on_a_small_deployment(tmp_path):
+    """README's commands for a first run on one's own deployment, run verbatim (``.venv/bin/dpe5g`` is this
+    environment's) on an 8-BS deployment; the CSV they write reads with the csv module's defaults (a header first,
+    one value per cell) and its provenance with ``json.load``."""
+    import csv
+    import json
+    import shlex
+
+    (tmp_path / ".venv" / "bin").mkdir(parents=True)
+    (tmp_path / ".venv" / "bin" / "dpe5g").symlink_to(Path(sys.executable).parent / "dpe5g")
+    (tmp_path / "mine.json").write_text(json.dumps(SMALL_DEPLOYMENT))
+    commands = [ln.split("#")[0] for ln in _readme_block("text", "A first run on your own").splitlines()]
+    assert len(commands) == 2
+    for command in commands:
+        r = subprocess.run(shlex.split(command), cwd=tmp_path, capture_output=True, text=True, timeout=600)
+        assert r.returncode == 0, (command, r.stderr[-2000:])
+    with open(tmp_path / "study.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    with open(tmp_path / "study.json") as f:
+        meta = json.load(f)
+    assert set(rows[0]) == set(meta["columns"]), "the sidecar describes every column"
+    assert {r["m"] for r in rows} == {"6", "8"}  # the paper's M that fit 8 BSs, and all 8
+    assert len(rows) == meta["experiment"]["n_trials"] * len(meta["experiment"]["snrs_db"]) * 2
+    assert all(float(r["error_m"]) >= 0 and ";" not in "".join(r.values()) for r in rows)
+
+
+def test_readme_python_quick_start_runs():
+    """README's Python quick start (at most 15 lines) runs as it is and prints a certified fix near its UE."""
+    import re
+
+    code = _readme_block("python", "In Python")
+    assert len(code.strip().splitlines()) <= 15
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    m = re.fullmatch(r"fix \[\s*([-\d.]+)\s+([-\d.]+)\s+([-\d.]+)\s*\] m, clock bias ([-\d.]+) ns, certified True\n",
+                     r.stdout)
+    assert m, r.stdout
+    assert abs(float(m[1]) - 120.0) < 0.5 and abs(float(m[2]) - 80.0) < 0.5 and abs(float(m[4]) - 3.0) < 1.0

@@ -175,7 +175,7 @@ def test_prs_reuse_plan_on_our_layout():
 @given(st.integers(1, 12), st.sampled_from([2, 4, 6, 12]), st.integers(0, 1000))
 def test_prs_reuse_plan_first_bss_distinct(n_bs, reuse, seed):
     xyz = np.random.default_rng(seed).uniform(0, 500, size=(n_bs, 3))
-    res, ids = deployment.prs_plan(xyz, reuse)
+    res, ids = scenario.prs_plan(xyz, reuse)
     first = res[:reuse]
     assert len(set(first.tolist())) == len(first)
     assert np.all((res >= 0) & (res < reuse))
@@ -183,9 +183,9 @@ def test_prs_reuse_plan_first_bss_distinct(n_bs, reuse, seed):
 
 def test_prs_reuse_plan_bad_input():
     with pytest.raises(ValueError, match="reuse must be one of"):
-        deployment.prs_plan(np.zeros((3, 3)), 5)
+        scenario.prs_plan(np.zeros((3, 3)), 5)
     with pytest.raises(ValueError, match="n_bs must be at most reuse × PRS IDs = 2 × 4096"):
-        deployment.prs_plan(np.zeros((2 * 4096 + 1, 3)), 2)
+        scenario.prs_plan(np.zeros((2 * 4096 + 1, 3)), 2)
 
 
 def test_nlos_excess_delay_is_the_stated_log_normal():

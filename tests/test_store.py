@@ -8,7 +8,7 @@ import os
 import numpy as np
 import pytest
 
-from dpe5g import engine, paper, store, verify
+from dpe5g import engine, figures, paper, store, verify
 
 #: the store's size budget: 25 MB in all (issue 31), 30 MB since the UMi excess-delay runs (issue 41)
 STORE_BUDGET_BYTES = 30_000_000
@@ -289,12 +289,12 @@ def test_reproduce_removes_a_damaged_file_of_no_experiment(small, tmp_path, monk
 
 
 def test_a_payload_is_checked_against_its_checksum(tmp_path, capsys):
-    store.save_payload("fig_x", None, {"rmse_m": [1.25, 2.5]}, cache=tmp_path)
-    assert store.load_payload("fig_x", None, cache=tmp_path) == {"rmse_m": [1.25, 2.5]}
-    path = store.payload_path("fig_x", None, cache=tmp_path)
+    figures.save_payload("fig_x", None, {"rmse_m": [1.25, 2.5]}, cache=tmp_path)
+    assert figures.load_payload("fig_x", None, cache=tmp_path) == {"rmse_m": [1.25, 2.5]}
+    path = figures.payload_path("fig_x", None, cache=tmp_path)
     for bad in (path.read_text().replace("1.25", "12.5"), "[]", path.read_text()[:20]):
         path.write_text(bad)
-        assert store.load_payload("fig_x", None, cache=tmp_path) is None
+        assert figures.load_payload("fig_x", None, cache=tmp_path) is None
         assert "is damaged" in capsys.readouterr().err and not path.exists()
         assert path.with_name(path.name + ".damaged").read_text() == bad
 
@@ -304,3 +304,48 @@ def test_a_store_variable_naming_a_file_is_named(tmp_path, monkeypatch):
     monkeypatch.setenv("DPE5G_STORE", str(tmp_path / "afile"))
     with pytest.raises(ValueError, match="DPE5G_STORE=.*afile: is not a folder"):
         store.stored(paper.fig9_truth(6))
+
+
+def test_reproduce_refuses_changed_code_unless_told(tmp_path, monkeypatch, capsys):
+    """``dpe5g reproduce`` (``make reproduce``) on a tree whose code differs from its commit stops with one line
+    (exit 2) before computing anything; with --allow-dirty it runs."""
+    from dpe5g import cli
+
+    (tmp_path / "store").mkdir()
+    monkeypatch.setenv("DPE5G_STORE", str(tmp_path / "store"))
+    monkeypatch.setattr(store, "code_changes", lambda root=None: ["dpe5g/cost.py"])
+    ran = []
+    monkeypatch.setattr(verify, "reproduce", lambda **kw: ran.append(kw) or [])
+    assert cli.main(["reproduce"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "the code differs from its commit (dpe5g/cost.py)" in err and not ran
+    assert cli.main(["reproduce", "--allow-dirty"]) == 0 and len(ran) == 1
+
+
+def test_git_commit_names_the_commit_and_a_digest_of_the_changes(tmp_path):
+    """An entry records the commit; where the code differs from it, a digest of the changes that is the same for the
+    same changes and differs for others; files outside ``store.CODE_PATHS`` do not count."""
+    import subprocess
+
+    git = lambda *a: subprocess.run(["git", "-c", "user.name=t", "-c", "user.email=t@example.org", *a], cwd=tmp_path,
+                                    check=True, capture_output=True, text=True).stdout.strip()
+    git("init", "-q")
+    (tmp_path / "dpe5g").mkdir()
+    (tmp_path / "dpe5g" / "cost.py").write_text("x = 1\n")
+    (tmp_path / "notes.md").write_text("notes\n")
+    git("add", ".")
+    git("commit", "-q", "-m", "code")
+    head = git("rev-parse", "HEAD")
+    assert store.git_commit(tmp_path) == head and store.code_changes(tmp_path) == []
+    (tmp_path / "notes.md").write_text("other notes\n")  # not code
+    assert store.git_commit(tmp_path) == head
+    (tmp_path / "dpe5g" / "cost.py").write_text("x = 2\n")
+    first = store.git_commit(tmp_path)
+    assert first.startswith(head + "+diff.") and len(first) == len(head) + 18
+    assert store.git_commit(tmp_path) == first and store.code_changes(tmp_path) == ["dpe5g/cost.py"]
+    (tmp_path / "dpe5g" / "new.py").write_text("y = 1\n")  # an untracked module counts
+    second = store.git_commit(tmp_path)
+    assert second != first and store.code_changes(tmp_path) == ["dpe5g/cost.py", "dpe5g/new.py"]
+    (tmp_path / "dpe5g" / "new.py").write_text("y = 2\n")
+    assert store.git_commit(tmp_path) not in (first, second)
+    assert store.git_commit(tmp_path / "nowhere") is None

@@ -182,11 +182,19 @@ def _copy_notebooks(app, exception):
         nbformat.write(nb, dest)
 
 
-def _verbatim_docstring(app, what, name, obj, options, lines):
-    """The API reference shows each docstring as written (a literal block of plain text, not highlighted as code):
-    they are plain text with Unicode maths (|ĥ(τ)|², (..., M, N)), which reST would read as markup."""
-    if lines:
-        lines[:] = [".. code-block:: text", ""] + ["    " + ln for ln in lines] + [""]
+def _save_data_comments(app, what, name, obj, options, lines):
+    """Before napoleon (priority 400): keep a constant's ``#:`` comment as written.  Napoleon reads the first line of
+    a data or attribute docstring as "type: description", so "default cache directory: …" would show a type
+    "default cache directory" (and fail the build as a broken cross-reference); the comments are prose."""
+    if what in ("data", "attribute"):
+        app.env.temp_data.setdefault("dpe5g_data_comments", {})[name] = list(lines)
+
+
+def _restore_data_comments(app, what, name, obj, options, lines):
+    """After napoleon (priority 600): put back what ``_save_data_comments`` kept."""
+    kept = app.env.temp_data.get("dpe5g_data_comments", {}).pop(name, None)
+    if kept is not None:
+        lines[:] = kept
 
 
 def _repository_paths():
@@ -238,8 +246,9 @@ def _author_year_style():
 def setup(app):
     app.add_config_value("dpe5g_cache_sources", [], "env")
     _author_year_style()
-    app.setup_extension("sphinx.ext.autodoc")  # (the API reference; its event below)
-    app.connect("autodoc-process-docstring", _verbatim_docstring)
+    app.setup_extension("sphinx.ext.autodoc")  # (the API reference; its object descriptions below)
+    app.connect("autodoc-process-docstring", _save_data_comments, priority=400)  # around napoleon's (500)
+    app.connect("autodoc-process-docstring", _restore_data_comments, priority=600)
     _repository_paths()
     app.connect("builder-inited", _sync, priority=900)  # after MyST-NB has set its execution cache path
     app.connect("env-get-outdated", _outdated)

@@ -1,0 +1,315 @@
+"""Bootstrap intervals of error statistics and the verdicts of claims: the one home of the statistics that compare.
+
+An interval of one receiver's statistic (``quantile_interval``), or paired between receivers run on the same trials
+(``paired_interval``: differences, ratios and growths of quantiles, RMSE ratios), every one drawn from the same
+stream of trial indices (``bootstrap_draws``); a claim's verdict against an interval (``Interval.verdict``): it
+holds, fails, or is unresolved when the interval straddles its threshold.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import _checks
+
+
+def bootstrap_draws(n_trials: int, n_boot: int = 2000, seed: int = 0) -> np.ndarray:
+    """Trial indices drawn with replacement, one row per bootstrap draw; every bootstrap of this module draws them here.
+
+    Parameters
+    ----------
+    n_trials, n_boot : int
+        Trials (1 to 10⁸) and draws (10 to 10⁶).
+    seed : int
+        Seed of the generator (so every interval reproduces).
+
+    Returns
+    -------
+    int (n_boot, n_trials)
+        The indices.
+
+    Raises
+    ------
+    ValueError
+        When ``n_trials`` or ``n_boot`` is out of range.
+    """
+    _checks.integer("n_trials", n_trials, 1, 10**8)
+    _checks.integer("n_boot", n_boot, 10, 10**6)
+    rng = np.random.default_rng(seed)
+    return np.stack([rng.integers(0, n_trials, n_trials) for _ in range(n_boot)])
+
+
+def bootstrap_interval(err, stat=lambda e: np.quantile(e, 0.9), n_boot: int = 2000, seed: int = 0,
+                       level: float = 0.95) -> tuple[float, float]:
+    """The bootstrap interval (percentile method) of a statistic of one receiver's errors.
+
+    Two receivers on the same trials are compared with ``paired_interval`` and the functions built on it.
+
+    Parameters
+    ----------
+    err : float (T,)
+        Errors, metres.
+    stat : callable
+        The statistic of a (T,) array; default the 90 % point.
+    n_boot, seed : int
+        Bootstrap draws (the trials resampled ``n_boot`` times) and their seed (``bootstrap_draws``).
+    level : float
+        The interval's level.
+
+    Returns
+    -------
+    lo, hi : float
+        The interval, in the statistic's unit.
+    """
+    err = np.asarray(err, dtype=float)
+    draws = np.array([stat(err[idx]) for idx in bootstrap_draws(err.size, n_boot, seed)])
+    return float(np.quantile(draws, (1 - level) / 2)), float(np.quantile(draws, (1 + level) / 2))
+
+
+#: the verdicts of a claim against the range its statement allows (``Interval.verdict``)
+VERDICTS = ("reproduces", "unresolved", "fails")
+
+
+@dataclass(frozen=True)
+class Interval:
+    """A statistic of per-trial results and its bootstrap interval, in the statistic's unit (metres, a ratio, a share).
+
+    Attributes
+    ----------
+    value : float
+        The statistic on all trials.
+    lo, hi : float
+        The ``level`` percentile interval.
+    n_trials : int
+        The trials resampled.
+    level : float
+        The interval's level.
+    """
+
+    value: float
+    lo: float
+    hi: float
+    n_trials: int
+    level: float = 0.95
+
+    def verdict(self, low: float = -np.inf, high: float = np.inf) -> str:
+        """The verdict of a claim that the statistic lies in [low, high] (``VERDICTS``).
+
+        Parameters
+        ----------
+        low, high : float
+            The range the claim allows.
+
+        Returns
+        -------
+        str
+            "reproduces" when the whole interval lies in the range, "fails" when none of it does, "unresolved" when it
+            straddles a bound.
+
+        Raises
+        ------
+        ValueError
+            When ``low`` > ``high``.
+        """
+        if low > high:
+            raise ValueError(f"verdict needs low <= high, got low {low!r} and high {high!r}")
+        if low <= self.lo and self.hi <= high:
+            return "reproduces"
+        if self.hi < low or self.lo > high:
+            return "fails"
+        return "unresolved"
+
+    def below(self, x: float) -> bool:
+        """Whether the whole interval lies below x.
+
+        Parameters
+        ----------
+        x : float
+            The bound.
+
+        Returns
+        -------
+        bool
+        """
+        return self.hi < x
+
+    def above(self, x: float) -> bool:
+        """Whether the whole interval lies above x.
+
+        Parameters
+        ----------
+        x : float
+            The bound.
+
+        Returns
+        -------
+        bool
+        """
+        return self.lo > x
+
+    def holds(self, x: float) -> bool:
+        """Whether x lies inside the interval (the data cannot tell the statistic from x).
+
+        Parameters
+        ----------
+        x : float
+            The value.
+
+        Returns
+        -------
+        bool
+        """
+        return self.lo <= x <= self.hi
+
+    def text(self, fmt: str = ".2f") -> str:
+        """The interval as the book's tables print it.
+
+        Parameters
+        ----------
+        fmt : str
+            Format of each number.
+
+        Returns
+        -------
+        str
+            "value [lo, hi]".
+        """
+        return f"{self.value:{fmt}} [{self.lo:{fmt}}, {self.hi:{fmt}}]"
+
+
+def paired_interval(stat, *arrays, n_boot: int = 2000, seed: int = 0, level: float = 0.95) -> Interval:
+    """A statistic of per-trial arrays on the same trials and its bootstrap interval, the trials resampled together.
+
+    Parameters
+    ----------
+    stat : callable
+        ``stat(*resampled)`` → (B,): takes each array as (B, T, ...), B draws at once (e.g.
+        ``lambda a, b: np.quantile(a, 0.9, axis=1) - np.quantile(b, 0.9, axis=1)``).
+    *arrays : float (T, ...)
+        Trials on the first axis, each trial resampled with all its pairs (``bootstrap_draws``): errors (metres) of
+        receivers, or of one receiver with and without a change, run on the same trials.
+    n_boot, seed : int
+        Bootstrap draws and their seed (``bootstrap_draws``).
+    level : float
+        The interval's level, 0.01 to 0.999.
+
+    Returns
+    -------
+    Interval
+        In the statistic's unit.
+
+    Raises
+    ------
+    ValueError
+        When the arrays do not share their first axis, or ``level`` is out of range.
+    """
+    arrs = [np.asarray(a, dtype=float) for a in arrays]
+    if not arrs or arrs[0].ndim == 0 or any(a.ndim == 0 or a.shape[0] != arrs[0].shape[0] for a in arrs):
+        raise ValueError(f"paired_interval needs arrays of the same trials (the same first axis), got shapes "
+                         f"{[a.shape for a in arrs]}")
+    _checks.in_range("level", level, 0.01, 0.999)
+    value = float(np.asarray(stat(*(a[None] for a in arrs)))[0])
+    idx = bootstrap_draws(arrs[0].shape[0], n_boot, seed)
+    per_draw = max(1, int(np.prod(arrs[0].shape)) * len(arrs))
+    block = max(1, 4_000_000 // per_draw)  # draws per block: about 4 M resampled values in memory at once
+    draws = np.concatenate([np.asarray(stat(*(a[idx[i:i + block]] for a in arrs)), dtype=float)
+                            for i in range(0, n_boot, block)])
+    lo, hi = np.quantile(draws, [(1 - level) / 2, (1 + level) / 2])
+    return Interval(value, float(lo), float(hi), int(arrs[0].shape[0]), level)
+
+
+def _q(a, q):
+    return np.quantile(a, q, axis=1)
+
+
+def quantile_interval(err, q: float = 0.9, **boot) -> Interval:
+    """The q point of one receiver's errors and its bootstrap interval.
+
+    Parameters
+    ----------
+    err : float (T,)
+        Errors, metres.
+    q, **boot
+        The quantile (float, 0.9: the 90 % point) and ``paired_interval``'s options.
+
+    Returns
+    -------
+    Interval
+        Metres.
+    """
+    return paired_interval(lambda a: _q(a, q), err, **boot)
+
+
+def quantile_difference(err_a, err_b, q: float = 0.9, **boot) -> Interval:
+    """Q_q(err_a) − Q_q(err_b) of two receivers' errors on the same trials, with its paired interval.
+
+    Parameters
+    ----------
+    err_a, err_b : float (T,)
+        Errors, metres.
+    q, **boot
+        The quantile (float, 0.9: the 90 % point) and ``paired_interval``'s options.
+
+    Returns
+    -------
+    Interval
+        Metres; the growth a change causes when err_a and err_b are one receiver with and without it.
+    """
+    return paired_interval(lambda a, b: _q(a, q) - _q(b, q), err_a, err_b, **boot)
+
+
+def quantile_ratio(err_a, err_b, q: float = 0.9, **boot) -> Interval:
+    """Q_q(err_a) / Q_q(err_b) of two receivers' errors on the same trials, with its paired interval.
+
+    Parameters
+    ----------
+    err_a, err_b : float (T,)
+        Errors, metres.
+    q, **boot
+        The quantile (float, 0.9: the 90 % point) and ``paired_interval``'s options.
+
+    Returns
+    -------
+    Interval
+        The ratio.
+    """
+    return paired_interval(lambda a, b: _q(a, q) / _q(b, q), err_a, err_b, **boot)
+
+
+def growth_difference(a_with, a_without, b_with, b_without, q: float = 0.9, **boot) -> Interval:
+    """How much more a change grows receiver a's q point than receiver b's, with its paired interval.
+
+    Parameters
+    ----------
+    a_with, a_without, b_with, b_without : float (T,)
+        Errors of a and b with and without the change, metres, all on the same trials.
+    q, **boot
+        The quantile (float, 0.9: the 90 % point) and ``paired_interval``'s options.
+
+    Returns
+    -------
+    Interval
+        (Q_q(a_with) − Q_q(a_without)) − (Q_q(b_with) − Q_q(b_without)), metres.
+    """
+    return paired_interval(lambda a1, a0, b1, b0: (_q(a1, q) - _q(a0, q)) - (_q(b1, q) - _q(b0, q)),
+                           a_with, a_without, b_with, b_without, **boot)
+
+
+def rmse_ratio(err_a, err_b, **boot) -> Interval:
+    """RMSE(err_a) / RMSE(err_b) of two receivers' errors on the same trials, with its paired interval.
+
+    Parameters
+    ----------
+    err_a, err_b : float (T,)
+        Errors, metres.
+    **boot
+        ``paired_interval``'s options.
+
+    Returns
+    -------
+    Interval
+        The ratio.
+    """
+    return paired_interval(lambda a, b: np.sqrt(np.mean(a**2, axis=1) / np.mean(b**2, axis=1)), err_a, err_b, **boot)
