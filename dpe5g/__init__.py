@@ -34,7 +34,7 @@ import sys
 from pathlib import Path
 
 #: when this process imported dpe5g (ns since the epoch): a source file changed later is not the code it runs
-#: (``experiment.changed_since_import``)
+#: (``code_key.changed_since_import``)
 IMPORTED_AT_NS = _time.time_ns()
 
 #: the XLA backend optimisation level importing dpe5g asks for (see the module docstring); DPE5G_XLA_OPT_LEVEL overrides

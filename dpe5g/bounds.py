@@ -419,10 +419,10 @@ def link_information(e, n_trials: int) -> dict:
         subcarrier on the full band with its channel's tap delays known; link_snr_db (T, I), its SNR at the
         experiment's first SNR index, dB.
     """
-    from . import chunk_cache, experiment, trials  # the engine's draws; they do not import this module
+    from . import chunk_cache, code_key, trials  # the engine's draws; they do not import this module
 
     n_trials = _checks.integer("n_trials", n_trials, 1, e.run.n_trials)
-    path = chunk_cache.cache_dir(e) / f"link-information-{experiment.code_digest(Path(__file__)).hex()[:16]}.npz"
+    path = chunk_cache.cache_dir(e) / f"link-information-{code_key.code_digest(Path(__file__)).hex()[:16]}.npz"
     origin = {"link_information_of": e.config_key()}
     held = chunk_cache.read_cached(path, origin)  # (a damaged file is named, set aside and computed again)
     if held is not None and held["info_0db"].shape[0] >= n_trials:

@@ -21,7 +21,8 @@ import numpy as np
 
 from ._io import atomic_write, remove_stale_temporaries
 from .errors import Failure
-from .experiment import Experiment, code_version
+from .code_key import code_version
+from .experiment import Experiment
 
 #: default cache directory: ``.cache/montecarlo`` next to the package (the repository root for an editable install);
 #: the environment variable DPE5G_CACHE overrides it.

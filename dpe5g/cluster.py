@@ -9,7 +9,7 @@ do not pickle, an ``Experiment`` does.  The task returns the chunk's arrays; the
 its cache atomically, so workers need no shared filesystem.  Trial t depends only on the seed and t, so results are
 the same bits whatever the cluster (``tests/test_cluster.py``).
 
-A worker must run the client's code: each task first compares its process's ``experiment.code_version`` with the
+A worker must run the client's code: each task first compares its process's ``code_key.code_version`` with the
 client's and refuses before any work (``OtherCode``), and the client checks the version each chunk comes back with
 (``gather``): a worker started from another checkout, or with other library versions, ends the run in one line
 naming it, and none of its chunks is kept.  A worker killed too often or a lost scheduler ends it in one line too

@@ -3,13 +3,11 @@
 Both receivers start from the demodulated received symbol Y_m = F^H y_m (``signal.demodulate``) and the known
 pilots d_m.  The least-squares CIR estimate of BS m in the frequency domain (eq. (8) with D_m^H D_m = I,
 ``ls_spectrum``) is ``G_{m,k} = conj(d_{m,k}) Y_{m,k}``, and ``ĥ_m(τ) = (1/√N) Σ_k G_{m,k} e^{+j2πkΔfτ}`` the CIR
-estimate delayed by τ.  The BS-m term of eq. (10) at ToA τ is its energy in an L-tap window, ``c_m(τ) = N Σ_{l<L} |ĥ_m(τ + l T_s) / √N|²``
-(the DPE chapter derives it), and the correlograms below tabulate it:
+estimate delayed by τ.  The BS-m term of eq. (10) at ToA τ is its energy in an L-tap window,
+``c_m(τ) = N Σ_{l<L} |ĥ_m(τ + l T_s) / √N|²`` (the DPE chapter derives it), and the correlograms below tabulate it:
 
-* ``energy_grid`` — c_m on a grid of T_s/U, read by the grid search with cubic interpolation and, with L = 1, by
-  the OTDoA ToA detector;
-* ``spline_coefficients`` — cubic B-spline coefficients of c_m on knots T_s/U apart, exact at the knots, read by
-  the certified search.
+* ``energy_grid`` — c_m on a grid of T_s/U, read by the grid search (cubic interpolation) and the OTDoA ToA (L = 1);
+* ``spline_coefficients`` — cubic B-spline coefficients of c_m on knots T_s/U apart, read by the certified search.
 
 Precision: ``energy_grid`` follows its input's dtype.  ``benchmarks/bench_engine.py`` times it in complex64 and
 complex128 on the same signals and measures the ToA error complex64 adds to the detector's peak (the engine table of
@@ -124,7 +122,7 @@ def energy_grid(g, n_taps: int, upsample: int) -> jax.Array:
     """Per-BS correlograms from the LS spectrum: the BS-m terms of eq. (10), L-tap window, on a T_s/U grid, exactly.
 
     The CIR estimate on T_s/U by one zero-padded inverse FFT of length U·N (``cir_grid``), the energy, then the L-tap
-    window sum by ``window_sum`` (no FFT; ``energy_from_cir``).  The cost is periodic in τ with period N T_s = 1/Δf.  Traceable.
+    window sum by ``window_sum`` (no FFT; ``energy_from_cir``).  Periodic in τ with period N T_s = 1/Δf; traceable.
 
     Parameters
     ----------
@@ -145,9 +143,9 @@ def cir_grid(g, upsample: int) -> jax.Array:
     """The CIR estimate on a grid of T_s/U from the LS spectrum, by one zero-padded inverse FFT of length U·N.
 
     The bins k < N carry the spectrum, the rest are empty, so the transform interpolates ĥ exactly between samples.
-    Traceable and linear in g: the engine forms the CIR of every SNR of a trial from those of its noise-free spectrum and
-    its unit noise (``receiver.noise_scales``).  (U phase-ramped transforms of length N give the same numbers, but XLA
-    fuses g's producers, such as the noise draw, into each of the U products and repeats them U times.)
+    Traceable and linear in g: the engine forms the CIR of every SNR of a trial from those of its noise-free spectrum
+    and its unit noise (``receiver.noise_scales``).  (U phase-ramped transforms of length N give the same numbers, but
+    XLA fuses g's producers, such as the noise draw, into each of the U products and repeats them U times.)
 
     Parameters
     ----------
@@ -195,9 +193,9 @@ MAX_WINDOW_DECAY_S = 1e-6
 def tap_weights(n_taps: int, decay_s: float = 0.0, sample_period_s: float = PAPER.sample_period_s) -> np.ndarray:
     """Weights w_l of the receiver window's L taps.
 
-    decay_s = 0: all 1, eq. (8)'s window (the ML cost of eq. (10), L free taps).  decay_s > 0: the first-path-aware window
-    (ours, not the paper's; the bounds chapter), w_l = exp(−l T_s / decay_s), the low-SNR limit of the MAP cost when the
-    taps are independent CN(0, p_l) with an exponential power-delay profile p_l ∝ exp(−l T_s / decay_s).
+    decay_s = 0: all 1, eq. (8)'s window (the ML cost of eq. (10), L free taps).  decay_s > 0: the first-path-aware
+    window (ours, not the paper's; the bounds chapter), w_l = exp(−l T_s / decay_s), the low-SNR limit of the MAP cost
+    when the taps are independent CN(0, p_l) with an exponential power-delay profile p_l ∝ exp(−l T_s / decay_s).
 
     Parameters
     ----------
@@ -477,10 +475,8 @@ def spline_correlogram(y, prs, n_taps: int, upsample: int = 8, weights=None) -> 
     ----------
     y, prs : complex (M, N)
         Received samples (eq. (5)) and pilots.
-    n_taps : int
-        L, the window's taps, 1 to N.
-    upsample : int
-        U, knots per sample T_s, even, 2 to 64.
+    n_taps, upsample : int
+        L, the window's taps (1 to N), and U, knots per sample T_s (even, 2 to 64).
     weights : float (L,) or None
         The L taps' weights (``tap_weights``); None for eq. (10)'s equal weights.
 

@@ -62,7 +62,7 @@ def honest_search() -> SearchConfig:
 
     The certified branch and bound over ±30 m in x and y around the window's centre (``paper.honest_search``) and,
     in c δt, over the paper's clock prior (± 3 σ, σ = 5 ns: ± 4.5 m), as ``experiment.Experiment.receiver_search``
-    sets it for a receiver centred on a prior.  The paper's own search, the grid of ``SearchConfig()`` (±10 m,
+    sets it for a receiver centred on a prior.  The paper's own search, ``search_config.PAPER_GRID`` (±10 m,
     nothing certified), is a labelled comparison only.
 
     Returns

@@ -25,7 +25,8 @@ from . import _checks, otdoa, receiver, trials
 from .draw import trial_keys
 from .cluster import OtherCode, gather, worker_address
 from .errors import Failure
-from .experiment import Experiment, changed_since_import, code_version, deployment_digest
+from .code_key import changed_since_import, code_version
+from .experiment import Experiment, deployment_digest
 from .results import Results
 from .chunk_cache import ChunkCache, sliced_chunk, snr_superset_runs
 from .store import stored, stored_fields
@@ -266,7 +267,7 @@ def chunk_task(experiment: bytes, start: int, stop: int, batch_size: int, versio
 
     ``run`` submits one for each missing chunk (``cluster``).  It first checks that this process runs the client's code
     (``code_version`` equal to ``version``, and no source changed since this process imported it:
-    ``experiment.changed_since_import``), then unpickles the experiment and computes; a worker builds (compiles) the
+    ``code_key.changed_since_import``), then unpickles the experiment and computes; a worker builds (compiles) the
     ``ChunkRunner`` of an experiment once and keeps it for the experiment's other chunks.
 
     Parameters
@@ -279,7 +280,7 @@ def chunk_task(experiment: bytes, start: int, stop: int, batch_size: int, versio
     batch_size : int
         Trials vmapped together.
     version : str
-        The client's ``experiment.code_version``.
+        The client's ``code_key.code_version``.
 
     Returns
     -------

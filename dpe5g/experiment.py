@@ -9,23 +9,18 @@ Pipeline: ``experiment`` (what to run) → ``draw`` (one trial's draws) → ``re
 
 from __future__ import annotations
 
-import ast
 import dataclasses
 import hashlib
 import json
 import math
 from dataclasses import dataclass, field
-from functools import lru_cache
 from pathlib import Path
 
-import jax
 import numpy as np
 
 from . import _checks, channel, deployment, nr, otdoa, scenario, search_config, signal
+from .code_key import code_version
 from .nr import C
-
-#: the module whose imports reach every module the Monte Carlo results depend on: ``source_modules`` follows them
-ENGINE_MODULE = "engine.py"
 
 #: settings added after the results store was first filled, with their defaults: at its default such a setting is
 #: left out of ``Experiment.config_key``, so the stored results of every experiment that does not use it keep their key
@@ -52,34 +47,43 @@ OTDOA_DETECTORS = ("first_path", "peak")
 class Scenario:
     """Where the UE is and how its links propagate (Section III).
 
-    deployment : a packaged deployment by name (``deployment.BUILTIN``: "tst", "ring", "ring-wide") or a path to a
-        JSON/CSV deployment.
-    los_mode : "pr_los" — each link LoS with the probability of eq. (11); "two_of_four" — the paper's stated case for
-        Fig. 10: of the four nearest links, two (chosen at random) LoS and two NLoS (needs max(m_values) = 4);
-        "all_los" — every link LoS (TDL-D; not the paper's: The bounds chapter compares it with the Cramér–Rao bound);
-        "all_nlos" — every link NLoS (TDL-C; the DPE chapter's ring studies); "free_space" — every link LoS with one
-        path of unit power and uniform phase at the geometric delay, no multipath (the bounds chapter's check of the ML
-        ToA against its bound); "nearest_two_los" — of the four nearest links, the two nearest LoS and the two
-        farther NLoS (a deterministic reading of the paper's Fig. 10 case; needs max(m_values) = 4).
-    delay_spread_s, k_factor_db : TDL-C (NLoS) / TDL-D (LoS) at this delay spread (s); TDL-D's K (dB).
-    delay_spread_def : what delay_spread_s means for both profiles (``channel.DELAY_SPREAD_DEFS``): "rms", TR
-        38.901's RMS spread (default), or "span", first to last tap (the paper's text; the reproduction chapter's
-        readings).
-    clock_sigma_s, clock_bound_sigmas : UE clock bias, Gaussian σ (s) truncated at ± bound · σ.
-    prs_reuse : ``PRS_REUSES``.  0 (default) — the paper's model: every link's PRS on all N bins in one symbol,
-        received alone (its own noise, no other BS).  R > 0 — Table I's PRS frequency reuse: the PRS of TS 38.211
-        with comb R over R symbols on the 3276 active subcarriers (``nr.PrsPattern(R)``, the pilot energy of the
-        paper's symbol), each BS on the comb offset and with the PRS ID of ``scenario.prs_plan`` (R resources).
-        Every BS of the deployment transmits; the UE receives on each resource the sum of its BSs' signals through
-        their own channels, path loss and ToA, plus one noise (co-channel links share their REs and so their noise).
-        Needs per-BS power (``Links.snr_mode`` "link_budget" or "nearest") and the certified search, whose window
-        taps are then spaced for the pilots' band (``receiver.receiver_window``).
-    co_channel : with prs_reuse > 0, whether the co-channel BSs' signals are received (True, default) or left out
-        (the pattern and the shared noise alone, for comparison).
-    nlos_excess_median_s, nlos_excess_sigma_lg : NLoS excess delay (``scenario.nlos_excess_delay``; ours, not the
-        paper's): every path of an NLoS link arrives Δτ after the geometric delay, lg Δτ normal with median
-        nlos_excess_median_s (s, in [0, 1e-6]) and standard deviation nlos_excess_sigma_lg (decades, in [0, 1]).  Off
-        by default (median 0), when the first tap sits at the geometric delay as in TR 38.901's TDL models.
+    Attributes
+    ----------
+    deployment : str
+        A packaged deployment by name (``deployment.BUILTIN``: "tst", "ring", "ring-wide") or a path to a JSON/CSV
+        deployment.
+    los_mode : str
+        "pr_los" — each link LoS with the probability of eq. (11); "two_of_four" — the paper's stated case for Fig. 10:
+        of the four nearest links, two (chosen at random) LoS and two NLoS (needs max(m_values) = 4); "all_los" — every
+        link LoS (TDL-D; not the paper's: the bounds chapter compares it with the Cramér–Rao bound); "all_nlos" — every
+        link NLoS (TDL-C; the DPE chapter's ring studies); "free_space" — every link LoS with one path of unit power and
+        uniform phase at the geometric delay, no multipath (the bounds chapter's check of the ML ToA against its bound);
+        "nearest_two_los" — of the four nearest links, the two nearest LoS and the two farther NLoS (a deterministic
+        reading of the paper's Fig. 10 case; needs max(m_values) = 4).
+    delay_spread_s, k_factor_db : float
+        TDL-C (NLoS) / TDL-D (LoS) at this delay spread (s); TDL-D's K (dB).
+    delay_spread_def : str
+        What delay_spread_s means for both profiles (``channel.DELAY_SPREAD_DEFS``): "rms", TR 38.901's RMS spread
+        (default), or "span", first to last tap (the paper's text; the reproduction chapter's readings).
+    clock_sigma_s, clock_bound_sigmas : float
+        UE clock bias, Gaussian σ (s) truncated at ± bound · σ.
+    prs_reuse : int
+        ``PRS_REUSES``.  0 (default) — the paper's model: every link's PRS on all N bins in one symbol, received alone
+        (its own noise, no other BS).  R > 0 — Table I's PRS frequency reuse: the PRS of TS 38.211 with comb R over R
+        symbols on the 3276 active subcarriers (``nr.PrsPattern(R)``, the pilot energy of the paper's symbol), each BS
+        on the comb offset and with the PRS ID of ``deployment.prs_plan`` (R resources).  Every BS of the deployment
+        transmits; the UE receives on each resource the sum of its BSs' signals through their own channels, path loss
+        and ToA, plus one noise (co-channel links share their REs and so their noise).  Needs per-BS power
+        (``Links.snr_mode`` "link_budget" or "nearest") and the certified search, whose window taps are then spaced for
+        the pilots' band (``receiver.receiver_window``).
+    co_channel : bool
+        With prs_reuse > 0, whether the co-channel BSs' signals are received (True, default) or left out (the pattern
+        and the shared noise alone, for comparison).
+    nlos_excess_median_s, nlos_excess_sigma_lg : float
+        NLoS excess delay (``scenario.nlos_excess_delay``; ours, not the paper's): every path of an NLoS link arrives Δτ
+        after the geometric delay, lg Δτ normal with median nlos_excess_median_s (s, in [0, 1e-6]) and standard
+        deviation nlos_excess_sigma_lg (decades, in [0, 1]).  Off by default (median 0), when the first tap sits at the
+        geometric delay as in TR 38.901's TDL models.
     """
 
     deployment: str = "tst"
@@ -112,7 +116,12 @@ class Scenario:
                              "channels have no excess delay): use one or the other")
 
     def load_deployment(self) -> deployment.Deployment:
-        """The deployment this scenario names."""
+        """The deployment this scenario names.
+
+        Returns
+        -------
+        deployment.Deployment
+        """
         return deployment.named(self.deployment)
 
 
@@ -120,17 +129,24 @@ class Scenario:
 class Links:
     """The links' SNR.
 
-    snr_mode : "fixed" — every link at each SNR of ``snrs_db`` (per-sample SNR of ``dpe5g.signal``, dB), as Fig. 9;
-        "link_budget" — each link's SNR from the UMi path loss and shadow fading (``budget``), ``snrs_db`` must be ();
-        "nearest" — the nearest BS's link at each SNR of ``snrs_db``, every other BS (interferers included) at its
-        received-power difference from it (transmit power, path loss and shadow fading of ``budget``'s model): Fig.
-        9's SNR axis with per-link power from the path loss.
-    snr_convention : what the SNRs mean (``signal.SNR_CONVENTIONS``), in both SNR modes: "per_sample" (default) or
-        "total", after correlation over the N samples (the per-sample SNR is then 10 log10 N dB lower).  The results'
-        link_snr_db is always the per-sample SNR the links were simulated at.
-    budget : the link budget (``scenario.LinkBudget``).
-    snr_offset_db : with snr_mode "link_budget", dB added to every link's SNR (our sweep of Fig. 10's unstated SNR,
-        in [-60, 20]); 0 otherwise.
+    Attributes
+    ----------
+    snr_mode : str
+        "fixed" — every link at each SNR of ``snrs_db``, as Fig. 9; "link_budget" — each link's SNR from the UMi path
+        loss and shadow fading (``budget``), ``snrs_db`` must be (); "nearest" — the nearest BS's link at each SNR of
+        ``snrs_db``, every other BS (interferers included) at its received-power difference from it (transmit power,
+        path loss and shadow fading of ``budget``'s model): Fig. 9's SNR axis with per-link power from the path loss.
+    snrs_db : tuple of float
+        The SNRs, dB (per-sample SNR of ``dpe5g.signal`` unless snr_convention says otherwise).
+    snr_convention : str
+        What the SNRs mean (``signal.SNR_CONVENTIONS``), in both SNR modes: "per_sample" (default) or "total", after
+        correlation over the N samples (the per-sample SNR is then 10 log10 N dB lower).  The results' link_snr_db is
+        always the per-sample SNR the links were simulated at.
+    budget : scenario.LinkBudget
+        The link budget.
+    snr_offset_db : float
+        With snr_mode "link_budget", dB added to every link's SNR (our sweep of Fig. 10's unstated SNR, in [-60, 20]); 0
+        otherwise.
     """
 
     snr_mode: str = "fixed"
@@ -160,7 +176,7 @@ class Links:
 
     @property
     def n_snr(self) -> int:
-        """SNR indices per trial: one per SNR of ``snrs_db``, one for the link budget."""
+        """SNR indices per trial, one per SNR of ``snrs_db`` (one for the link budget)."""
         return max(len(self.snrs_db), 1)
 
 
@@ -168,22 +184,31 @@ class Links:
 class Receiver:
     """What the receiver uses and where it looks.
 
-    m_values : numbers of nearest BSs used by the DPE (each ≤ the deployment's BS count).
-    centring : where the receiver centres its search window.  "truth" — on the true position and clock bias (the
-        paper's set-up, a labelled comparison only: the window's position and grid phase then carry the truth);
-        "prior" — on truth + an error drawn from the stated prior (``prior_kind``, ``prior_scale_m``), keyed per trial;
-        "otdoa" — on that trial's OTDoA fix (detector ``toa_method``; needs ``otdoa``).  In "prior" and "otdoa" the
-        clock-bias window is centred on 0 and spans the clock model's support, ± clock_bound_sigmas · clock_sigma_s
-        · c (``Experiment.receiver_search``), so nothing about the truth reaches the search.
-    prior_kind, prior_scale_m : "gaussian" — an isotropic horizontal error with σ = prior_scale_m (m) per axis;
-        "disc" — uniform over a disc of radius prior_scale_m.
-    search : the DPE search (``search_config.SearchConfig``).
-    otdoa : also run the OTDoA baseline (``dpe5g.otdoa``) on the same received signals, for every SNR and M, with
-        both ToA detectors of ``OTDOA_DETECTORS``;
-    toa_method : the detector whose OTDoA fix centres the search in centring "otdoa".
-    clock_window : ``CLOCK_WINDOWS``, the clock-bias window in centrings "prior" and "otdoa": "clock" (default) the
-        clock model's support; "clock_nlos" that support widened on both sides by the ``CLOCK_NLOS_QUANTILE`` point
-        of c·Δτ of the scenario's NLoS excess-delay model (its law, not the drawn delays).
+    Attributes
+    ----------
+    m_values : tuple of int
+        Numbers of nearest BSs used by the DPE (each ≤ the deployment's BS count).
+    centring : str
+        Where the receiver centres its search window.  "truth" — on the true position and clock bias (the paper's
+        set-up, a labelled comparison only: the window's position and grid phase then carry the truth); "prior" — on
+        truth + an error drawn from the stated prior (``prior_kind``, ``prior_scale_m``), keyed per trial; "otdoa" — on
+        that trial's OTDoA fix (detector ``toa_method``; needs ``otdoa``).  In "prior" and "otdoa" the clock-bias window
+        is centred on 0 and spans the clock model's support, ± clock_bound_sigmas · clock_sigma_s · c
+        (``Experiment.receiver_search``), so nothing about the truth reaches the search.
+    prior_kind, prior_scale_m : str, float
+        "gaussian" — an isotropic horizontal error with σ = prior_scale_m (m) per axis; "disc" — uniform over a disc of
+        radius prior_scale_m.
+    search : search_config.SearchConfig
+        The DPE search.
+    otdoa : bool
+        Also run the OTDoA baseline (``dpe5g.otdoa``) on the same received signals, for every SNR and M, with both ToA
+        detectors of ``OTDOA_DETECTORS``.
+    toa_method : str
+        The detector whose OTDoA fix centres the search in centring "otdoa".
+    clock_window : str
+        ``CLOCK_WINDOWS``, the clock-bias window in centrings "prior" and "otdoa": "clock" (default) the clock model's
+        support; "clock_nlos" that support widened on both sides by the ``CLOCK_NLOS_QUANTILE`` point of c·Δτ of the
+        scenario's NLoS excess-delay model (its law, not the drawn delays).
     """
 
     m_values: tuple[int, ...] = (6, 12, 18, 24)
@@ -217,8 +242,14 @@ class Receiver:
 class Run:
     """How many trials, from which seed.
 
-    name : label (cache directory prefix).  n_trials, seed : trials t = 0 … n_trials-1 draw from fold_in(seed, t).
-    chunk_trials : trials per cache file (results do not depend on it; resuming needs the same value).
+    Attributes
+    ----------
+    name : str
+        Label (cache directory prefix).
+    n_trials, seed : int
+        Trials t = 0 … n_trials-1 draw from fold_in(seed, t).
+    chunk_trials : int
+        Trials per cache file (results do not depend on it; resuming needs the same value).
     """
 
     name: str = "urban"
@@ -243,7 +274,13 @@ class Experiment:
     """One urban Monte Carlo experiment: its scenario, links, receiver and run, and the checks that tie them.
 
     Built from settings by ``Experiment.build(centring="prior", n_trials=400, ...)`` (each setting goes to its part,
-    ``SETTINGS``), or from the parts themselves; ``replace`` changes settings the same way."""
+    ``SETTINGS``), or from the parts themselves; ``replace`` changes settings the same way.
+
+    Attributes
+    ----------
+    scenario, links, receiver, run : Scenario, Links, Receiver, Run
+        The four parts.
+    """
 
     scenario: Scenario = field(default_factory=Scenario)
     links: Links = field(default_factory=Links)
@@ -269,11 +306,31 @@ class Experiment:
 
     @classmethod
     def build(cls, **settings) -> "Experiment":
-        """An experiment from settings, each the field of one part (``SETTINGS``); the others at their defaults."""
+        """An experiment from settings, each the field of one part (``SETTINGS``); the others at their defaults.
+
+        Parameters
+        ----------
+        **settings
+            Setting name to value.
+
+        Returns
+        -------
+        Experiment
+        """
         return cls()._with(settings)
 
     def replace(self, **settings) -> "Experiment":
-        """A copy with ``settings`` changed, each in its part (``SETTINGS``)."""
+        """A copy with ``settings`` changed, each in its part (``SETTINGS``).
+
+        Parameters
+        ----------
+        **settings
+            Setting name to value.
+
+        Returns
+        -------
+        Experiment
+        """
         return self._with(settings)
 
     def _with(self, settings: dict) -> "Experiment":
@@ -288,11 +345,17 @@ class Experiment:
         return Experiment(**parts)
 
     def receiver_search(self) -> search_config.SearchConfig:
-        """The search the receiver runs: ``search`` as given for centring "truth"; otherwise with the clock-bias
-        window set from the clock model, ± clock_bound_sigmas · clock_sigma_s · c centred on 0, and with
+        """The search the receiver runs: ``search`` as given for centring "truth"; otherwise its clock-bias window set.
+
+        That window is ± clock_bound_sigmas · clock_sigma_s · c from the clock model, centred on 0, and with
         clock_window "clock_nlos" ± that plus the ``CLOCK_NLOS_QUANTILE`` point of c·Δτ
-        (``scenario.excess_quantile_s``), split into boxes of about ``box_m`` in c δt (at least ``bias_boxes``,
-        at most 64)."""
+        (``scenario.excess_quantile_s``), split into boxes of about ``box_m`` in c δt (at least ``bias_boxes``, at most
+        64).
+
+        Returns
+        -------
+        search_config.SearchConfig
+        """
         search = self.receiver.search
         if self.receiver.centring == "truth":
             return search
@@ -306,10 +369,21 @@ class Experiment:
 
     @property
     def n_snr(self) -> int:
+        """SNR indices per trial (``Links.n_snr``)."""
         return self.links.n_snr
 
     def load_deployment(self) -> deployment.Deployment:
-        """The scenario's deployment, checked against the receiver's M values."""
+        """The scenario's deployment, checked against the receiver's M values.
+
+        Returns
+        -------
+        deployment.Deployment
+
+        Raises
+        ------
+        ValueError
+            When an M of m_values exceeds the deployment's BS count.
+        """
         dep = self.scenario.load_deployment()
         if max(self.receiver.m_values) > dep.n_bs:
             raise ValueError(f"m_values must not exceed the deployment's {dep.n_bs} base stations, "
@@ -317,21 +391,43 @@ class Experiment:
         return dep
 
     def to_dict(self) -> dict:
-        """The settings, flat ({setting: value}, ``SETTINGS``)."""
+        """The settings, flat: {setting: value} (``SETTINGS``).
+
+        Returns
+        -------
+        dict
+        """
         return {k: v for part in PARTS for k, v in dataclasses.asdict(getattr(self, part)).items()}
 
     def key(self, version: str | None = None) -> str:
-        """Hash of the name, the config and the deployment file (``config_key``), and of the code and numerical
-        libraries the results depend on (``code_version``, or ``version`` where the caller took it already).  Leaves
-        out ``n_trials`` and ``chunk_trials``: trial t's result depends on neither, so a longer run reuses a shorter
-        one's chunks."""
+        """Hash of the name, the config and the deployment file (``config_key``), and of the code and libraries.
+
+        Leaves out ``n_trials`` and ``chunk_trials``: trial t's result depends on neither, so a longer run reuses a
+        shorter one's chunks.
+
+        Parameters
+        ----------
+        version : str or None
+            ``code_version()`` where the caller took it already; None: computed here.
+
+        Returns
+        -------
+        str
+        """
         version = code_version() if version is None else version
         return hashlib.sha256(json.dumps([self.run.name, self.config_key(), version]).encode()).hexdigest()[:16]
 
     def config_key(self) -> str:
-        """Hash of what trial t's result depends on besides the code: the settings without the name and the trial
-        counts, and the deployment file's content.  The results store's key (``store.stored``): its entries
-        record the code that computed them (``code_version``) and ``verify`` checks them against today's code."""
+        """Hash of what trial t's result depends on besides the code.
+
+        The settings without the name and the trial counts, and the deployment file's content.  The results store's key
+        (``store.stored``): its entries record the code that computed them (``code_version``) and ``verify`` checks them
+        against today's code.
+
+        Returns
+        -------
+        str
+        """
         d = self.to_dict()
         for k in ("name", "n_trials", "chunk_trials"):
             d.pop(k)
@@ -343,94 +439,19 @@ class Experiment:
         return h.hexdigest()[:16]
 
 
-def code_version(package: Path | None = None) -> str:
-    """Hash of the code the Monte Carlo results depend on (``source_modules``, each by ``code_digest``) and of the
-    numerical libraries' versions (``numerics``): what ``Experiment.key`` adds to the config.  package : the
-    package's folder (default: this one's)."""
-    here = Path(__file__).resolve().parent if package is None else Path(package)
-    h = hashlib.sha256(json.dumps(numerics()).encode())
-    for name in source_modules(here):
-        h.update(name.encode() + b"\0" + code_digest(here / name))
-    return h.hexdigest()[:16]
-
-
-def changed_since_import() -> tuple[str, ...]:
-    """The ``source_modules`` whose files changed after this process imported ``dpe5g`` (``dpe5g.IMPORTED_AT_NS``):
-    the code it runs is then older than ``code_version`` says (a Dask worker left running across a ``git pull``)."""
-    from . import IMPORTED_AT_NS
-
-    here = Path(__file__).resolve().parent
-    return tuple(n for n in source_modules() if (here / n).stat().st_mtime_ns > IMPORTED_AT_NS)
-
-
-def source_modules(package: Path | None = None) -> tuple[str, ...]:
-    """The package's modules a Monte Carlo result depends on, found from the code instead of a list kept by hand:
-    ``__init__.py`` (it sets JAX's precision) and every module ``ENGINE_MODULE`` imports, directly or through
-    others, at the top or inside a function (``package_imports``).  Sorted file names."""
-    here = Path(__file__).resolve().parent if package is None else Path(package)
-    seen, todo = {"__init__.py"}, [ENGINE_MODULE]
-    while todo:
-        name = todo.pop()
-        if name not in seen:
-            seen.add(name)
-            todo += package_imports(here / name)
-    return tuple(sorted(seen))
-
-
-def package_imports(path: Path) -> list[str]:
-    """The file names of the package's modules that the module at ``path`` imports (``from . import a``,
-    ``from .a import f``, ``from dpe5g.a import f``, ``import dpe5g.a``), anywhere in it."""
-    st = Path(path).stat()
-    return list(_package_imports(str(Path(path).resolve()), st.st_mtime_ns, st.st_size))
-
-
-@lru_cache(maxsize=128)
-def _package_imports(path: str, mtime_ns: int, size: int) -> tuple[str, ...]:
-    here = Path(path).parent
-    found = []
-    for node in ast.walk(ast.parse(Path(path).read_text(encoding="utf-8"))):
-        if isinstance(node, ast.ImportFrom) and node.level == 1:  # from . import a / from .a import f
-            found += [node.module.split(".")[0]] if node.module else [a.name for a in node.names]
-        elif isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] == "dpe5g":
-            parts = node.module.split(".")
-            found += parts[1:2] if len(parts) > 1 else [a.name for a in node.names]
-        elif isinstance(node, ast.Import):
-            found += [a.name.split(".")[1] for a in node.names if a.name.startswith("dpe5g.")]
-    return tuple(sorted({f"{n}.py" for n in found if (here / f"{n}.py").is_file()}))
-
-
-def code_digest(path: Path) -> bytes:
-    """A module's code for the cache key: its syntax tree without docstrings, comments or line numbers, so that
-    editing the prose of a module does not invalidate cached results, while any change of code does.  Remembered per
-    file version (path, modification time and size: an edited file is parsed again), as parsing costs about 40 ms
-    and every key reads every module."""
-    st = Path(path).stat()
-    return _code_digest(str(Path(path).resolve()), st.st_mtime_ns, st.st_size)
-
-
-@lru_cache(maxsize=64)
-def _code_digest(path: str, mtime_ns: int, size: int) -> bytes:
-    tree = ast.parse(Path(path).read_text(encoding="utf-8"))
-    for node in ast.walk(tree):
-        body = getattr(node, "body", None)
-        if (isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and body
-                and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant)
-                and isinstance(body[0].value.value, str)):
-            node.body = body[1:] or [ast.Pass()]
-    return ast.dump(tree).encode()
-
-
-def numerics() -> dict:
-    """What else the numbers depend on: the versions of the numerical libraries (the OTDoA baseline's convex solver
-    included) and JAX's float precision."""
-    from importlib.metadata import version
-
-    return {**{lib: version(lib) for lib in ("jax", "jaxlib", "numpy", "cvxpy", "clarabel")},
-            "x64": bool(jax.config.jax_enable_x64)}
-
 
 def deployment_digest(e: Experiment) -> str:
-    """SHA-256 of the experiment's deployment file (the packaged file for a name of ``deployment.BUILTIN``)."""
+    """SHA-256 of the experiment's deployment file (the packaged file for a name of ``deployment.BUILTIN``).
+
+    Parameters
+    ----------
+    e : Experiment
+        The experiment.
+
+    Returns
+    -------
+    str
+    """
     name = e.scenario.deployment
     dep = deployment.builtin(name) or Path(name)
     return hashlib.sha256(dep.read_bytes()).hexdigest()

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-from . import chunk_cache, experiment, figure_data, paper, plots, result_plots, store
+from . import chunk_cache, code_key, figure_data, paper, plots, result_plots, store
 from ._io import atomic_target, atomic_write, jsonable
 
 
@@ -226,7 +226,7 @@ def write(fig_id: str, out_dir, progress: bool = False, trials: int | None = Non
 def payload_path(fig_id: str, trials: int | None = None, cache=None) -> Path:
     """Where ``figures.compute`` keeps a figure's payload: ``<cache root>/payloads/<id>-<key>.json``.
 
-    The key hashes the figure id, the trial count, the code of every module of the package (``experiment.code_digest``:
+    The key hashes the figure id, the trial count, the code of every module of the package (``code_key.code_digest``:
     docstrings and comments left out), its data files, the numerical libraries' versions and the results store's content
     (``store.store_digest``): everything a payload is computed from, so a stored payload is exactly what computing it again
     would give, and any change of code or of the store computes it anew.
@@ -246,9 +246,9 @@ def payload_path(fig_id: str, trials: int | None = None, cache=None) -> Path:
         The payload's file.
     """
     here = Path(__file__).resolve().parent
-    h = hashlib.sha256(json.dumps([fig_id, trials, experiment.numerics()], sort_keys=True).encode())
+    h = hashlib.sha256(json.dumps([fig_id, trials, code_key.numerics()], sort_keys=True).encode())
     for path in sorted(here.glob("*.py")):
-        h.update(path.name.encode() + experiment.code_digest(path))
+        h.update(path.name.encode() + code_key.code_digest(path))
     for path in sorted(p for p in (here / "data").rglob("*") if p.is_file()):
         h.update(path.name.encode() + path.read_bytes())
     h.update(store.store_digest().encode())

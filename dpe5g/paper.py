@@ -97,34 +97,85 @@ RING_CENTRING_SEED = 4
 
 
 def honest_search() -> search_config.SearchConfig:
-    """The honest receiver's search: certified branch and bound over ±30 m (the bias window comes from the clock
-    model, ``Experiment.receiver_search``)."""
+    """The honest receiver's search: certified branch and bound over ±30 m.
+
+    The clock-bias window comes from the clock model (``Experiment.receiver_search``).
+
+    Returns
+    -------
+    SearchConfig
+        ``HONEST_SEARCH_HALF_WIDTH_M`` in x and y, method "bnb".
+    """
     return search_config.SearchConfig(method="bnb", half_width_m=HONEST_SEARCH_HALF_WIDTH_M)
 
 
 def fig9_truth(n_trials: int = FIG9_TRUTH_TRIALS) -> Experiment:
-    """Fig. 9 in the paper's set-up (labelled comparison): fixed per-link SNR 10…40 dB, M = 6, 12, 18, 24 nearest
-    BSs, LoS from eq. (11), grid search centred on the true position and clock bias."""
+    """Fig. 9 in the paper's set-up (labelled comparison), centred on the true position and clock bias.
+
+    Fixed per-link SNR 10…40 dB, M = 6, 12, 18, 24 nearest BSs, LoS from eq. (11), grid search.
+
+    Parameters
+    ----------
+    n_trials : int
+        Monte Carlo trials.
+
+    Returns
+    -------
+    Experiment
+    """
     return Experiment.build(name="fig09", n_trials=n_trials, seed=URBAN_SEED)
 
 
 def fig9_honest(n_trials: int = FIG9_HONEST_TRIALS) -> Experiment:
-    """Fig. 9 with the honest receiver (the main curves): as ``fig9_truth`` but the window centred on a prior
-    (truth + N(0, 5² m²) per axis) and the certified search."""
+    """Fig. 9 with the honest receiver (the main curves).
+
+    As ``fig9_truth`` but the window centred on a prior (truth + N(0, 5² m²) per axis) and the certified search.
+
+    Parameters
+    ----------
+    n_trials : int
+        Monte Carlo trials.
+
+    Returns
+    -------
+    Experiment
+    """
     return Experiment.build(name="fig09-honest", n_trials=n_trials, seed=URBAN_SEED, centring="prior",
                       prior_kind="gaussian", prior_scale_m=PRIOR_SIGMA_M, search=honest_search())
 
 
 def fig9(honest_trials: int = FIG9_HONEST_TRIALS, truth_trials: int = FIG9_TRUTH_TRIALS) -> dict:
-    """The receivers of Fig. 9: {"honest": main curves, "truth": the paper's set-up}."""
+    """The receivers of Fig. 9.
+
+    Parameters
+    ----------
+    honest_trials, truth_trials : int
+        Monte Carlo trials of the honest receiver and of the truth-centred one.
+
+    Returns
+    -------
+    dict
+        {"honest": ``fig9_honest``, the main curves, "truth": ``fig9_truth``, the paper's set-up}.
+    """
     return {"honest": fig9_honest(honest_trials), "truth": fig9_truth(truth_trials)}
 
 
 def fig10(n_trials: int = FIG10_TRIALS) -> dict:
-    """The Fig. 10 experiments, keyed (case, centring): the paper's stated case (two of the four nearest links LoS)
-    and LoS drawn from eq. (11); SNR of each link from the UMi path loss; DPE and OTDoA on the same received signals
-    (the same seed, so every centring sees the same trials).  The "otdoa" experiments also hold the OTDoA fixes of
-    both detectors."""
+    """The Fig. 10 experiments: the paper's stated case (two of the four nearest links LoS) and LoS from eq. (11).
+
+    SNR of each link from the UMi path loss; DPE and OTDoA on the same received signals (the same seed, so every
+    centring sees the same trials).  The "otdoa" experiments also hold the OTDoA fixes of both detectors.
+
+    Parameters
+    ----------
+    n_trials : int
+        Monte Carlo trials.
+
+    Returns
+    -------
+    dict
+        {(case, centring): Experiment}, case in ``FIG10_CASES``, centring in ``FIG10_CENTRINGS``.
+    """
     base = dict(n_trials=n_trials, seed=FIG10_SEED, snr_mode="link_budget", snrs_db=(), m_values=(4,))
     out = {}
     for case in FIG10_CASES:
@@ -138,8 +189,23 @@ def fig10(n_trials: int = FIG10_TRIALS) -> dict:
 
 def fig9_all_los(n_taps: int, k_factor_db: float = 13.3, box_final_m: float = 0.05,
                  n_trials: int = ALL_LOS_TRIALS) -> Experiment:
-    """The bounds chapter: ``fig9_honest`` with every link LoS (los_mode "all_los", TDL-D with K = ``k_factor_db``) at
-    ``ALL_LOS_SNRS_DB``, with an ``n_taps``-tap receiver window and certified boxes refined to ``box_final_m``."""
+    """The bounds chapter: ``fig9_honest`` with every link LoS (los_mode "all_los", TDL-D) at ``ALL_LOS_SNRS_DB``.
+
+    Parameters
+    ----------
+    n_taps : int
+        L, the receiver window's taps.
+    k_factor_db : float
+        TDL-D's K-factor, dB.
+    box_final_m : float
+        Side of the certified search's final boxes, metres.
+    n_trials : int
+        Monte Carlo trials.
+
+    Returns
+    -------
+    Experiment
+    """
     return Experiment.build(name=f"fig09-all-los-L{n_taps}-K{k_factor_db:g}-box{box_final_m:g}", n_trials=n_trials,
                       seed=URBAN_SEED, los_mode="all_los", k_factor_db=k_factor_db, snrs_db=ALL_LOS_SNRS_DB,
                       centring="prior", prior_kind="gaussian", prior_scale_m=PRIOR_SIGMA_M,
@@ -147,24 +213,60 @@ def fig9_all_los(n_taps: int, k_factor_db: float = 13.3, box_final_m: float = 0.
 
 
 def fig9_low_snr(n_trials: int = STUDY_TRIALS) -> Experiment:
-    """The Fig. 9 chapter: Fig. 9's truth-centred experiment at per-sample SNRs from −35 to 0 dB (``LOW_SNRS_DB``)."""
+    """The Fig. 9 chapter: Fig. 9's truth-centred experiment at per-sample SNRs from −35 to 0 dB (``LOW_SNRS_DB``).
+
+    Parameters
+    ----------
+    n_trials : int
+        Monte Carlo trials.
+
+    Returns
+    -------
+    Experiment
+    """
     return Experiment.build(name="fig09-low-snr", n_trials=n_trials, seed=URBAN_SEED, snrs_db=LOW_SNRS_DB)
 
 
 def fig9_link_budget(n_trials: int = STUDY_TRIALS) -> Experiment:
-    """The Fig. 9 chapter: Fig. 9's truth-centred experiment with each link's SNR from the UMi path loss and
-    shadowing."""
+    """The Fig. 9 chapter: Fig. 9's truth-centred experiment with each link's SNR from the UMi path loss and shadowing.
+
+    Parameters
+    ----------
+    n_trials : int
+        Monte Carlo trials.
+
+    Returns
+    -------
+    Experiment
+    """
     return Experiment.build(name="fig09-link-budget", n_trials=n_trials, seed=URBAN_SEED, snr_mode="link_budget",
                       snrs_db=())
 
 
 def urban_window_experiments(search: search_config.SearchConfig | None = None, taps=URBAN_WINDOW_TAPS,
                              n_trials: int = URBAN_WINDOW_TRIALS, prior_sigma_m: float = PRIOR_SIGMA_M) -> dict:
-    """The receiver-window study on the urban scenario with an honest receiver: window centred on truth + a
-    Gaussian prior error (σ = ``prior_sigma_m`` per axis), the bias window from the clock model, ``search`` (default:
-    the honest search of the figures) with each L of ``taps``.  Set-ups: Fig. 9's (every link at 20 dB per sample,
-    M = 6 and 24, LoS from eq. (11)) and Fig. 10's (M = 4, SNR per link from the path loss, LoS from eq. (11) or two
-    of four).  Returns {(setup, L): Experiment}."""
+    """The receiver-window study on the urban scenario with an honest receiver, for each L of ``taps``.
+
+    Window centred on truth + a Gaussian prior error, the bias window from the clock model.  Set-ups: Fig. 9's (every
+    link at 20 dB per sample, M = 6 and 24, LoS from eq. (11)) and Fig. 10's (M = 4, SNR per link from the path loss,
+    LoS from eq. (11) or two of four).
+
+    Parameters
+    ----------
+    search : SearchConfig or None
+        The search, its window taps set to each L; None (default): the honest search of the figures.
+    taps : tuple of int
+        The windows' taps L compared.
+    n_trials : int
+        Monte Carlo trials per (set-up, L).
+    prior_sigma_m : float
+        σ of the prior error per axis, metres.
+
+    Returns
+    -------
+    dict
+        {(setup, L): Experiment}.
+    """
     search = honest_search() if search is None else search
     base = dict(n_trials=n_trials, centring="prior", prior_kind="gaussian", prior_scale_m=prior_sigma_m)
     setups = {"fig9_20db": dict(snr_mode="fixed", snrs_db=(20.0,), m_values=(6, 24), los_mode="pr_los"),
@@ -187,10 +289,29 @@ FIRST_PATH_FIG10_TRIALS = 1000
 
 
 def first_path_aware(e: Experiment, n_trials: int, snrs_db: tuple[float, ...] | None = None) -> Experiment:
-    """``e`` (an honest experiment: certified search, window not on the truth) with the first-path-aware window:
-    tap l of the L-tap window weighted by exp(−l T_s / delay spread), the experiment's delay spread
-    (``correlogram.tap_weights``); ``n_trials`` trials and, if given, the SNRs ``snrs_db`` (the trials' draws and
-    noise do not depend on the SNR list, so its trials are ``e``'s)."""
+    """``e`` with the first-path-aware window: tap l of the L-tap window weighted by exp(−l T_s / delay spread).
+
+    The delay spread is the experiment's (``correlogram.tap_weights``).  The trials' draws and noise do not depend on
+    the SNR list, so its trials are ``e``'s.
+
+    Parameters
+    ----------
+    e : Experiment
+        An honest experiment: certified search, window not on the truth.
+    n_trials : int
+        Monte Carlo trials.
+    snrs_db : tuple of float or None
+        The SNRs, dB; None: ``e``'s.
+
+    Returns
+    -------
+    Experiment
+
+    Raises
+    ------
+    ValueError
+        When ``e`` is centred on the truth or its search is not the certified one.
+    """
     if e.receiver.centring == "truth" or e.receiver.search.method != "bnb":
         raise ValueError(f"first_path_aware compares honest receivers: e must use the certified search ('bnb') "
                          f"and a window not centred on the truth, got method {e.receiver.search.method!r}, centring "
@@ -202,9 +323,22 @@ def first_path_aware(e: Experiment, n_trials: int, snrs_db: tuple[float, ...] | 
 
 def first_path_comparison(fig9_trials: int = FIRST_PATH_FIG9_TRIALS,
                           fig10_trials: int = FIRST_PATH_FIG10_TRIALS) -> dict:
-    """The first-path-aware comparison: {set-up: (flat-window experiment, first-path-aware experiment)} for Fig. 9
-    (honest, at ``FIRST_PATH_SNRS_DB``) and each case of Fig. 10 (centred on the OTDoA fix).  The flat experiment is
-    the figure's own (its cache is the figure's); compare them on the first trials and the SNRs both have."""
+    """The first-path-aware comparison: a flat-window and a first-path-aware experiment per set-up.
+
+    The set-ups: Fig. 9 (honest, at ``FIRST_PATH_SNRS_DB``) and each case of Fig. 10 (centred on the OTDoA fix).  The
+    flat experiment is the figure's own (its cache is the figure's); compare them on the first trials and the SNRs both
+    have.
+
+    Parameters
+    ----------
+    fig9_trials, fig10_trials : int
+        Monte Carlo trials of the first-path-aware experiments of Fig. 9 and of Fig. 10.
+
+    Returns
+    -------
+    dict
+        {set-up: (flat-window experiment, first-path-aware experiment)}.
+    """
     out = {"fig9": (fig9_honest(max(fig9_trials, FIG9_HONEST_TRIALS)),
                     first_path_aware(fig9_honest(), fig9_trials, FIRST_PATH_SNRS_DB))}
     f10 = fig10(max(fig10_trials, FIG10_TRIALS))
@@ -233,18 +367,46 @@ REUSE_COMPARE_TRIALS = 200
 #: Fig. 10's reuse variant: READING_TRIALS (its reading's cells need ≥ 1000), the first trials of Fig. 10
 REUSE_FIG10_TRIALS = READING_TRIALS
 def fig9_power(n_trials: int = READING_TRIALS, reuse: int = 0, co_channel: bool = True) -> Experiment:
-    """Fig. 9's honest receiver (``fig9_honest``) at ``READING_SNRS_DB`` of the nearest link, every other link at its
-    received-power difference from the path loss and shadowing (snr_mode "nearest").  reuse 0: the paper's PRS, each
-    link received alone; ``REUSE``: Table I's reuse with (co_channel) or without the co-channel BSs' signals.  The
-    same seed for all: trial t is the same UE, links, channels and clock in each."""
+    """Fig. 9's honest receiver (``fig9_honest``) at ``READING_SNRS_DB`` of the nearest link (snr_mode "nearest").
+
+    Every other link is at its received-power difference from the path loss and shadowing.  The same seed for all:
+    trial t is the same UE, links, channels and clock in each.
+
+    Parameters
+    ----------
+    n_trials : int
+        Monte Carlo trials.
+    reuse : int
+        0: the paper's PRS, each link received alone; ``REUSE``: Table I's PRS reuse.
+    co_channel : bool
+        With reuse, whether the co-channel BSs' signals are received.
+
+    Returns
+    -------
+    Experiment
+    """
     tag = f"-reuse{reuse}{'' if co_channel else '-alone'}" if reuse else ""
     return fig9_honest(n_trials).replace(name=f"fig09-power{tag}", snr_mode="nearest", snrs_db=READING_SNRS_DB,
                    prs_reuse=reuse, co_channel=co_channel)
 
 
 def fig10_reuse(n_trials: int = REUSE_FIG10_TRIALS, reuse: int = REUSE) -> dict:
-    """Fig. 10's OTDoA-centred DPE and its OTDoA fixes (``fig10``, both LoS cases, the same seed and trials) with
-    Table I's PRS reuse and co-channel interference: {case: Experiment}."""
+    """Fig. 10's OTDoA-centred DPE and its OTDoA fixes with Table I's PRS reuse and co-channel interference.
+
+    Both LoS cases of ``fig10``, the same seed and trials.
+
+    Parameters
+    ----------
+    n_trials : int
+        Monte Carlo trials.
+    reuse : int
+        The PRS frequency reuse factor (``experiment.PRS_REUSES``).
+
+    Returns
+    -------
+    dict
+        {case: Experiment}.
+    """
     f10 = fig10(n_trials)
     return {case: f10[(case, "otdoa")].replace(name=f"fig10-{case.replace('_', '-')}-otdoa-reuse{reuse}",
                                                prs_reuse=reuse) for case in FIG10_CASES}
@@ -256,9 +418,23 @@ def _ring(name: str, dep: str, seed: int, n_trials: int, **settings) -> Experime
 
 
 def ring_window_experiments(n_trials: int = RING_TRIALS, taps=RING_TAPS) -> dict[int, Experiment]:
-    """The DPE chapter's receiver-window study: {L: experiment} on the "ring" deployment (UE in a 10 m square), the grid
-    search centred on the truth (the paper's set-up) without polish, c δt searched over ±``RING_BIAS_HALF_WIDTH_M``
-    m, the same trials (seed ``RING_WINDOW_SEED``) for every L."""
+    """The DPE chapter's receiver-window study on the "ring" deployment (UE in a 10 m square).
+
+    The grid search centred on the truth (the paper's set-up) without polish, c δt searched over
+    ±``RING_BIAS_HALF_WIDTH_M`` m, the same trials (seed ``RING_WINDOW_SEED``) for every L.
+
+    Parameters
+    ----------
+    n_trials : int
+        Monte Carlo trials per L.
+    taps : tuple of int
+        The windows' taps L compared.
+
+    Returns
+    -------
+    dict
+        {L: Experiment}.
+    """
     return {n: _ring(f"ring-window-L{n}", "ring", RING_WINDOW_SEED, n_trials,
                      search=search_config.SearchConfig(n_taps=n, polish=False,
                                                        bias_half_width_m=RING_BIAS_HALF_WIDTH_M))
@@ -266,18 +442,40 @@ def ring_window_experiments(n_trials: int = RING_TRIALS, taps=RING_TAPS) -> dict
 
 
 def ring_centring_experiments(n_trials: int = RING_TRIALS) -> dict[str, Experiment]:
-    """The DPE chapter's window-centring study on the "ring-wide" deployment (UE in a 100 m square): the default grid
-    search centred on the truth (the paper's set-up) and on each trial's OTDoA (first-path) fix, with the OTDoA
-    baseline on the same signals (seed ``RING_CENTRING_SEED``)."""
+    """The DPE chapter's window-centring study on the "ring-wide" deployment (UE in a 100 m square).
+
+    The default grid search centred on the truth (the paper's set-up) and on each trial's OTDoA (first-path) fix, with
+    the OTDoA baseline on the same signals (seed ``RING_CENTRING_SEED``).
+
+    Parameters
+    ----------
+    n_trials : int
+        Monte Carlo trials.
+
+    Returns
+    -------
+    dict
+        {"truth": Experiment, "otdoa": Experiment}.
+    """
     search = search_config.SearchConfig(bias_half_width_m=RING_BIAS_HALF_WIDTH_M)
     return {c: _ring(f"ring-centring-{c}", "ring-wide", RING_CENTRING_SEED, n_trials, centring=c, otdoa=True,
                      search=search) for c in ("truth", "otdoa")}
 
 
 def ml_toa_experiment(n_trials: int = ML_TOA_TRIALS) -> Experiment:
-    """The bounds chapter's check of the ML ToA: every link one path (los_mode "free_space") at ``ML_TOA_SNR_DB`` per
-    sample, the ``ML_TOA_LINKS`` nearest links of the "tst" deployment, the OTDoA baseline on (its peak detector is the
-    ML ToA of one path).  The experiment's DPE (the default grid, truth-centred) runs too; the check does not read
-    it."""
+    """The bounds chapter's ML ToA check: one path per link (los_mode "free_space") at ``ML_TOA_SNR_DB`` per sample.
+
+    The ``ML_TOA_LINKS`` nearest links of the "tst" deployment, the OTDoA baseline on (its peak detector is the ML ToA
+    of one path).  The experiment's DPE (the default grid, truth-centred) runs too; the check does not read it.
+
+    Parameters
+    ----------
+    n_trials : int
+        Monte Carlo trials.
+
+    Returns
+    -------
+    Experiment
+    """
     return Experiment.build(name="ml-toa", los_mode="free_space", snr_mode="fixed", snrs_db=(ML_TOA_SNR_DB,),
                             m_values=(ML_TOA_LINKS,), otdoa=True, seed=ML_TOA_SEED, n_trials=n_trials)

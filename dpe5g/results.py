@@ -193,7 +193,7 @@ class Results:
             The commit of the code that computed the results (``store.git_commit``); None outside git.
         """
         from . import __version__
-        from .experiment import numerics
+        from .code_key import numerics
 
         columns = list(self.table()[0])
         doc = {"experiment": self.config(),

@@ -22,7 +22,8 @@ import numpy as np
 from ._io import atomic_write, jsonable
 from .chunk_cache import arrays_digest, read_npz
 from .errors import DamagedEntry
-from .experiment import Experiment, code_version, numerics
+from .code_key import code_version, numerics
+from .experiment import Experiment
 from .results import Results
 
 #: the committed results store; DPE5G_STORE names another folder, or "off" to compute everything (tier 2 only)

@@ -4,7 +4,7 @@ clear errors for bad cluster options."""
 import numpy as np
 import pytest
 
-from dpe5g import chunk_cache, cluster, engine, experiment, search_config, store
+from dpe5g import chunk_cache, cluster, code_key, engine, experiment, search_config, store
 
 #: the truth-centred grid search: the quickest engine to compile, in each worker as in this process
 SMALL = dict(n_trials=6, chunk_trials=2, snrs_db=(10.0, 30.0), m_values=(4, 6),
@@ -126,7 +126,7 @@ def test_a_worker_whose_files_changed_after_it_imported_them_refuses(monkeypatch
     e = experiment.Experiment.build(name="dask", **SMALL)
     monkeypatch.setattr(dpe5g, "IMPORTED_AT_NS", 0)  # every source file is newer than the import
     with pytest.raises(cluster.OtherCode) as err:
-        engine.chunk_task(pickle.dumps(e), 0, 2, 2, experiment.code_version())
+        engine.chunk_task(pickle.dumps(e), 0, 2, 2, code_key.code_version())
     assert "engine.py" in err.value.stale
     assert "restart the worker" in cluster.other_code_message(err.value.worker, err.value.theirs, "x", err.value.stale)
 

@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 
-from dpe5g import (chunk_cache, correlogram, cost, deployment, dpe, draw, engine, experiment, grid_search, receiver, results,
+from dpe5g import (chunk_cache, code_key, correlogram, cost, deployment, dpe, draw, engine, experiment, grid_search, receiver, results,
                    search_config, signal, store, trials)
 
 SMALL = dict(name="test", n_trials=6, seed=1, snrs_db=(15.0, 30.0), m_values=(4, 6),
@@ -291,7 +291,7 @@ def test_cache_key_follows_code_not_prose(tmp_path):
     b.write_text('"""Other doc."""\n\n\ndef f(x):\n    # a comment\n    return x + 1\n')
     c = tmp_path / "c.py"
     c.write_text('"""Doc."""\n\ndef f(x):\n    """Say."""\n    return x + 2  # one\n')
-    assert experiment.code_digest(a) == experiment.code_digest(b) != experiment.code_digest(c)
+    assert code_key.code_digest(a) == code_key.code_digest(b) != code_key.code_digest(c)
 
 
 def test_code_version_covers_every_module_the_engine_imports(tmp_path):
@@ -303,22 +303,22 @@ def test_code_version_covers_every_module_the_engine_imports(tmp_path):
 
     pkg = tmp_path / "dpe5g"
     shutil.copytree(os.path.dirname(experiment.__file__), pkg, ignore=shutil.ignore_patterns("__pycache__"))
-    mods = experiment.source_modules(pkg)
+    mods = code_key.source_modules(pkg)
     assert {"search_config.py", "engine.py", "trials.py", "store.py", "__init__.py"} <= set(mods)
     assert not {"cli.py", "plots.py", "figures.py", "paper.py"} & set(mods)
-    base = experiment.code_version(pkg)
-    assert base == experiment.code_version()
+    base = code_key.code_version(pkg)
+    assert base == code_key.code_version()
     (pkg / "lonely.py").write_text("X = 1\n")
-    assert experiment.code_version(pkg) == base
+    assert code_key.code_version(pkg) == base
     sc = pkg / "search_config.py"
     sc.write_text(sc.read_text().replace("def steps(self", "def unused(self):\n        return 0\n\n    def steps(self", 1))
-    changed = experiment.code_version(pkg)
+    changed = code_key.code_version(pkg)
     assert changed != base
     (pkg / "helper.py").write_text("def offset():\n    return 0.0\n")
     tr = pkg / "trials.py"
     tr.write_text(tr.read_text().replace("from __future__ import annotations\n",
                                          "from __future__ import annotations\n\nfrom .helper import offset\n", 1))
-    assert "helper.py" in experiment.source_modules(pkg) and experiment.code_version(pkg) != changed
+    assert "helper.py" in code_key.source_modules(pkg) and code_key.code_version(pkg) != changed
 
 
 def test_settings_as_lists_and_numpy_values_key_as_plain_numbers():
@@ -345,11 +345,11 @@ def test_code_version_does_not_depend_on_the_locale():
     env = {**os.environ, "LC_ALL": "C", "LANG": "C", "PYTHONUTF8": "0", "PYTHONCOERCECLOCALE": "0",
            "PYTHONIOENCODING": "ascii"}
     r = subprocess.run([sys.executable, "-c", "import locale; from dpe5g import experiment; "
-                        "print(locale.getpreferredencoding(), experiment.code_version())"],
+                        "print(locale.getpreferredencoding(), code_key.code_version())"],
                        env=env, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     encoding, version = r.stdout.split()
-    assert encoding.lower() not in ("utf-8", "utf8") and version == experiment.code_version()
+    assert encoding.lower() not in ("utf-8", "utf8") and version == code_key.code_version()
 
 
 def test_a_damaged_cache_chunk_is_named_set_aside_and_computed_again(tmp_path, capsys):
