@@ -344,7 +344,7 @@ def test_code_version_does_not_depend_on_the_locale():
     another 8-bit one would have given another code version, so workers of one checkout would have disagreed)."""
     env = {**os.environ, "LC_ALL": "C", "LANG": "C", "PYTHONUTF8": "0", "PYTHONCOERCECLOCALE": "0",
            "PYTHONIOENCODING": "ascii"}
-    r = subprocess.run([sys.executable, "-c", "import locale; from dpe5g import experiment; "
+    r = subprocess.run([sys.executable, "-c", "import locale; from dpe5g import code_key; "
                         "print(locale.getpreferredencoding(), code_key.code_version())"],
                        env=env, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
