@@ -39,7 +39,7 @@ import numpy as np
 
 from benchutil import median_time, write
 
-from dpe5g import correlogram, deployment, draw, engine, grid_search, otdoa, paper, receiver, trials
+from dpe5g import correlogram, deployment, draw, engine, grid_search, otdoa, paper, receiver, trial_draw, trials
 from dpe5g.nr import C, PAPER
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -145,7 +145,7 @@ def main(argv=None):
     t_spline = median_time(lambda: spline(g), 50) / m
 
     # the engine's path: one trial's parts, mixed for its 7 SNRs (the grid's in the search's window)
-    e_d = draw.draw_fn(e, e.load_deployment())(draw.trial_key(e.run.seed, 0))
+    e_d = draw.draw_fn(e, e.load_deployment())(trial_draw.trial_key(e.run.seed, 0), 0)
     n_snr = e.n_snr
 
     @jax.jit
@@ -177,12 +177,12 @@ def main(argv=None):
     # 3. profile of one (trial, SNR) of the Fig. 9 truth-centred experiment, batch of 2 trials as the engine runs
     dep = e.load_deployment()
     draw_one = draw.draw_fn(e, dep)
-    keys = jax.vmap(lambda t: draw.trial_key(e.run.seed, t))(jnp.arange(20))
-    f_draw = jax.jit(lambda k: jax.lax.map(lambda kk: (lambda d: d.y0.sum() + d.noise.sum())(draw_one(kk)), k,
+    keys = jax.vmap(lambda t: trial_draw.trial_key(e.run.seed, t))(jnp.arange(20))
+    f_draw = jax.jit(lambda k: jax.lax.map(lambda kk: (lambda d: d.y0.sum() + d.noise.sum())(draw_one(kk, 0)), k,
                                            batch_size=2))
 
     def corr_all(kk):  # the correlogram parts in the search's window, once per trial (``receiver.grid_windows``)
-        d = draw_one(kk)
+        d = draw_one(kk, 0)  # the TDL source reads the key only
         parts, _ = receiver.grid_windows(d, cfg)
         return parts(grid_search.grid_window(d.bs_xyz, jnp.concatenate([d.ue_xyz, d.clock_bias_s[None] * C]),
                                              cfg)).sum()
@@ -190,7 +190,7 @@ def main(argv=None):
     f_corr = jax.jit(lambda k: jax.lax.map(corr_all, k, batch_size=2))
     fn = trials.grid_trial_fn(e, dep)
     ext = jnp.zeros((20, e.n_snr, len(e.receiver.m_values), 4))
-    f_all = jax.jit(lambda k: jax.lax.map(lambda a: fn(*a), (k, ext), batch_size=2))
+    f_all = jax.jit(lambda k: jax.lax.map(lambda a: fn(a[0], 0, a[1]), (k, ext), batch_size=2))
     n_ts = 20 * e.n_snr
     p_draw = median_time(lambda: f_draw(keys), 3) / n_ts
     p_corr = median_time(lambda: f_corr(keys), 3) / n_ts - p_draw

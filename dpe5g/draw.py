@@ -12,160 +12,13 @@ the chunk size, the thread or the machine.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from . import channel, cost, deployment, nr, scenario, signal
 from .experiment import Experiment
-
-
-@jax.tree_util.register_dataclass
-@dataclass(frozen=True)
-class CoChannelDraw:
-    """With PRS reuse and ``co_channel``: every other BS of the deployment (X of them, nearest first).
-
-    Each transmits on its resource too.
-
-    Attributes
-    ----------
-    res : int (X,)
-        Resource index.
-    prs : complex (X, N)
-        Pilots.
-    y0 : complex (X, N)
-        Noise-free received spectra (unit power).
-    snr_db : float (S, X)
-        Per-sample SNR at each SNR index, dB.
-    """
-
-    res: jax.Array
-    prs: jax.Array
-    y0: jax.Array
-    snr_db: jax.Array
-
-
-@dataclass(frozen=True)
-class ReuseDraw:
-    """With PRS reuse (``Experiment.prs_reuse`` = n_res > 0): every link's resource and the other BSs.
-
-    Attributes
-    ----------
-    res : int (I,)
-        The resource (comb offset) of every link.
-    co_channel : CoChannelDraw or None
-        The other BSs; None without ``co_channel``.
-    n_res : int
-        The number of resources (static).
-    """
-
-    res: jax.Array
-    co_channel: CoChannelDraw | None
-    n_res: int
-
-
-jax.tree_util.register_dataclass(ReuseDraw, data_fields=["res", "co_channel"], meta_fields=["n_res"])
-
-
-@dataclass(frozen=True)
-class TrialDraw:
-    """The draws of one trial (``draw_fn``), arrays over the I = max(m_values) nearest links, nearest first.
-
-    Attributes
-    ----------
-    ue_xyz : float (3,)
-        The UE position, metres.
-    clock_bias_s : float ()
-        The clock bias δt, seconds.
-    bs_index : int (I,)
-        The BSs' deployment indices.
-    bs_xyz : float (I, 3)
-        The BSs' positions, metres.
-    los : bool (I,)
-        The links' LoS states.
-    prs : complex (I, N)
-        Pilots.
-    gains : complex (I, L)
-        Tap gains, padded with zero-gain taps to the longer profile.
-    delays_s : float (I, L)
-        Tap delays, seconds.
-    y0 : complex (I, N)
-        Noise-free received spectrum (unit power).
-    link_snr_db : float (S, I)
-        Per-sample SNR of each link at each SNR index, dB.
-    link_sinr_db : float (S, I)
-        Its SINR, dB (equal to the SNR without co-channel interference).
-    noise : complex (I, N)
-        The trial's unit noise spectrum, CN(0, 1) per bin.
-    reuse : ReuseDraw or None
-        With PRS reuse, else None.
-    per_link_power : bool
-        Whether the links' received powers differ (snr_mode "link_budget" or "nearest"), static: it sets how the
-        receiver scales signal and noise (``receiver.spectrum_at``).
-    """
-
-    ue_xyz: jax.Array
-    clock_bias_s: jax.Array
-    bs_index: jax.Array
-    bs_xyz: jax.Array
-    los: jax.Array
-    prs: jax.Array
-    gains: jax.Array
-    delays_s: jax.Array
-    y0: jax.Array
-    link_snr_db: jax.Array
-    link_sinr_db: jax.Array
-    noise: jax.Array
-    reuse: ReuseDraw | None
-    per_link_power: bool
-
-    @property
-    def n_snr(self) -> int:
-        """The number S of SNR indices."""
-        return self.link_snr_db.shape[0]
-
-
-jax.tree_util.register_dataclass(
-    TrialDraw, data_fields=["ue_xyz", "clock_bias_s", "bs_index", "bs_xyz", "los", "prs", "gains", "delays_s", "y0",
-                            "link_snr_db", "link_sinr_db", "noise", "reuse"], meta_fields=["per_link_power"])
-
-
-def trial_key(seed: int, t) -> jax.Array:
-    """The key every draw of trial t comes from: fold_in(PRNGKey(seed), t).
-
-    Parameters
-    ----------
-    seed : int
-        The run's seed.
-    t : int
-        The trial index (may be traced).
-
-    Returns
-    -------
-    jax PRNG key
-        The trial's key.
-    """
-    return jax.random.fold_in(jax.random.PRNGKey(seed), t)
-
-
-def trial_keys(seed: int, start: int, stop: int) -> jax.Array:
-    """``trial_key`` of trials start … stop − 1.
-
-    Parameters
-    ----------
-    seed : int
-        The run's seed.
-    start, stop : int
-        The first trial and one past the last.
-
-    Returns
-    -------
-    uint32 (T, 2)
-        The T = stop − start keys.
-    """
-    return jax.vmap(lambda t: trial_key(seed, t))(jnp.arange(start, stop))
+from .trial_draw import CoChannelDraw, ReuseDraw, TrialDraw, link_snr_db, sinr_db, trial_keys
 
 
 def profiles(e: Experiment) -> tuple[channel.TDLProfile, channel.TDLProfile]:
@@ -185,68 +38,8 @@ def profiles(e: Experiment) -> tuple[channel.TDLProfile, channel.TDLProfile]:
             channel.tdl_profile("D", e.scenario.delay_spread_s, e.scenario.k_factor_db, definition=e.scenario.delay_spread_def))
 
 
-def link_snr_db(e: Experiment, rx_dbm, rx_nearest_dbm, snrs) -> jax.Array:
-    """Per-sample SNR of links from their received powers, in the experiment's ``snr_convention``.
-
-    From the link budget (snr_mode "link_budget", S = 1), or the nearest link's SNR ``snrs`` plus the power difference
-    (snr_mode "nearest"); then read in the experiment's ``snr_convention``.
-
-    Parameters
-    ----------
-    e : Experiment
-        The experiment.
-    rx_dbm : float (n,)
-        The links' received powers, dBm.
-    rx_nearest_dbm : float
-        The nearest link's received power, dBm.
-    snrs : float (S,)
-        The nearest link's SNRs, dB (snr_mode "nearest").
-
-    Returns
-    -------
-    float (S, n)
-        Per-sample SNR of every link, dB.
-    """
-    if e.links.snr_mode == "link_budget":
-        snr = e.links.budget.model_snr_db(rx_dbm - e.links.budget.noise_dbm)[None, :]
-        if e.links.snr_offset_db:
-            snr = snr + e.links.snr_offset_db
-    else:
-        snr = snrs[:, None] + (rx_dbm - rx_nearest_dbm)[None, :]
-    return signal.per_sample_snr_db(snr, e.links.snr_convention)
-
-
-def sinr_db(link_snr, reuse: ReuseDraw | None) -> jax.Array:
-    """SINR of every link: its SNR over 1 + the SNRs (linear) of the BSs on its resource.
-
-    The BSs on its resource are the other links and the co-channel BSs of ``reuse``, all per sample, so the pilots'
-    equal power cancels; without co-channel interference the SINR is the SNR itself.
-
-    Parameters
-    ----------
-    link_snr : float (S, I)
-        Per-sample SNR of the links, dB.
-    reuse : ReuseDraw or None
-        The trial's PRS reuse draw.
-
-    Returns
-    -------
-    float (S, I)
-        The SINR, dB.
-    """
-    if reuse is None or reuse.co_channel is None:
-        return link_snr
-    x = reuse.co_channel
-    p_link, p_x = 10.0 ** (link_snr / 10.0), 10.0 ** (x.snr_db / 10.0)
-    res = jnp.concatenate([reuse.res, x.res])
-    per_res = jax.vmap(lambda p: jax.ops.segment_sum(p, res, num_segments=reuse.n_res))(
-        jnp.concatenate([p_link, p_x], axis=1))  # (S, R) total received power per resource, in noise units
-    interference = per_res[:, reuse.res] - p_link
-    return 10.0 * jnp.log10(p_link / (1.0 + interference))
-
-
 def draw_fn(e: Experiment, dep: deployment.Deployment):
-    """Build the traceable trial key → ``TrialDraw`` of the trial with that key (``trial_key``).
+    """Build the traceable (trial key, trial index t) → ``TrialDraw`` of trial t, whose key is ``trial_key(seed, t)``.
 
     Shared by the engine, ``trials.example`` and ``draw_links``.  The seed is not read (it enters through the key), so
     one compiled engine serves every seed.  Each link's channel is TDL-D if LoS and TDL-C if not; its frequency response
@@ -266,12 +59,13 @@ def draw_fn(e: Experiment, dep: deployment.Deployment):
     Returns
     -------
     callable
-        key → ``TrialDraw``.
+        (key, t) → ``TrialDraw``.  The TDL source reads only the key; a traced source (``Scenario.channel``) reads
+        trial t's UE from its dataset.
     """
     links = _LinkModel(e, dep)
     m_max = max(e.receiver.m_values)
 
-    def draw(key):
+    def draw(key, t):
         k_ue, k_los, k_c, k_d, k_b, k_sf, k_n = jax.random.split(key, 7)
         ue, d2d, order = links.place_ue(k_ue)
         idx = order[:m_max]  # nearest first
@@ -443,10 +237,10 @@ def draw_links(e: Experiment, n_trials: int) -> dict:
     draw = draw_fn(e, e.load_deployment())
 
     @jax.jit
-    def one(key):
-        d = draw(key)
+    def one(a):
+        d = draw(*a)
         return d.los, d.link_snr_db, d.link_sinr_db, jnp.linalg.norm(d.bs_xyz[:, :2] - d.ue_xyz[:2], axis=-1)
 
-    los, snr, sinr, dist = jax.lax.map(one, trial_keys(e.run.seed, 0, n_trials), batch_size=64)
+    los, snr, sinr, dist = jax.lax.map(one, (trial_keys(e.run.seed, 0, n_trials), jnp.arange(n_trials)), batch_size=64)
     return {"los": np.asarray(los), "link_snr_db": np.asarray(snr), "link_sinr_db": np.asarray(sinr),
             "d2d_m": np.asarray(dist)}

@@ -4,7 +4,7 @@ The programs are compiled once per the part of the experiment they read (``trial
 results are kept in the store (``chunk_cache.ChunkCache``): chunks already there are loaded, the others computed and
 written as they finish.
 
-Every draw of trial t comes from ``draw.trial_key(seed, t)``, so results do not depend on the batch size, the chunk
+Every draw of trial t comes from ``trial_draw.trial_key(seed, t)``, so results do not depend on the batch size, the chunk
 size, the number of threads or which chunks come from the store.
 """
 
@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _checks, otdoa, receiver, trials
-from .draw import trial_keys
+from .trial_draw import trial_keys
 from .cluster import OtherCode, gather, worker_address
 from .errors import Failure
 from .code_key import changed_since_import, code_version
@@ -191,11 +191,12 @@ class ChunkRunner:
     def __call__(self, start: int, stop: int, batch_size: int, workers: int = 1) -> dict:
         e = self.e
         keys = np.asarray(trial_keys(e.run.seed, start, stop))
+        ts = np.arange(start, stop)  # the trial indices: a traced channel source reads trial t's UE (``draw.draw_fn``)
         if not e.receiver.otdoa:
-            return self._dpe(keys, None, batch_size, workers)
+            return self._dpe(keys, ts, None, batch_size, workers)
         # step 1 on the same signals (regenerated from the same keys), then the convex fixes, in pieces: the fixes of
         # piece k+1 (Python, one core) are solved while the DPE of piece k runs (XLA, the GIL released)
-        toas, ue, idx = run_chunk((keys,), self.toa_fn, batch_size, workers=workers)
+        toas, ue, idx = run_chunk((keys, ts), self.toa_fn, batch_size, workers=workers)
         n = stop - start
         step = max(-(-n // self.OTDOA_PIECES), 1)
         ots, dpes = [], []
@@ -205,7 +206,7 @@ class ChunkRunner:
                 ot = trials.otdoa_fixes(e, self.dep, toas[sl], ue[sl], idx[sl], self.solvers)
                 ext = trials.otdoa_centers(e, self.dep, ot, idx[sl]) if e.receiver.centring == "otdoa" else None
                 ots.append(ot)
-                dpes.append(background.submit(self._dpe, keys[sl], ext, batch_size, workers))
+                dpes.append(background.submit(self._dpe, keys[sl], ts[sl], ext, batch_size, workers))
             dpes = [f.result() for f in dpes]
         return {k: np.concatenate([p[k] for p in dpes]) for k in dpes[0]} | {
             k: np.concatenate([p[k] for p in ots]) for k in ots[0]}
@@ -213,18 +214,18 @@ class ChunkRunner:
     #: pieces of a chunk whose OTDoA fixes and DPE overlap (speed only: every trial is computed on its own)
     OTDOA_PIECES = 4
 
-    def _dpe(self, keys, ext, batch_size: int, workers: int) -> dict:
-        """The DPE fixes of trials ``keys``; ext (T, S, J, 4) the window centres of centring "otdoa" (else None)."""
+    def _dpe(self, keys, ts, ext, batch_size: int, workers: int) -> dict:
+        """The DPE fixes of trials ``ts`` (keys ``keys``); ext (T, S, J, 4) the window centres of centring "otdoa" (else None)."""
         e = self.e
         if ext is None:
             ext = np.zeros((len(keys), e.n_snr, len(e.receiver.m_values), 4))
         if e.receiver.centring == "prior":
-            ext[:] = run_chunk((keys,), self.prior_fn, batch_size, workers=workers)[:, None, None, :]
+            ext[:] = run_chunk((keys, ts), self.prior_fn, batch_size, workers=workers)[:, None, None, :]
         if self.bnb:
-            return self.bnb_fixes(keys, ext, workers)
-        return run_chunk((keys, ext), self.fn, batch_size, workers=workers)
+            return self.bnb_fixes(keys, ts, ext, workers)
+        return run_chunk((keys, ts, ext), self.fn, batch_size, workers=workers)
 
-    def bnb_fixes(self, keys, ext, workers: int) -> dict:
+    def bnb_fixes(self, keys, ts, ext, workers: int) -> dict:
         """The certified search's trials, one at a time: ``trials.bnb_prep_fn``, then ``trials.bnb_fix_fn``.
 
         Its loops run as long as the slowest trial of a batch needs, so it is not batched.
@@ -232,7 +233,9 @@ class ChunkRunner:
         Parameters
         ----------
         keys : PRNG keys (T, ...)
-            The trials' keys (``draw.trial_keys``).
+            The trials' keys (``trial_draw.trial_keys``).
+        ts : int (T,)
+            The trials' indices.
         ext : float (T, S, J, 4)
             The window centres [x, y, z, c δt], metres.
         workers : int
@@ -245,7 +248,7 @@ class ChunkRunner:
         """
 
         def one(i):
-            trial, bs, centers, sls, starts = self.prep(keys[i], self.window, ext[i])
+            trial, bs, centers, sls, starts = self.prep(keys[i], ts[i], self.window, ext[i])
             r = jax.tree.map(np.asarray, self.fix(bs, centers, sls, starts))  # WindowFix (S, J, ...)
             trial = {k: np.asarray(v) for k, v in trial.items()}
             bias, err = (np.asarray(a) for a in trials.score(r.q, trial["ue_xyz"]))

@@ -22,7 +22,7 @@ from .nr import C, PAPER, Numerology
 from .search_config import SearchConfig, WindowFix
 
 if TYPE_CHECKING:
-    from .draw import TrialDraw
+    from .trial_draw import TrialDraw
 
 
 def receiver_correlogram(g, cfg: SearchConfig, window=None):

@@ -20,7 +20,8 @@ import numpy as np
 
 from . import _checks, correlogram, deployment, grid_search, otdoa, receiver, signal
 from .spline_bounds import spline_window
-from .draw import CoChannelDraw, ReuseDraw, TrialDraw, draw_fn, prior_center, trial_key
+from .draw import draw_fn, prior_center
+from .trial_draw import CoChannelDraw, ReuseDraw, TrialDraw, trial_key
 from .experiment import OTDOA_DETECTORS, Experiment, Receiver
 from .nr import C, PAPER
 from .search_config import SearchConfig, WindowFix
@@ -123,7 +124,7 @@ def grid_trial_fn(e: Experiment, dep: deployment.Deployment):
     Returns
     -------
     callable
-        (trial key, ext_center (S, J, 4) m) → the trial's fields of ``results.Results``.  ext_center is the window
+        (trial key, trial index, ext_center (S, J, 4) m) → the trial's fields of ``results.Results``.  ext_center is the window
         centre of every (SNR, M) in the non-truth centrings: the trial's prior centre, or its OTDoA fixes.
     """
     draw = draw_fn(e, dep)
@@ -132,8 +133,8 @@ def grid_trial_fn(e: Experiment, dep: deployment.Deployment):
     # (``program_config``) names both external centrings "prior", and the OTDoA fixes differ between the M values
     shared_centre = e.receiver.centring == "truth"
 
-    def one(key, ext_center):
-        d = draw(key)
+    def one(key, t, ext_center):
+        d = draw(key, t)
         c0 = truth_center(d)  # read in centring "truth" only
         bs = d.bs_xyz
         parts, windows = receiver.grid_windows(d, cfg)
@@ -198,7 +199,7 @@ def bnb_prep_fn(e: Experiment, dep: deployment.Deployment):
     Returns
     -------
     callable
-        (trial key, window, window centres ext (S, J, 4) m of the non-truth centrings) → (the trial's draw fields
+        (trial key, trial index, window, window centres ext (S, J, 4) m of the non-truth centrings) → (the trial's draw fields
         (``trial_fields``), BS positions (I, 3) m, the window centres (S, J, 4) m, the part of each BS's spline
         correlogram each window reaches (``spline_window``: coefficients (S, J, I, cells + 3) and their first knots
         (S, J, I))).
@@ -206,8 +207,8 @@ def bnb_prep_fn(e: Experiment, dep: deployment.Deployment):
     draw = draw_fn(e, dep)
     cfg = e.receiver_search()
 
-    def bnb_prep(key, window, ext):
-        d = draw(key)
+    def bnb_prep(key, t, window, ext):
+        d = draw(key, t)
         centers = jnp.broadcast_to(truth_center(d), ext.shape) if e.receiver.centring == "truth" else ext
         correlograms = receiver.spline_correlograms(d, cfg, window)
 
@@ -275,7 +276,7 @@ def score(q, ue):
 
 
 def prior_fn(e: Experiment, dep: deployment.Deployment):
-    """Traceable key → the trial's "prior" window centre (``draw.prior_center``).
+    """Traceable (key, trial index) → the trial's "prior" window centre (``draw.prior_center``).
 
     Parameters
     ----------
@@ -287,14 +288,14 @@ def prior_fn(e: Experiment, dep: deployment.Deployment):
     Returns
     -------
     callable
-        key → float (4,), metres.
+        (key, t) → float (4,), metres.
     """
     draw = draw_fn(e, dep)
-    return lambda key: prior_center(e, draw(key).ue_xyz, key)
+    return lambda key, t: prior_center(e, draw(key, t).ue_xyz, key)
 
 
 def toa_fn(e: Experiment, dep: deployment.Deployment):
-    """Traceable key → the ToAs of every link with each OTDoA detector (OTDoA step 1).
+    """Traceable (key, trial index) → the ToAs of every link with each OTDoA detector (OTDoA step 1).
 
     Parameters
     ----------
@@ -306,13 +307,13 @@ def toa_fn(e: Experiment, dep: deployment.Deployment):
     Returns
     -------
     callable
-        key → (ToAs (S, D, I) in seconds with each detector of ``OTDOA_DETECTORS``, the true UE position (3,) m (to
+        (key, t) → (ToAs (S, D, I) in seconds with each detector of ``OTDOA_DETECTORS``, the true UE position (3,) m (to
         score the fixes), the indices (I,) of the nearest BSs).
     """
     draw = draw_fn(e, dep)
 
-    def one(key):
-        d = draw(key)
+    def one(key, t):
+        d = draw(key, t)
 
         def per_snr(s):
             g = correlogram.ls_spectrum(receiver.spectrum_at(d, s), d.prs)
@@ -448,7 +449,7 @@ class TrialExample:
 def example(e: Experiment, trial: int, snr_index: int = 0) -> TrialExample:
     """The draws and received samples of trial ``trial`` at SNR index ``snr_index``.
 
-    From the engine's own key and draw (``draw.trial_key``, ``draw.draw_fn``, ``receiver.spectrum_at``).
+    From the engine's own key and draw (``trial_draw.trial_key``, ``draw.draw_fn``, ``receiver.spectrum_at``).
 
     Parameters
     ----------
@@ -472,7 +473,7 @@ def example(e: Experiment, trial: int, snr_index: int = 0) -> TrialExample:
     dep = e.load_deployment()
     _checks.integer("trial", trial, 0, e.run.n_trials - 1)
     _checks.integer("snr_index", snr_index, 0, e.n_snr - 1)
-    d = draw_fn(e, dep)(trial_key(e.run.seed, trial))
+    d = draw_fn(e, dep)(trial_key(e.run.seed, trial), trial)
     reuse = None
     if d.reuse is not None:
         x = d.reuse.co_channel

@@ -3,7 +3,7 @@
 ``verify_sample`` recomputes a sample and compares every stored field; ``reproduce`` recomputes every stored
 experiment and rewrites the store.
 
-Trial t of an experiment depends only on its config, its seed and t (``draw.trial_key``), so one trial recomputed
+Trial t of an experiment depends only on its config, its seed and t (``trial_draw.trial_key``), so one trial recomputed
 on its own equals the stored one.  A float agrees within ``VERIFY_RTOL`` of the stored value (the machine that
 computed the store gives the same bits; another CPU may differ in the last ones: SIMD width, FFT plans), NaN where
 NaN, and a relative difference of costs (``ABSOLUTE_FIELDS``) within ``VERIFY_RTOL`` absolute; integers and booleans

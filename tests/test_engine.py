@@ -9,8 +9,8 @@ import time
 import numpy as np
 import pytest
 
-from dpe5g import (chunk_cache, code_key, correlogram, cost, deployment, dpe, draw, engine, experiment, grid_search, receiver, results,
-                   search_config, signal, store, trials)
+from dpe5g import (chunk_cache, code_key, correlogram, cost, deployment, dpe, draw, engine, experiment, grid_search,
+                   receiver, results, search_config, signal, store, trial_draw, trials)
 
 SMALL = dict(name="test", n_trials=6, seed=1, snrs_db=(15.0, 30.0), m_values=(4, 6),
              search=search_config.SearchConfig(half_width_m=3.0, bias_half_width_m=3.0))
@@ -599,7 +599,7 @@ def test_noise_parts_mix_to_each_snrs_correlograms():
 
     for mode in ("fixed", "nearest"):
         e = experiment.Experiment.build(name="parts", seed=3, snrs_db=(5.0, 30.0), m_values=(4, 8), snr_mode=mode)
-        d = draw.draw_fn(e, e.load_deployment())(draw.trial_key(e.run.seed, 0))
+        d = draw.draw_fn(e, e.load_deployment())(trial_draw.trial_key(e.run.seed, 0), 0)
         for cfg in (e.receiver_search(), search_config.SearchConfig(method="bnb")):
             window = jnp.asarray(correlogram.window_spectrum(cfg.n_taps, d.prs.shape[1])) if cfg.method == "bnb" \
                 else None

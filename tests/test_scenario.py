@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from dpe5g import deployment, nlos_study, scenario
+from dpe5g import deployment, nlos_study, scenario, trial_draw
 
 
 def test_packaged_deployment_has_the_papers_numbers():
@@ -144,7 +144,7 @@ def test_packaged_rings_draw_the_ue_in_their_ue_region():
     e = paper.ring_window_experiments(n_trials=40)[1]
     links = draw.draw_links(e, 40)
     assert not links["los"].any()  # los_mode "all_nlos"
-    ue = np.stack([draw.draw_fn(e, e.load_deployment())(draw.trial_key(e.run.seed, t)).ue_xyz for t in range(5)])
+    ue = np.stack([draw.draw_fn(e, e.load_deployment())(trial_draw.trial_key(e.run.seed, t), t).ue_xyz for t in range(5)])
     assert np.all(np.abs(ue[:, :2]) <= 5.0) and np.ptp(ue[:, 0]) > 1.0
 
 
@@ -153,7 +153,7 @@ def test_free_space_links_are_one_unit_path():
     from dpe5g import draw, paper
 
     e = paper.ml_toa_experiment(n_trials=2)
-    d = draw.draw_fn(e, e.load_deployment())(draw.trial_key(e.run.seed, 0))
+    d = draw.draw_fn(e, e.load_deployment())(trial_draw.trial_key(e.run.seed, 0), 0)
     g = np.asarray(d.gains)
     assert np.asarray(d.los).all()
     np.testing.assert_allclose(np.abs(g[:, 0]), 1.0, rtol=1e-12)
@@ -225,8 +225,8 @@ def test_nlos_excess_delay_delays_every_path_of_the_nlos_links_only():
     as_before = dataclasses.replace(base, scenario=dataclasses.replace(base.scenario, nlos_excess_sigma_lg=0.0))
     assert as_before.config_key() == base.config_key()
     dep = base.load_deployment()
-    key = draw.trial_key(base.run.seed, 1)
-    d0, d1 = draw.draw_fn(base, dep)(key), draw.draw_fn(late, dep)(key)
+    key = trial_draw.trial_key(base.run.seed, 1)
+    d0, d1 = draw.draw_fn(base, dep)(key, 1), draw.draw_fn(late, dep)(key, 1)
     los = np.asarray(d0.los)
     assert (~los).any() and np.array_equal(los, np.asarray(d1.los))
     excess = np.asarray(d1.delays_s - d0.delays_s)[:, 0]
@@ -289,8 +289,8 @@ def test_nearest_two_los_and_the_snr_offset_change_only_what_they_say():
     low = nlos_study.fig10_snr_offset(-12.0, 4)["truth"]
     dep = base.load_deployment()
     for t in range(3):
-        key = draw.trial_key(base.run.seed, t)
-        d0, dn, dl = (draw.draw_fn(e, dep)(key) for e in (base, near, low))
+        key = trial_draw.trial_key(base.run.seed, t)
+        d0, dn, dl = (draw.draw_fn(e, dep)(key, t) for e in (base, near, low))
         assert np.array_equal(np.asarray(dn.los), [True, True, False, False])
         np.testing.assert_array_equal(np.asarray(dn.ue_xyz), np.asarray(d0.ue_xyz))
         np.testing.assert_allclose(np.asarray(dl.link_snr_db - d0.link_snr_db), -12.0, atol=1e-12)
