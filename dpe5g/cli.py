@@ -268,6 +268,28 @@ def _reproduce(args) -> int:
     return 0
 
 
+def _trace(args) -> int:
+    import time
+
+    from . import city_paths, city_study, city_trace, store
+
+    writable_dir("DPE5G_STORE", store.STORE_DIR)
+    spec = city_trace.CitySpec()
+    if not args.force and city_paths.is_current(city_study.CITY, spec.to_dict(), city_trace.code_digest()):
+        print(f"trace: {city_paths.city_file(city_study.CITY)} was traced with today's settings and code "
+              "(--force traces it again)", flush=True)
+        return 0
+    start = time.perf_counter()
+    traced = city_trace.trace_city(spec, progress=args.progress)
+    provenance = {"commit": store.git_commit(), "code": city_trace.code_digest(),
+                  "seconds": round(time.perf_counter() - start, 1),
+                  "libraries": city_trace.library_versions()}
+    path = city_paths.save_city(city_study.CITY, traced, spec.to_dict(), provenance)
+    print(f"trace: {len(traced['link_ue'])} links of {spec.n_ue} UEs and {spec.n_bs} BSs heard, written to {path} "
+          f"in {provenance['seconds']:.0f} s", flush=True)
+    return 0
+
+
 def _verify(args) -> int:
     import random
 
@@ -374,8 +396,8 @@ def _scene(args) -> int:
 
 
 #: each subcommand's handler (``cli_parser.build_parser`` defines their options)
-COMMANDS = {"run": _run, "figures": _figures, "warm": _warm, "reproduce": _reproduce, "verify": _verify,
-            "profile": _profile, "deployment": _deployment, "scene": _scene}
+COMMANDS = {"run": _run, "figures": _figures, "warm": _warm, "reproduce": _reproduce, "trace": _trace,
+            "verify": _verify, "profile": _profile, "deployment": _deployment, "scene": _scene}
 
 _one_line = lambda text: " ".join(str(text).split())  # noqa: E731  (a message on one line)
 

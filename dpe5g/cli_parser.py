@@ -175,6 +175,16 @@ def add_other_commands(sub) -> None:
     add_cluster_options(rp)
     rp
 
+    tc = sub.add_parser("trace", help="ray-trace the city of the city chapter (Sionna RT) into the results store",
+                        description="Place the BSs and UEs in Sionna RT's scene, trace every link (city_trace.CitySpec) "
+                                    "and write the paths to the results store (figures/trials/cities) and the "
+                                    "city's deployment beside them, unless they were traced with today's settings "
+                                    "and tracing code.  `make reproduce` runs it first (about 10 minutes on 2 "
+                                    "cores); it needs Debian's libllvm19.")
+    tc.add_argument("--progress", action="store_true", help="a progress bar over the UEs on stderr")
+    tc.add_argument("--force", action="store_true", help="trace again even if the stored city is current")
+    tc
+
     v = sub.add_parser("verify", help="recompute a random sample of stored trials and compare them with the store",
                        description="Recompute --trials random trials of every experiment in --families random "
                                    "families of the results store (experiments that share their compiled programs) "

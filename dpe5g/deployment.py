@@ -26,9 +26,11 @@ DATA_DIR = Path(__file__).resolve().parent / "data"
 TST_FILE = DATA_DIR / "tst_deployment.json"
 #: the deployments packaged with dpe5g, by name (``builtin``): our Tsim Sha Tsui-like layout, and the rings of
 #: the DPE chapter's studies (8 BSs on a 150 m circle, the UE in a 10 m or a 100 m square at its centre), made by
-#: ``scripts/make_ring.py``
+#: ``scripts/make_ring.py``; and the ray-traced city "munich", written beside its paths in the results store
+#: (``city_paths.save_city``)
 BUILTIN = {"tst": TST_FILE, "ring": DATA_DIR / "ring_deployment.json",
-           "ring-wide": DATA_DIR / "ring_wide_deployment.json"}
+           "ring-wide": DATA_DIR / "ring_wide_deployment.json",
+           "munich": DATA_DIR.parent.parent / "figures" / "trials" / "cities" / "munich_deployment.json"}
 
 #: allowed ranges for a deployment's numbers
 BS_HEIGHT_RANGE_M = (1.5, 150.0)  # TR 38.901 UMi: 10 m; the formulas need h_BS > h_E = 1 m

@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import channel, cost, deployment, nr, scenario, signal
+from . import channel, city_draw, cost, deployment, nr, scenario, signal
 from .experiment import Experiment
 from .trial_draw import CoChannelDraw, ReuseDraw, TrialDraw, link_snr_db, sinr_db, trial_keys
 
@@ -62,6 +62,8 @@ def draw_fn(e: Experiment, dep: deployment.Deployment):
         (key, t) → ``TrialDraw``.  The TDL source reads only the key; a traced source (``Scenario.channel``) reads
         trial t's UE from its dataset.
     """
+    if e.scenario.channel == "traced":
+        return city_draw.draw_fn(e, dep)
     links = _LinkModel(e, dep)
     m_max = max(e.receiver.m_values)
 

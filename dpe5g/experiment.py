@@ -25,7 +25,7 @@ from .nr import C
 #: settings added after the results store was first filled, with their defaults: at its default such a setting is
 #: left out of ``Experiment.config_key``, so the stored results of every experiment that does not use it keep their key
 LATER_SETTINGS = {"nlos_excess_median_s": 0.0, "nlos_excess_sigma_lg": 0.0, "snr_offset_db": 0.0,
-                  "clock_window": "clock"}
+                  "clock_window": "clock", "channel": "tdl"}
 
 LOS_MODES = ("pr_los", "two_of_four", "all_los", "all_nlos", "free_space", "nearest_two_los")
 SNR_MODES = ("fixed", "link_budget", "nearest")
@@ -41,6 +41,9 @@ CLOCK_WINDOWS = ("clock", "clock_nlos")
 CLOCK_NLOS_QUANTILE = 0.99
 #: both OTDoA ToA detectors run on the same signals; the first is the main baseline, the second the naive one
 OTDOA_DETECTORS = ("first_path", "peak")
+#: the channel sources: "tdl" — TR 38.901's TDL models (``draw``); "traced" — the ray-traced paths of the city the
+#: deployment names (``city_draw``)
+CHANNELS = ("tdl", "traced")
 
 
 @dataclass(frozen=True)
@@ -84,6 +87,9 @@ class Scenario:
         after the geometric delay, lg Δτ normal with median nlos_excess_median_s (s, in [0, 1e-6]) and standard
         deviation nlos_excess_sigma_lg (decades, in [0, 1]).  Off by default (median 0), when the first tap sits at the
         geometric delay as in TR 38.901's TDL models.
+    channel : str
+        ``CHANNELS``: "tdl" (default) or "traced", the paths ray-traced in the city that ``deployment`` names
+        (``city_draw``: LoS from the geometry, so los_mode stays "pr_los"; no PRS reuse, no added excess delay).
     """
 
     deployment: str = "tst"
@@ -97,6 +103,7 @@ class Scenario:
     co_channel: bool = True
     nlos_excess_median_s: float = 0.0
     nlos_excess_sigma_lg: float = 0.0
+    channel: str = "tdl"
 
     def __post_init__(self):
         _checks.plain_fields(self)  # lists and NumPy values as the plain Python they hash as
@@ -114,6 +121,10 @@ class Scenario:
         if self.nlos_excess_median_s and self.prs_reuse:
             raise ValueError("nlos_excess_median_s > 0 is not modelled with prs_reuse > 0 (the co-channel BSs' "
                              "channels have no excess delay): use one or the other")
+        _checks.one_of("channel", self.channel, CHANNELS)
+        if self.channel == "traced" and (self.los_mode != "pr_los" or self.prs_reuse or self.nlos_excess_median_s):
+            raise ValueError("channel 'traced' takes LoS and every delay from the traced paths: leave los_mode "
+                             "'pr_los', prs_reuse 0 and nlos_excess_median_s 0")
 
     def load_deployment(self) -> deployment.Deployment:
         """The deployment this scenario names.
