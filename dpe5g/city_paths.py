@@ -205,6 +205,79 @@ def write_deployment(name: str, arrays: dict, spec: dict, checksum: str) -> Path
     return path
 
 
+def view_file(name: str, root: Path | None = None) -> Path:
+    """The ``.npz`` of the city's 3-D view (``save_view``) in the results store.
+
+    Parameters
+    ----------
+    name : str
+        The city's name.
+    root : Path or None
+        The store's folder; None: ``store.STORE_DIR``.
+
+    Returns
+    -------
+    Path
+    """
+    return city_file(name, root).with_name(f"{name}_view.npz")
+
+
+def save_view(name: str, view: dict, root: Path | None = None) -> Path:
+    """Write the city's 3-D view: the buildings' triangles and one UE's traced paths (``city_trace.scene_triangles``,
+    ``city_trace.example_paths``), with the checksum of its arrays in a ``.json`` beside it.
+
+    Parameters
+    ----------
+    name : str
+        The city's name.
+    view : dict
+        "triangles", "ue" (the UE's index), "ue_bs" (its BSs) and ``city_trace.example_paths``'s arrays.
+    root : Path or None
+        The store's folder; None: ``store.STORE_DIR``.
+
+    Returns
+    -------
+    Path
+    """
+    path = view_file(name, root)
+    arrays = {k: np.asarray(v) for k, v in view.items()}
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)
+    atomic_write(path, buf.getvalue())
+    atomic_write(path.with_suffix(".json"), json.dumps({"checksum": arrays_digest(arrays)}).encode())
+    return path
+
+
+def load_view(name: str, root: Path | None = None) -> dict:
+    """The city's 3-D view (``save_view``), its checksum checked.
+
+    Parameters
+    ----------
+    name : str
+        The city's name.
+    root : Path or None
+        The store's folder; None: ``store.STORE_DIR``.
+
+    Returns
+    -------
+    dict
+
+    Raises
+    ------
+    errors.DamagedEntry
+        When it is missing or does not match its checksum.
+    """
+    path = view_file(name, root)
+    try:
+        arrays = read_npz(path)
+        ok = arrays_digest(arrays) == json.loads(path.with_suffix(".json").read_text())["checksum"]
+    except (OSError, ValueError, KeyError) as err:
+        raise DamagedEntry(path, f"cannot be read ({err})") from err
+    if not ok:
+        raise DamagedEntry(path, "its arrays do not match the checksum in its .json")
+    return arrays
+
+
 def is_current(name: str, spec: dict, code_digest: str, root: Path | None = None) -> bool:
     """Whether the stored city ``name`` was traced with ``spec`` by the tracing code of ``code_digest``.
 

@@ -274,20 +274,33 @@ def _trace(args) -> int:
     from . import city_paths, city_study, city_trace, store
 
     writable_dir("DPE5G_STORE", store.STORE_DIR)
-    spec = city_trace.CitySpec()
-    if not args.force and city_paths.is_current(city_study.CITY, spec.to_dict(), city_trace.code_digest()):
-        print(f"trace: {city_paths.city_file(city_study.CITY)} was traced with today's settings and code "
+    spec, name = city_trace.CitySpec(), city_study.CITY
+    if not args.force and city_paths.is_current(name, spec.to_dict(), city_trace.code_digest()):
+        print(f"trace: {city_paths.city_file(name)} was traced with today's settings and code "
               "(--force traces it again)", flush=True)
-        return 0
-    start = time.perf_counter()
-    traced = city_trace.trace_city(spec, progress=args.progress)
-    provenance = {"commit": store.git_commit(), "code": city_trace.code_digest(),
-                  "seconds": round(time.perf_counter() - start, 1),
-                  "libraries": city_trace.library_versions()}
-    path = city_paths.save_city(city_study.CITY, traced, spec.to_dict(), provenance)
-    print(f"trace: {len(traced['link_ue'])} links of {spec.n_ue} UEs and {spec.n_bs} BSs heard, written to {path} "
-          f"in {provenance['seconds']:.0f} s", flush=True)
+    else:
+        start = time.perf_counter()
+        traced = city_trace.trace_city(spec, progress=args.progress)
+        provenance = {"commit": store.git_commit(), "code": city_trace.code_digest(),
+                      "seconds": round(time.perf_counter() - start, 1), "libraries": city_trace.library_versions()}
+        path = city_paths.save_city(name, traced, spec.to_dict(), provenance)
+        print(f"trace: {len(traced['link_ue'])} links of {spec.n_ue} UEs and {spec.n_bs} BSs traced, written to "
+              f"{path} in {provenance['seconds']:.0f} s", flush=True)
+    path = city_paths.save_view(name, _city_view(spec, name))
+    print(f"trace: the 3-D view of its first trial's UE written to {path}", flush=True)
     return 0
+
+
+def _city_view(spec, name: str) -> dict:
+    """The 3-D view of the city chapter: the buildings and the traced paths of trial 0's UE from its links' BSs."""
+    from . import city_draw, city_paths, city_study, city_trace
+
+    city = city_paths.load_city(name)
+    _, links = city_draw.population(city_study.city_fig10(city_study.CITY_M[0], "otdoa", n_trials=1))
+    u, bs = int(links.ue_index[0]), links.bs_index[0]
+    scene = city_trace.load_scene(spec)
+    return {"triangles": city_trace.scene_triangles(scene, city.region), "ue": u, "ue_bs": bs} | \
+        city_trace.example_paths(scene, city.bs_xyz[bs], city.ue_xyz[u], spec)
 
 
 def _verify(args) -> int:

@@ -179,8 +179,9 @@ def add_other_commands(sub) -> None:
                         description="Place the BSs and UEs in Sionna RT's scene, trace every link (city_trace.CitySpec) "
                                     "and write the paths to the results store (figures/trials/cities) and the "
                                     "city's deployment beside them, unless they were traced with today's settings "
-                                    "and tracing code.  `make reproduce` runs it first (about 10 minutes on 2 "
-                                    "cores); it needs Debian's libllvm19.")
+                                    "and tracing code; then the 3-D view (the buildings, one UE's traced paths).  "
+                                    "`make reproduce` runs it first (about 20 minutes on 2 cores); it needs "
+                                    "Debian's libllvm19.")
     tc.add_argument("--progress", action="store_true", help="a progress bar over the UEs on stderr")
     tc.add_argument("--force", action="store_true", help="trace again even if the stored city is current")
     tc

@@ -331,9 +331,9 @@ def received_samples(
 def received_noiseless_direct(prs, gains, tap_delays_s, toa_s, clock_bias_s=0.0, num: Numerology = PAPER):
     """Eq. (4) sampled at t = nT_s, i.e. eq. (5), evaluated term by term in the time domain, for verification.
 
-    y_m[n] = (1/√N) Σ_l h_{m,l} Σ_k d_{m,k} exp(j2πk n/N) exp(-j2πkΔf(τ_m + δt + τ_l)).
+    y_m[n] = (1/√N) Σ_k exp(j2πk n/N) d_{m,k} Σ_l h_{m,l} exp(-j2πkΔf(τ_m + δt + τ_l)).
 
-    For small N only (O(L N²) time, memory N²); uses NumPy, no FFT.
+    For small N only (O(N² + L N) time, memory N²); uses NumPy, no FFT.
 
     Parameters
     ----------
@@ -350,11 +350,10 @@ def received_noiseless_direct(prs, gains, tap_delays_s, toa_s, clock_bias_s=0.0,
     tl = np.asarray(tap_delays_s)
     tau = np.asarray(toa_s) + clock_bias_s
     n_fft = num.n_fft
-    n = np.arange(n_fft)[:, None]
-    k = np.arange(n_fft)[None, :]
+    k = np.arange(n_fft)
+    synthesis = np.exp(2j * np.pi * np.outer(k, k) / n_fft)  # [n, k] = exp(j2πkn/N)
     out = np.zeros(d.shape, dtype=np.complex128)
     for m in range(d.shape[0]):
-        for l in range(g.shape[1]):
-            tone = np.exp(2j * np.pi * k * n / n_fft) * np.exp(-2j * np.pi * k * num.scs_hz * (tau[m] + tl[m, l]))
-            out[m] += g[m, l] * tone @ d[m]
+        paths = sum(g[m, l] * np.exp(-2j * np.pi * k * num.scs_hz * (tau[m] + tl[m, l])) for l in range(g.shape[1]))
+        out[m] = synthesis @ (d[m] * paths)
     return out / np.sqrt(n_fft)
