@@ -3,12 +3,19 @@
 Each is ``paper.fig10``'s experiment with LoS from eq. (11) and one change: the channel is the traced city's
 (``Scenario.channel`` "traced", ``city_draw``), so each trial is one traced outdoor UE, its links the BSs it hears
 strongest.  The honest receivers (the DPE centred on the OTDoA fix, which runs on the same signals) and, as a labelled
-comparison, the paper's DPE centred on the truth.
+comparison, the paper's DPE centred on the truth.  And what the city says of the stochastic model: its NLoS
+first-path excess delays against TR 38.901's log-normal (``excess_fit``), and its LoS share against eq. (11)
+(``los_by_distance``).
 """
 
 from __future__ import annotations
 
-from . import paper
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from . import city_paths, paper, scenario
 from .experiment import Experiment
 
 #: the traced city (its deployment's and its dataset's name): Sionna RT's "munich" scene (``city_trace.CitySpec``)
@@ -50,3 +57,135 @@ def all_experiments() -> list[Experiment]:
     list of Experiment
     """
     return [city_fig10(m, c) for m in CITY_M for c in CITY_CENTRINGS]
+
+
+@dataclass(frozen=True)
+class ExcessFit:
+    """The traced NLoS links' first-path excess delay Δτ against TR 38.901 Table 7.6.9-1's log-normal.
+
+    Attributes
+    ----------
+    n_links, n_ues : int
+        The NLoS links with a traced path, and the UEs they belong to.
+    mean_lg, std_lg : float
+        Mean and standard deviation of lg(Δτ / 1 s), decades.
+    mean_lg_ci : tuple of 2 float
+        The 95 % bootstrap interval of mean_lg, UEs resampled (their links kept together).
+    median_s : float
+        The median Δτ, seconds.
+    below_1ns : float
+        The share of links with Δτ < 1 ns (a path diffracted round a corner just off the straight line).
+    ks_p : float
+        The Kolmogorov–Smirnov p-value of lg Δτ against the standard's normal (mean −7.5, σ 0.5 for UMi).
+    icc : float
+        The share of lg Δτ's variance between UEs (one-way intraclass correlation over UEs with two NLoS links or
+        more): 0 when a UE's links are as unalike as any two links, 1 when they share one Δτ.
+    icc_ci : tuple of 2 float
+        Its 95 % bootstrap interval, UEs resampled.
+    """
+
+    n_links: int
+    n_ues: int
+    mean_lg: float
+    std_lg: float
+    mean_lg_ci: tuple
+    median_s: float
+    below_1ns: float
+    ks_p: float
+    icc: float
+    icc_ci: tuple
+
+
+def intraclass_correlation(values, groups) -> float:
+    """One-way random-effects intraclass correlation ICC(1) of ``values`` grouped by ``groups``.
+
+    (MSB − MSW) / (MSB + (k₀ − 1) MSW), k₀ the adjusted mean group size, over groups of two values or more.
+
+    Parameters
+    ----------
+    values : float (n,)
+        The values.
+    groups : int (n,)
+        Each value's group.
+
+    Returns
+    -------
+    float
+        ICC(1), in [−1/(k₀ − 1), 1].
+    """
+    values, groups = np.asarray(values, float), np.asarray(groups)
+    ids, inv, size = np.unique(groups, return_inverse=True, return_counts=True)
+    keep = size[inv] >= 2
+    ids, inv, size = np.unique(groups[keep], return_inverse=True, return_counts=True)
+    x = values[keep]
+    g, n = len(ids), len(x)
+    means = np.bincount(inv, weights=x) / size
+    msb = np.sum(size * (means - x.mean()) ** 2) / (g - 1)
+    msw = np.sum((x - means[inv]) ** 2) / (n - g)
+    k0 = (n - np.sum(size**2) / n) / (g - 1)
+    return float((msb - msw) / (msb + (k0 - 1) * msw))
+
+
+def excess_fit(city: city_paths.TracedCity, n_boot: int = 1000, seed: int = 0) -> ExcessFit:
+    """The traced NLoS first-path excess delays of ``city`` against TR 38.901's UMi log-normal (``ExcessFit``).
+
+    Parameters
+    ----------
+    city : city_paths.TracedCity
+        The traced city: every NLoS link with a traced path.
+    n_boot, seed : int
+        Bootstrap draws over the UEs, and their seed.
+
+    Returns
+    -------
+    ExcessFit
+    """
+    umi = scenario.TR38901_EXCESS_DELAY[scenario.NLOS_EXCESS_ROW]
+    nlos = ~city.los
+    dt, ue = city.first_excess_s()[nlos], city.link_ue[nlos]
+    lg = np.log10(np.maximum(dt, 1e-12))  # a path 1 ps off the line is as good as none (1e-12: 12 decades below 1 s)
+    ues = np.unique(ue)
+    rows = {u: np.nonzero(ue == u)[0] for u in ues}
+    rng = np.random.default_rng(seed)
+    means, iccs = [], []
+    for _ in range(n_boot):
+        pick = rng.choice(ues, ues.size)
+        idx = np.concatenate([rows[u] for u in pick])
+        grp = np.repeat(np.arange(pick.size), [rows[u].size for u in pick])
+        means.append(lg[idx].mean())
+        iccs.append(intraclass_correlation(lg[idx], grp))
+    ci = lambda a: (float(np.quantile(a, 0.025)), float(np.quantile(a, 0.975)))
+    return ExcessFit(n_links=int(nlos.sum()), n_ues=int(ues.size), mean_lg=float(lg.mean()), std_lg=float(lg.std()),
+                     mean_lg_ci=ci(means), median_s=float(np.median(dt)), below_1ns=float(np.mean(dt < 1e-9)),
+                     ks_p=float(stats.kstest(lg, stats.norm(umi.mu_lg, umi.sigma_lg).cdf).pvalue),
+                     icc=intraclass_correlation(lg, ue), icc_ci=ci(iccs))
+
+
+def los_by_distance(city: city_paths.TracedCity, edges_m) -> dict:
+    """The share of LoS among every (UE, BS) pair by 2-D distance, beside eq. (11)'s probability.
+
+    A pair with no traced path counts as NLoS (its straight line is blocked: the LoS path would have been traced).
+
+    Parameters
+    ----------
+    city : city_paths.TracedCity
+        The traced city.
+    edges_m : float (n + 1,)
+        Distance bins, metres.
+
+    Returns
+    -------
+    dict
+        "centre_m" (n,), "share" (n,), "n_pairs" (n,), "eq11" (n,) the mean of eq. (11) over each bin's pairs.
+    """
+    d = np.linalg.norm(city.ue_xyz[:, None, :2] - city.bs_xyz[None, :, :2], axis=-1)
+    los = np.zeros(d.shape, bool)
+    los[city.link_ue, city.link_bs] = city.los
+    b = np.digitize(d, edges_m) - 1
+    ok = (b >= 0) & (b < len(edges_m) - 1)
+    n = np.bincount(b[ok], minlength=len(edges_m) - 1)
+    share = np.bincount(b[ok], weights=los[ok], minlength=len(edges_m) - 1) / np.maximum(n, 1)
+    p11 = np.asarray(scenario.los_probability(d[ok]))
+    eq11 = np.bincount(b[ok], weights=p11, minlength=len(edges_m) - 1) / np.maximum(n, 1)
+    return {"centre_m": 0.5 * (np.asarray(edges_m[1:]) + np.asarray(edges_m[:-1])), "share": share, "n_pairs": n,
+            "eq11": eq11}

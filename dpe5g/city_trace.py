@@ -123,16 +123,25 @@ def llvm_library() -> str:
     return path
 
 
+#: the functions whose code makes a traced city (``code_digest``)
+TRACING_CODE = ("CitySpec", "load_scene", "ground_open", "outdoors", "densest_square", "outdoor_points", "place_bs",
+                "place_ues", "trace_links", "compact_links", "trace_city")
+
+
 def code_digest() -> str:
-    """SHA-256 (16 hex digits) of this module's source: the tracing code a stored city records.
+    """SHA-256 (16 hex digits) of the source of ``TRACING_CODE``: the tracing code a stored city records.
 
     Returns
     -------
     str
     """
     import hashlib
+    import inspect
+    import sys
 
-    return hashlib.sha256(open(__file__, "rb").read()).hexdigest()[:16]
+    module = sys.modules[__name__]
+    source = "".join(inspect.getsource(getattr(module, name)) for name in TRACING_CODE)
+    return hashlib.sha256(source.encode()).hexdigest()[:16]
 
 
 def library_versions() -> dict:
@@ -464,80 +473,3 @@ def trace_city(spec: CitySpec, progress: bool = True) -> dict:
         links = trace_links(scene, bs, ue, spec, progress=bar.update)
     return {"region": np.asarray(region), "bs_xyz": bs, "ue_xyz": ue} | links
 
-
-def scene_triangles(scene, region, margin_m: float = 20.0) -> np.ndarray:
-    """The scene's triangles whose centre lies in ``region`` widened by ``margin_m`` (the 3-D view's buildings).
-
-    Parameters
-    ----------
-    scene : sionna.rt.Scene
-        The scene.
-    region : tuple of 4 float
-        (x_min, y_min, x_max, y_max), metres.
-    margin_m : float
-        How far outside the region triangles are kept, metres.
-
-    Returns
-    -------
-    float32 (T, 3, 3)
-        The triangles' corners, metres.
-    """
-    x0, y0, x1, y1 = region
-    out = []
-    for shape in scene.mi_scene.shapes():
-        v = np.asarray(shape.vertex_positions_buffer()).reshape(-1, 3)
-        tri = v[np.asarray(shape.faces_buffer()).reshape(-1, 3)]
-        c = tri.mean(axis=1)
-        keep = (c[:, 0] > x0 - margin_m) & (c[:, 0] < x1 + margin_m) & (c[:, 1] > y0 - margin_m) & (
-            c[:, 1] < y1 + margin_m) & (c[:, 2] > 0.1)  # not the ground plane
-        out.append(tri[keep])
-    return np.concatenate(out).astype(np.float32)
-
-
-def example_paths(scene, bs_xyz, ue_xyz, spec: CitySpec) -> dict:
-    """One UE's traced paths from the BSs ``bs_xyz`` as polylines (BS, interaction points, UE), for the 3-D view.
-
-    Parameters
-    ----------
-    scene : sionna.rt.Scene
-        The scene (``load_scene``).
-    bs_xyz : float (J, 3)
-        The BSs, metres.
-    ue_xyz : float (3,)
-        The UE, metres.
-    spec : CitySpec
-        The solver's settings (as ``trace_links``).
-
-    Returns
-    -------
-    dict
-        "points" float32 (P, 3) metres, the polylines one after another; "start" int (n + 1,), where each polyline
-        starts in "points" (and the end); "bs" int (n,), its BS (index into bs_xyz); "power_db" float32 (n,), its path
-        gain, dB.
-    """
-    import mitsuba as mi
-    import sionna.rt as rt
-
-    for name in list(scene.transmitters) + list(scene.receivers):
-        scene.remove(name)
-    for b, p in enumerate(np.asarray(bs_xyz, float)):
-        scene.add(rt.Transmitter(f"bs{b}", position=mi.Point3f(*map(float, p)), power_dbm=spec.power_dbm))
-    scene.add(rt.Receiver("ue", position=mi.Point3f(*map(float, ue_xyz))))
-    paths = rt.PathSolver()(scene, max_depth=spec.max_depth, samples_per_src=spec.samples_per_src, los=True,
-                            specular_reflection=True, diffuse_reflection=False, refraction=False,
-                            diffraction=spec.diffraction, seed=spec.seed)
-    a, _ = paths.cir(normalize_delays=False, out_type="numpy")
-    a = a[0, 0, :, 0, :, 0]  # (J, P)
-    kinds = np.asarray(paths.interactions.numpy())[:, 0]  # (depth, J, P)
-    verts = np.asarray(paths.vertices.numpy())[:, 0]  # (depth, J, P, 3)
-    valid = np.asarray(paths.valid.numpy())[0] & (np.abs(a) > 0)
-    pts, start, bs, power = [], [0], [], []
-    for j, p in zip(*np.nonzero(valid)):
-        hops = [verts[k, j, p] for k in range(kinds.shape[0]) if kinds[k, j, p] != 0]
-        line = np.vstack([bs_xyz[j], *hops, ue_xyz]) if hops else np.vstack([bs_xyz[j], ue_xyz])
-        pts.append(line)
-        start.append(start[-1] + len(line))
-        bs.append(j)
-        power.append(10 * np.log10(np.abs(a[j, p]) ** 2))
-    return {"points": np.vstack(pts).astype(np.float32), "start": np.asarray(start), "bs": np.asarray(bs),
-            "power_db": np.asarray(power, np.float32)}

@@ -293,14 +293,14 @@ def _trace(args) -> int:
 
 def _city_view(spec, name: str) -> dict:
     """The 3-D view of the city chapter: the buildings and the traced paths of trial 0's UE from its links' BSs."""
-    from . import city_draw, city_paths, city_study, city_trace
+    from . import city_draw, city_paths, city_study, city_trace, city_view
 
     city = city_paths.load_city(name)
     _, links = city_draw.population(city_study.city_fig10(city_study.CITY_M[0], "otdoa", n_trials=1))
     u, bs = int(links.ue_index[0]), links.bs_index[0]
     scene = city_trace.load_scene(spec)
-    return {"triangles": city_trace.scene_triangles(scene, city.region), "ue": u, "ue_bs": bs} | \
-        city_trace.example_paths(scene, city.bs_xyz[bs], city.ue_xyz[u], spec)
+    return {"triangles": city_view.scene_triangles(scene, city.region), "ue": u, "ue_bs": bs} | \
+        city_view.example_paths(scene, city.bs_xyz[bs], city.ue_xyz[u], spec)
 
 
 def _verify(args) -> int:

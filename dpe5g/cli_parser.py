@@ -64,8 +64,8 @@ def add_cluster_options(p) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The ``dpe5g`` parser: one subcommand each for run, figures, warm, reproduce, verify, profile, deployment and
-    scene, described by ``DESCRIPTION``."""
+    """The ``dpe5g`` parser: one subcommand each for run, figures, warm, reproduce, trace, verify, profile,
+    deployment and scene, described by ``DESCRIPTION``."""
     p = Parser(prog="dpe5g", description=DESCRIPTION)
     sub = p.add_subparsers(dest="command", required=True)
     add_run(sub)
@@ -138,7 +138,7 @@ def add_run(sub) -> None:
 
 
 def add_other_commands(sub) -> None:
-    """``dpe5g figures``, ``warm``, ``profile``, ``deployment`` and ``scene``."""
+    """``dpe5g figures`` and ``warm``, then the store's commands and the others."""
     f = sub.add_parser("figures", help="regenerate figures: <out>/<id>.png and <out>/data/<id>.json",
                        description="Regenerate figures into --out DIR, or the committed baselines (figures/ of the "
                                    "repository) with --update-baselines; nothing is written into figures/ otherwise.")
@@ -160,7 +160,12 @@ def add_other_commands(sub) -> None:
     w.add_argument("--progress", action="store_true", help="a progress bar per experiment on stderr")
     add_cluster_options(w)
     w
+    add_store_commands(sub)
+    add_info_commands(sub)
 
+
+def add_store_commands(sub) -> None:
+    """``dpe5g reproduce``, ``trace`` and ``verify``: the results store's commands."""
     rp = sub.add_parser("reproduce", help="recompute every experiment of the results store and rewrite it",
                         description="Recompute every Monte Carlo experiment the results store (figures/trials) holds "
                                     "from its seeds, report every stored trial that differs from what today's code "
@@ -198,6 +203,10 @@ def add_other_commands(sub) -> None:
     v.add_argument("--all", action="store_true", help="every family (--trials of each stored experiment)")
     v
 
+
+
+def add_info_commands(sub) -> None:
+    """``dpe5g profile``, ``deployment`` and ``scene``."""
     t = sub.add_parser("profile", help="print a TR 38.901 TDL profile scaled to a delay spread")
     t.add_argument("name", help="A, B, C, D or E")
     t.add_argument("--delay-spread", type=float, default=65e-9, metavar="S",

@@ -126,13 +126,67 @@ def build(payload7: dict, payload8: dict):
     return rec
 
 
+def build_city(view: dict, region, bs_xyz, ue_xyz, los, paths_per_bs: int = 8):
+    """Build the ray-traced city's scene: its buildings, the BSs, one UE and the traced paths from its BSs.
+
+    Parameters
+    ----------
+    view : dict
+        ``city_paths.load_view``: the buildings' triangles and the UE's traced paths.
+    region : tuple of 4 float
+        (x_min, y_min, x_max, y_max), metres: the scene is centred on it.
+    bs_xyz : float (B, 3)
+        Every BS, metres.
+    ue_xyz : float (3,)
+        The UE, metres.
+    los : bool (J,)
+        Whether each of the UE's links (``view["ue_bs"]``) is LoS.
+    paths_per_bs : int
+        The strongest paths drawn per BS.
+
+    Returns
+    -------
+    _Recorder
+        The recorder holding the scene's packed meshcat commands.
+    """
+    top, rec = _visualizer()
+    g = _meshcat().geometry
+    vis = top["city"]
+    vis.set_transform(np.diag([SCALE, SCALE, SCALE, 1.0]))
+    top["/Grid"].set_property("visible", False)
+    top["/Cameras/default/rotated/<object>"].set_property("position", CAMERA)
+    x0, y0, x1, y1 = region
+    centre = np.array([0.5 * (x0 + x1), 0.5 * (y0 + y1), 0.0])
+    mat = lambda colour, opacity=1.0: g.MeshLambertMaterial(color=colour, opacity=opacity, transparent=opacity < 1)
+    vis["ground"].set_object(g.Box([x1 - x0, y1 - y0, 0.2]), mat(COLOURS["ground"]))
+    vis["ground"].set_transform(_translation(0.0, 0.0, -0.1))
+    tri = np.asarray(view["triangles"], dtype=np.float32) - centre.astype(np.float32)
+    faces = np.arange(3 * len(tri), dtype=np.uint32).reshape(-1, 3)
+    vis["buildings"].set_object(g.TriangularMeshGeometry(tri.reshape(-1, 3), faces), mat(COLOURS["building"], 0.55))
+    for b, p in enumerate(np.asarray(bs_xyz) - centre):
+        vis["bs"][f"C{b + 1:02d}"].set_object(g.Sphere(4.0), mat(COLOURS["bs"]))
+        vis["bs"][f"C{b + 1:02d}"].set_transform(_translation(*p))
+    vis["ue"].set_object(g.Sphere(5.0), mat(COLOURS["ue"]))
+    vis["ue"].set_transform(_translation(*(np.asarray(ue_xyz) - centre)))
+    pts, start = np.asarray(view["points"]) - centre, np.asarray(view["start"])
+    power, bs = np.asarray(view["power_db"]), np.asarray(view["bs"])
+    for j in range(len(view["ue_bs"])):
+        mine = np.nonzero(bs == j)[0]
+        colour = COLOURS["los"] if los[j] else COLOURS["nlos"]
+        for n, i in enumerate(mine[np.argsort(-power[mine])][:paths_per_bs]):
+            line = pts[start[i]:start[i + 1]].astype(np.float32).T
+            vis["paths"][f"bs{j}"][f"p{n:02d}"].set_object(
+                g.Line(g.PointsGeometry(line), g.LineBasicMaterial(color=colour, linewidth=2)))
+    return rec
+
+
 def html(rec: _Recorder) -> str:
     """The standalone page: meshcat's viewer JavaScript (bundled with the package) replaying the commands.
 
     Parameters
     ----------
     rec : _Recorder
-        The recorder of ``build``.
+        The recorder of ``build`` or ``build_city``.
 
     Returns
     -------
@@ -151,6 +205,29 @@ def html(rec: _Recorder) -> str:
             + "</script></body></html>\n")
 
 
+def recorded_iframe(rec: _Recorder, title: str, height_px: int = 520) -> str:
+    """A recorded scene (``build``, ``build_city``) as an ``<iframe srcdoc=...>`` element, self-contained.
+
+    Parameters
+    ----------
+    rec : _Recorder
+        The scene's recorder.
+    title : str
+        The frame's title (what a screen reader announces).
+    height_px : int
+        The frame's height, pixels (its width is the page's).
+
+    Returns
+    -------
+    str
+        The ``<iframe>`` element.
+    """
+    from meshcat.visualizer import srcdoc_escape
+
+    return (f'<iframe class="dpe5g-scene3d" title="{title}" srcdoc="{srcdoc_escape(html(rec))}" '
+            f'style="width:100%;height:{height_px}px;border:1px solid #ccc"></iframe>')
+
+
 def iframe(payload7: dict, payload8: dict, height_px: int = 520) -> str:
     """The scene as an ``<iframe srcdoc=...>`` element, self-contained, for embedding in a notebook or page.
 
@@ -166,11 +243,7 @@ def iframe(payload7: dict, payload8: dict, height_px: int = 520) -> str:
     str
         The ``<iframe>`` element.
     """
-    from meshcat.visualizer import srcdoc_escape
-
-    page = srcdoc_escape(html(build(payload7, payload8)))
-    return (f'<iframe class="dpe5g-scene3d" title="3-D scene of the urban deployment" srcdoc="{page}" '
-            f'style="width:100%;height:{height_px}px;border:1px solid #ccc"></iframe>')
+    return recorded_iframe(build(payload7, payload8), "3-D scene of the urban deployment", height_px)
 
 
 def export(payload7: dict, payload8: dict, path, exclusive: bool = False) -> Path:

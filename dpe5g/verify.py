@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import engine, nlos_study, otdoa, paper, readings, store, trials
+from . import city_study, engine, nlos_study, otdoa, paper, readings, store, trials
 from .errors import DamagedEntry
 from .experiment import Experiment
 
@@ -70,6 +70,7 @@ def store_experiments() -> list[Experiment]:
     for flat, fpa in paper.first_path_comparison().values():
         out += [flat, fpa]
     out += nlos_study.all_experiments()
+    out += city_study.all_experiments()
     longest = {}
     for e in out:  # one entry per cached run (the name and config without the trial count), at its largest count
         k = (e.run.name, e.key())

@@ -26,14 +26,15 @@ def test_a_sample_of_the_stored_links_is_what_sionna_traces_today(city):
     assert not found, f"UEs {ues.tolist()} re-traced differ from the store:\n" + "\n".join(found[:20])
 
 
-def test_verify_links_finds_a_changed_link(city, monkeypatch):
-    """The check above can fail: a stored power moved by 1 dB is reported."""
-    u = int(city.link_ue[0])
-    power = city.power_db.copy()
-    power[city.link_ue == u] += 1.0
-    changed = city_paths.TracedCity(**{**city.__dict__, "power_db": power})
-    found = city_paths.verify_links(changed, [u])
-    assert found and all("power 1 dB" in f for f in found), found
+def test_verify_links_finds_a_changed_link(city):
+    """The check above can fail: a stored power moved by 3 dB, or a first path by 1 ns, is reported."""
+    k = int(np.argmax(city.power_db))
+    power, excess = city.power_db.copy(), city.excess_s.copy()
+    power[k] += 3.0
+    excess[k, 0] += 1e-9
+    changed = city_paths.TracedCity(**{**city.__dict__, "power_db": power, "excess_s": excess})
+    found = city_paths.verify_links(changed, [int(city.link_ue[k])])
+    assert len(found) == 1 and "power 3 dB, first-path delay 1 ns off" in found[0], found
 
 
 def test_the_traced_los_path_is_free_space(city):
@@ -97,3 +98,21 @@ def test_a_missing_llvm_is_one_line_naming_the_package(monkeypatch):
     monkeypatch.setenv("DRJIT_LIBLLVM_PATH", "/nonexistent/libLLVM.so.19.1")
     with pytest.raises(RuntimeError, match="no such file"):
         city_trace.llvm_library()
+
+
+def test_the_stored_city_is_current_so_make_reproduce_does_not_trace_it_again(city):
+    spec = city_trace.CitySpec().to_dict()
+    assert city.spec == spec, "CitySpec changed since the city was traced: run make reproduce (dpe5g trace)"
+    assert city_paths.is_current(city.name, spec, city_trace.code_digest()), \
+        "the tracing code changed since the city was traced: run make reproduce (dpe5g trace)"
+    assert not city_paths.is_current(city.name, {**spec, "n_ue": spec["n_ue"] + 1}, city_trace.code_digest())
+    assert not city_paths.is_current(city.name, spec, "0" * 16)
+
+
+def test_the_3d_view_is_of_the_first_trial(city):
+    view = city_paths.load_view(city.name)
+    _, links = city_draw.population(city_study.city_fig10(city_study.CITY_M[0], "otdoa", n_trials=1))
+    assert int(view["ue"]) == links.ue_index[0] and np.array_equal(view["ue_bs"], links.bs_index[0])
+    lines = np.split(view["points"], view["start"][1:-1])
+    assert all(np.allclose(line[0], city.bs_xyz[links.bs_index[0][b]]) and np.allclose(line[-1], city.ue_xyz[
+        links.ue_index[0]]) for line, b in zip(lines, view["bs"]))
