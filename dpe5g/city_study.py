@@ -20,15 +20,15 @@ from .experiment import Experiment
 
 #: the traced city (its deployment's and its dataset's name): Sionna RT's "munich" scene (``city_trace.CitySpec``)
 CITY = "munich"
-#: trials of every city experiment: the first CITY_TRIALS UEs that hear M BSs
-CITY_TRIALS = 900
-#: the numbers M of links: Fig. 10's 4
-CITY_M = (4,)
+#: the numbers M of links: Fig. 10's 4, and 6, the most that more than a hundred of the traced UEs hear
+CITY_M = (4, 6)
+#: trials of the city experiments with M links: the first CITY_TRIALS[M] UEs that hear M BSs (of 1043 and 118)
+CITY_TRIALS = {4: 1000, 6: 110}
 #: the centrings run: the honest DPE (on the OTDoA fix, with both OTDoA detectors) and the paper's, on the truth
 CITY_CENTRINGS = ("otdoa", "truth")
 
 
-def city_fig10(m: int, centring: str, n_trials: int = CITY_TRIALS) -> Experiment:
+def city_fig10(m: int, centring: str, n_trials: int | None = None) -> Experiment:
     """Fig. 10's experiment (LoS from eq. (11), link-budget SNR) on the traced city, with M = m links.
 
     Parameters
@@ -37,15 +37,15 @@ def city_fig10(m: int, centring: str, n_trials: int = CITY_TRIALS) -> Experiment
         The links, the UE's m strongest.
     centring : str
         ``CITY_CENTRINGS``.
-    n_trials : int
-        Trials: the first n_trials UEs that hear m BSs.
+    n_trials : int or None
+        Trials: the first n_trials UEs that hear m BSs; None: ``CITY_TRIALS[m]``.
 
     Returns
     -------
     Experiment
         "city-munich-m{m}-{centring}".
     """
-    e = paper.fig10(n_trials)[("pr_los", centring)]
+    e = paper.fig10(CITY_TRIALS[m] if n_trials is None else n_trials)[("pr_los", centring)]
     return e.replace(name=f"city-{CITY}-m{m}-{centring}", deployment=CITY, channel="traced", m_values=(m,))
 
 
@@ -189,3 +189,31 @@ def los_by_distance(city: city_paths.TracedCity, edges_m) -> dict:
     eq11 = np.bincount(b[ok], weights=p11, minlength=len(edges_m) - 1) / np.maximum(n, 1)
     return {"centre_m": 0.5 * (np.asarray(edges_m[1:]) + np.asarray(edges_m[:-1])), "share": share, "n_pairs": n,
             "eq11": eq11}
+
+
+def summary() -> dict:
+    """The city's answer in numbers with M = ``CITY_M[0]`` (README's line; the chapter derives each).
+
+    Returns
+    -------
+    dict
+        "hear4_pct" the share of UEs that hear ``CITY_M[0]`` BSs (%), "n_trials", "dpe_p90_m" and "otdoa_p90_m" the
+        honest DPE's and first-path OTDoA's 90 % errors (m), "diff_p90" their paired difference as (value, lo, hi) m,
+        "excess_median_ns" the traced NLoS links' median first-path excess delay (ns), "umi_median_ns" TR 38.901's UMi
+        median (ns).
+    """
+    from . import city_draw, engine, intervals
+
+    m = CITY_M[0]
+    e = city_fig10(m, "otdoa")
+    city = city_paths.load_city(CITY)
+    heard = city_draw.heard_links(e, city, e.load_deployment())
+    n_heard = np.bincount(city.link_ue[heard], minlength=city.n_ue)
+    res = engine.run(e)
+    dpe, ot = res.error_m[:, 0, 0], res.otdoa_error_m[:, 0, 0, 0]
+    d = intervals.quantile_difference(dpe, ot, 0.9)
+    return {"hear4_pct": 100 * float(np.mean(n_heard >= m)), "n_trials": e.run.n_trials,
+            "dpe_p90_m": float(np.quantile(dpe, 0.9)), "otdoa_p90_m": float(np.quantile(ot, 0.9)),
+            "diff_p90": (d.value, d.lo, d.hi),
+            "excess_median_ns": 1e9 * float(np.median(city.first_excess_s()[~city.los])),
+            "umi_median_ns": 1e9 * scenario.TR38901_EXCESS_DELAY[scenario.NLOS_EXCESS_ROW].median_s}

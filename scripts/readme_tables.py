@@ -234,8 +234,8 @@ def timing_short() -> str:
 
 
 def found_text(book: bool = False) -> str:
-    """README's "What it found" (``book``: the landing page's, with links into the book): six lines of numbers from
-    the committed figure data and the book's errata list."""
+    """README's "What it found" (``book``: the landing page's, with links into the book): seven lines of numbers from
+    the committed figure data, the results store and the book's errata list."""
     files = {m.group(1): f"`chapters/{p.name}`" for p in sorted((ROOT / "chapters").glob("*.md"))
              for m in [re.search(r"^\((chapter-[\w-]+)\)=$", p.read_text(), re.M)] if m}
     ref = lambda label, text: f"{{numref}}`{text} <{label}>`" if book else files[label]
@@ -273,6 +273,7 @@ def found_text(book: bool = False) -> str:
         f"{umi['values']['fig10_otdoa_p90']:.1f} m on the same {umi['n_trials']['fig10_dpe']} trials: a difference "
         f"of {diff[0]:+.1f} m, 95 % interval [{diff[1]:+.1f}, {diff[2]:+.1f}] m"
         + (" (unresolved: it holds 0)." if diff[1] <= 0 <= diff[2] else "."),
+        city_line(ref),
         f"- **Claims**: of the paper's {s['n_claims']} claims about Figs. 9–10, judged by the 95 % interval of our "
         f"value: {report.verdict_text(s['verdicts']['as_read'])} under our reading of its set-up, "
         f"{report.verdict_text(s['verdicts']['honest'])} with the honest receiver (one that never sees the true "
@@ -284,6 +285,20 @@ def found_text(book: bool = False) -> str:
          + ("{numref}`Chapter %s <chapter-reproduction>`, *Reproduction summary and errata*." if book else
             "the book's chapter *Reproduction summary and errata* (`chapters/07_reproduction.md`; "
             "`book/_build/html/chapters/07_reproduction.html` after `make book`)."))])
+
+
+def city_line(ref) -> str:
+    """README's line on the ray-traced city (``city_study.summary``, from the results store)."""
+    from dpe5g import city_study
+
+    c = city_study.summary()
+    v, lo, hi = c["diff_p90"]
+    verdict = "DPE better" if hi < 0 else "OTDoA better" if lo > 0 else "unresolved: it holds 0"
+    return (f"- **Ray-traced city** (Sionna RT's Munich, the paper's density; {ref('chapter-city', 'Chapter %s')}): "
+            f"{c['hear4_pct']:.0f} % of outdoor UEs hear four BSs.  On {c['n_trials']} of them the honest DPE's 90 % "
+            f"error is {c['dpe_p90_m']:.1f} m against first-path OTDoA's {c['otdoa_p90_m']:.1f} m: a difference of "
+            f"{v:+.1f} m, 95 % interval [{lo:+.1f}, {hi:+.1f}] m ({verdict}).  The traced NLoS first paths are "
+            f"{c['excess_median_ns']:.0f} ns late at the median, against TR 38.901's UMi {c['umi_median_ns']:.0f} ns.")
 
 
 def readings_table() -> str:
