@@ -412,7 +412,8 @@ def path_gain_check(city: TracedCity) -> float:
     Returns
     -------
     float
-        max |10 lg |a₀|² − 20 lg(λ/4πd)| over the LoS links, dB.
+        The largest absolute difference, over the LoS links, between the first path's power (dB) and the free-space
+        gain 20 lg(λ/4πd) (dB).
     """
     from .nr import C
 

@@ -325,11 +325,13 @@ def readings_table() -> str:
 
 def store_text() -> str:
     metas = [json.loads(m.read_text()) for m in sorted((ROOT / "figures" / "trials").glob("*.json"))]
-    size = sum(f.stat().st_size for f in (ROOT / "figures" / "trials").iterdir())
+    size = sum(f.stat().st_size for f in (ROOT / "figures" / "trials").rglob("*") if f.is_file())
+    city = sum(f.stat().st_size for f in (ROOT / "figures" / "trials" / "cities").iterdir())
     trials = sum(m["n_trials"] for m in metas)
     short = lambda c: "outside git" if not c else c[:7] + ("+changes" if "+" in c else "")
     versions = sorted({(m["code_version"], short(m["commit"])) for m in metas})
-    return (f"Now: {len(metas)} entries, {trials} trials, {size / 1e6:.1f} MB in all (the budget is 30 MB), computed by "
+    return (f"Now: {len(metas)} entries, {trials} trials, and the traced city ({city / 1e6:.1f} MB in `cities/`), "
+            f"{size / 1e6:.1f} MB in all (the budget is 50 MB); the entries computed by "
             f"code version{'s' if len(versions) > 1 else ''} "
             + ", ".join(f"`{v}` (commit {c})" for v, c in versions) + ".")
 
