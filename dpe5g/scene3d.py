@@ -1,6 +1,7 @@
-"""Interactive 3-D scene of the urban deployment with meshcat, exported as one static HTML file (no server).
+"""Interactive 3-D scenes with meshcat, exported as one static HTML file (no server): the urban deployment
+(``build``) and the ray-traced city (``build_city``: its buildings' triangles, the BSs, one UE and its traced paths).
 
-Buildings as boxes, BS masts as cylinders with a sphere on top, the UE, its links coloured LoS (green) / NLoS
+In the urban deployment: buildings as boxes, BS masts as cylinders with a sphere on top, the UE, its links coloured LoS (green) / NLoS
 (orange), and the DPE correlogram of the example fix as a surface above the UE.  meshcat's ``Visualizer`` normally
 talks to a ZeroMQ server; here it talks to ``_Recorder``, which keeps the packed commands, and ``html`` wraps them
 with meshcat's bundled viewer JavaScript into a page that works offline (the same page meshcat's server would give
@@ -52,6 +53,25 @@ def _visualizer():
     return meshcat.Visualizer(window=rec), rec
 
 
+def _scene(name: str, region):
+    """A new recorded scene: its root node ``name`` scaled to viewer units, the camera set, a ground plate under the
+    region (centred on the origin); returns (recorder, root node, meshcat.geometry, the material maker)."""
+    top, rec = _visualizer()
+    g = _meshcat().geometry
+    vis = top[name]
+    vis.set_transform(np.diag([SCALE, SCALE, SCALE, 1.0]))
+    top["/Grid"].set_property("visible", False)
+    top["/Cameras/default/rotated/<object>"].set_property("position", CAMERA)
+
+    def mat(colour, opacity=1.0):
+        return g.MeshLambertMaterial(color=colour, opacity=opacity, transparent=opacity < 1.0)
+
+    x0, y0, x1, y1 = region
+    vis["ground"].set_object(g.Box([x1 - x0, y1 - y0, 0.2]), mat(COLOURS["ground"]))
+    vis["ground"].set_transform(_translation(0.0, 0.0, -0.1))
+    return rec, vis, g, mat
+
+
 def _translation(x, y, z):
     t = np.eye(4)
     t[:3, 3] = [x, y, z]
@@ -73,21 +93,10 @@ def build(payload7: dict, payload8: dict):
     _Recorder
         The recorder holding the scene's packed meshcat commands.
     """
-    top, rec = _visualizer()
-    g = _meshcat().geometry
-    vis = top["urban"]
-    vis.set_transform(np.diag([SCALE, SCALE, SCALE, 1.0]))
-    top["/Grid"].set_property("visible", False)
-    top["/Cameras/default/rotated/<object>"].set_property("position", CAMERA)
     d7, d8 = payload7["data"], payload8["data"]
+    rec, vis, g, mat = _scene("urban", d7["region"])
     x0, y0, x1, y1 = d7["region"]
     cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
-
-    def mat(colour, opacity=1.0):
-        return g.MeshLambertMaterial(color=colour, opacity=opacity, transparent=opacity < 1.0)
-
-    vis["ground"].set_object(g.Box([x1 - x0, y1 - y0, 0.2]), mat(COLOURS["ground"]))
-    vis["ground"].set_transform(_translation(0.0, 0.0, -0.1))
     for i, (bx0, by0, bx1, by1, h) in enumerate(d7["buildings"]):
         node = vis["buildings"][f"b{i:03d}"]
         node.set_object(g.Box([bx1 - bx0, by1 - by0, h]), mat(COLOURS["building"], 0.55))
@@ -149,17 +158,9 @@ def build_city(view: dict, region, bs_xyz, ue_xyz, los, paths_per_bs: int = 8):
     _Recorder
         The recorder holding the scene's packed meshcat commands.
     """
-    top, rec = _visualizer()
-    g = _meshcat().geometry
-    vis = top["city"]
-    vis.set_transform(np.diag([SCALE, SCALE, SCALE, 1.0]))
-    top["/Grid"].set_property("visible", False)
-    top["/Cameras/default/rotated/<object>"].set_property("position", CAMERA)
+    rec, vis, g, mat = _scene("city", region)
     x0, y0, x1, y1 = region
     centre = np.array([0.5 * (x0 + x1), 0.5 * (y0 + y1), 0.0])
-    mat = lambda colour, opacity=1.0: g.MeshLambertMaterial(color=colour, opacity=opacity, transparent=opacity < 1)
-    vis["ground"].set_object(g.Box([x1 - x0, y1 - y0, 0.2]), mat(COLOURS["ground"]))
-    vis["ground"].set_transform(_translation(0.0, 0.0, -0.1))
     tri = np.asarray(view["triangles"], dtype=np.float32) - centre.astype(np.float32)
     faces = np.arange(3 * len(tri), dtype=np.uint32).reshape(-1, 3)
     vis["buildings"].set_object(g.TriangularMeshGeometry(tri.reshape(-1, 3), faces), mat(COLOURS["building"], 0.55))
