@@ -2,7 +2,7 @@
 link, kept compact for the results store (``city_paths``).
 
 Needs ``sionna-rt`` (pinned in environment.txt) and, for Dr.Jit's CPU backend, LLVM ≥ 16: Debian's ``libllvm19``
-(``llvm_library``).  Only ``make reproduce`` traces the whole city (``trace_city``); ``make test`` re-traces a sample of
+(``ray_tracer.llvm_library``).  Only ``make reproduce`` traces the whole city (``trace_city``); ``make test`` re-traces a sample of
 links against the stored ones (``city_paths.verify_links``).
 
 Units: metres (the scene's frame: x east, y north, z up, the ground at z = 0), seconds, dB, dBm.
@@ -10,19 +10,14 @@ Units: metres (the scene's frame: x east, y north, z up, the ground at z = 0), s
 
 from __future__ import annotations
 
-import glob
 import math
-import os
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from . import _checks
-from .errors import Failure
+from .ray_tracer import llvm_library, solve_paths
 
-#: where ``llvm_library`` looks for libLLVM when DRJIT_LIBLLVM_PATH is not set (Debian's libllvm19 first)
-LLVM_GLOBS = ("/usr/lib/x86_64-linux-gnu/libLLVM.so.19*", "/usr/lib/aarch64-linux-gnu/libLLVM.so.19*",
-              "/usr/lib/llvm-19/lib/libLLVM*.so*", "/usr/lib/*/libLLVM.so.1[6-9]*", "/usr/lib/*/libLLVM-1[6-9].so")
 #: the city scenes of Sionna RT this module knows
 SCENES = ("munich", "etoile", "florence", "san_francisco")
 
@@ -97,35 +92,9 @@ class CitySpec:
         return asdict(self)
 
 
-def llvm_library() -> str:
-    """The libLLVM that Dr.Jit's CPU backend loads: DRJIT_LIBLLVM_PATH if set, else the first of ``LLVM_GLOBS``.
-
-    Returns
-    -------
-    str
-        The library's path (also set in DRJIT_LIBLLVM_PATH, which Dr.Jit reads when it is imported).
-
-    Raises
-    ------
-    errors.Failure
-        When none is found: one line naming the Debian package.
-    """
-    path = os.environ.get("DRJIT_LIBLLVM_PATH")
-    if path and not os.path.exists(path):
-        raise Failure(f"DRJIT_LIBLLVM_PATH={path}: no such file (unset it, or name libLLVM.so.19.1)")
-    if not path:
-        found = sorted(p for g in LLVM_GLOBS for p in glob.glob(g))
-        if not found:
-            raise Failure("ray tracing needs LLVM 19 for Dr.Jit's CPU backend: apt-get install libllvm19 "
-                               "(or set DRJIT_LIBLLVM_PATH to a libLLVM.so of version 16 or later)")
-        path = found[0]
-    os.environ["DRJIT_LIBLLVM_PATH"] = path
-    return path
-
-
 #: the functions whose code makes a traced city (``code_digest``)
 TRACING_CODE = ("CitySpec", "load_scene", "ground_open", "outdoors", "densest_square", "outdoor_points", "place_bs",
-                "place_ues", "trace_links", "compact_links", "trace_city")
+                "place_ues", "solve_paths", "trace_links", "compact_links", "trace_city")
 
 
 def code_digest() -> str:
@@ -142,18 +111,6 @@ def code_digest() -> str:
     module = sys.modules[__name__]
     source = "".join(inspect.getsource(getattr(module, name)) for name in TRACING_CODE)
     return hashlib.sha256(source.encode()).hexdigest()[:16]
-
-
-def library_versions() -> dict:
-    """The versions of the ray tracer's stack (sionna-rt, mitsuba, drjit) and the libLLVM it runs on.
-
-    Returns
-    -------
-    dict
-    """
-    from importlib.metadata import version
-
-    return {p: version(p) for p in ("sionna-rt", "mitsuba", "drjit")} | {"libllvm": os.path.basename(llvm_library())}
 
 
 def load_scene(spec: CitySpec):
@@ -342,15 +299,14 @@ def place_ues(scene, region, spec: CitySpec) -> np.ndarray:
 
 
 def trace_links(scene, bs_xyz, ue_xyz, spec: CitySpec, batch: int = 250, progress=None) -> dict:
-    """Trace every BS → UE link and keep each link's ``spec.n_paths`` paths (``compact_links``).
+    """Trace every BS → UE link (``solve_paths``) and keep each link's ``spec.n_paths`` paths (``compact_links``).
 
-    LoS, specular reflections and (with ``spec.diffraction``) diffraction, up to ``spec.max_depth`` interactions, with
-    the scene's ITU materials and the solver seeded by ``spec.seed``.  UEs are traced ``batch`` at a time.
+    UEs are traced ``batch`` at a time.
 
     Parameters
     ----------
     scene : sionna.rt.Scene
-        The scene (``load_scene``), with no transmitter or receiver yet.
+        The scene (``load_scene``).
     bs_xyz : float (B, 3)
         Transmitters, metres.
     ue_xyz : float (U, 3)
@@ -367,23 +323,10 @@ def trace_links(scene, bs_xyz, ue_xyz, spec: CitySpec, batch: int = 250, progres
     dict
         ``compact_links``'s arrays over the links that have a path, their UE and BS indices in "link_ue", "link_bs".
     """
-    import mitsuba as mi
-    import sionna.rt as rt
-
-    for name in list(scene.transmitters) + list(scene.receivers):
-        scene.remove(name)
-    for b, p in enumerate(np.asarray(bs_xyz, float)):
-        scene.add(rt.Transmitter(f"bs{b}", position=mi.Point3f(*map(float, p)), power_dbm=spec.power_dbm))
-    solver, parts = rt.PathSolver(), []
+    parts = []
     for u0 in range(0, len(ue_xyz), batch):
-        for name in list(scene.receivers):
-            scene.remove(name)
         ues = np.asarray(ue_xyz[u0:u0 + batch], float)
-        for u, p in enumerate(ues):
-            scene.add(rt.Receiver(f"ue{u}", position=mi.Point3f(*map(float, p))))
-        paths = solver(scene, max_depth=spec.max_depth, samples_per_src=spec.samples_per_src, los=True,
-                       specular_reflection=True, diffuse_reflection=False, refraction=False,
-                       diffraction=spec.diffraction, seed=spec.seed)
+        paths = solve_paths(scene, bs_xyz, ues, spec)
         a, tau = paths.cir(normalize_delays=False, out_type="numpy")  # (U, 1, B, 1, P, 1), (U, B, P)
         a = a[:, 0, :, 0, :, 0]
         valid = np.asarray(paths.valid.numpy()) & (np.abs(a) > 0)

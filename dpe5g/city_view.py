@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from .city_trace import CitySpec
+from .ray_tracer import solve_paths
 
 
 def scene_triangles(scene, region, margin_m: float = 20.0) -> np.ndarray:
@@ -61,17 +62,7 @@ def example_paths(scene, bs_xyz, ue_xyz, spec: CitySpec) -> dict:
         starts in "points" (and the end); "bs" int (n,), its BS (index into bs_xyz); "power_db" float32 (n,), its path
         gain, dB.
     """
-    import mitsuba as mi
-    import sionna.rt as rt
-
-    for name in list(scene.transmitters) + list(scene.receivers):
-        scene.remove(name)
-    for b, p in enumerate(np.asarray(bs_xyz, float)):
-        scene.add(rt.Transmitter(f"bs{b}", position=mi.Point3f(*map(float, p)), power_dbm=spec.power_dbm))
-    scene.add(rt.Receiver("ue", position=mi.Point3f(*map(float, ue_xyz))))
-    paths = rt.PathSolver()(scene, max_depth=spec.max_depth, samples_per_src=spec.samples_per_src, los=True,
-                            specular_reflection=True, diffuse_reflection=False, refraction=False,
-                            diffraction=spec.diffraction, seed=spec.seed)
+    paths = solve_paths(scene, bs_xyz, ue_xyz, spec)
     a, _ = paths.cir(normalize_delays=False, out_type="numpy")
     a = a[0, 0, :, 0, :, 0]  # (J, P)
     kinds = np.asarray(paths.interactions.numpy())[:, 0]  # (depth, J, P)

@@ -271,7 +271,7 @@ def _reproduce(args) -> int:
 def _trace(args) -> int:
     import time
 
-    from . import city_paths, city_study, city_trace, store
+    from . import city_paths, city_study, city_trace, ray_tracer, store
 
     writable_dir("DPE5G_STORE", store.STORE_DIR)
     spec, name = city_trace.CitySpec(), city_study.CITY
@@ -282,7 +282,7 @@ def _trace(args) -> int:
         start = time.perf_counter()
         traced = city_trace.trace_city(spec, progress=args.progress)
         provenance = {"commit": store.git_commit(), "code": city_trace.code_digest(),
-                      "seconds": round(time.perf_counter() - start, 1), "libraries": city_trace.library_versions()}
+                      "seconds": round(time.perf_counter() - start, 1), "libraries": ray_tracer.library_versions()}
         path = city_paths.save_city(name, traced, spec.to_dict(), provenance)
         print(f"trace: {len(traced['link_ue'])} links of {spec.n_ue} UEs and {spec.n_bs} BSs traced, written to "
               f"{path} in {provenance['seconds']:.0f} s", flush=True)

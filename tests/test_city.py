@@ -6,7 +6,7 @@ import os
 import numpy as np
 import pytest
 
-from dpe5g import city_draw, city_paths, city_study, city_trace, signal, trial_draw
+from dpe5g import city_draw, city_paths, city_study, city_trace, ray_tracer, signal, trial_draw
 from dpe5g.experiment import Experiment
 from dpe5g.nr import C
 
@@ -92,12 +92,12 @@ def test_traced_channel_bad_input():
 
 def test_a_missing_llvm_is_one_line_naming_the_package(monkeypatch):
     monkeypatch.delenv("DRJIT_LIBLLVM_PATH", raising=False)
-    monkeypatch.setattr(city_trace, "LLVM_GLOBS", ("/nonexistent/libLLVM*.so",))
+    monkeypatch.setattr(ray_tracer, "LLVM_GLOBS", ("/nonexistent/libLLVM*.so",))
     with pytest.raises(RuntimeError, match="apt-get install libllvm19"):
-        city_trace.llvm_library()
+        ray_tracer.llvm_library()
     monkeypatch.setenv("DRJIT_LIBLLVM_PATH", "/nonexistent/libLLVM.so.19.1")
     with pytest.raises(RuntimeError, match="no such file"):
-        city_trace.llvm_library()
+        ray_tracer.llvm_library()
 
 
 def test_the_stored_city_is_current_so_make_reproduce_does_not_trace_it_again(city):
