@@ -363,8 +363,7 @@ def retrace_links(city: TracedCity, ues) -> dict:
 
 
 def verify_links(city: TracedCity, ues) -> list[str]:
-    """Re-trace the UEs ``ues`` and compare with the stored links above ``VERIFY_FLOOR_DB``: the same links, the same
-    LoS states, the power within ``VERIFY_POWER_DB`` and the first path's excess delay within ``VERIFY_EXCESS_S``.
+    """Re-trace the UEs ``ues`` (``retrace_links``) and compare with the stored links (``compare_links``).
 
     Parameters
     ----------
@@ -378,8 +377,29 @@ def verify_links(city: TracedCity, ues) -> list[str]:
     list of str
         One line per difference; empty when the re-trace agrees.
     """
+    return compare_links(city, ues, retrace_links(city, ues))
+
+
+def compare_links(city: TracedCity, ues, new: dict) -> list[str]:
+    """Compare a re-trace ``new`` of the UEs ``ues`` with the stored links above ``VERIFY_FLOOR_DB``: the same links,
+    the same LoS states, the power within ``VERIFY_POWER_DB`` and the first path's excess delay within
+    ``VERIFY_EXCESS_S``.
+
+    Parameters
+    ----------
+    city : TracedCity
+        The stored city.
+    ues : int (n,)
+        UE indices.
+    new : dict
+        ``retrace_links(city, ues)``.
+
+    Returns
+    -------
+    list of str
+        One line per difference; empty when the re-trace agrees.
+    """
     ues = np.asarray(ues)
-    new = retrace_links(city, ues)
     table, out = city.link_table(), []
     for i, u in enumerate(ues):
         mine = {int(b): j for j, b in zip(np.nonzero(new["link_ue"] == i)[0], new["link_bs"][new["link_ue"] == i])}

@@ -19,21 +19,30 @@ def city():
     return city_paths.load_city(city_study.CITY)
 
 
-def test_a_sample_of_the_stored_links_is_what_sionna_traces_today(city):
+@pytest.fixture(scope="module")
+def retraced(city):
+    """RETRACE_UES UEs drawn from the run's verification seed, and the UE of the strongest stored link (for the
+    self-test below), traced again in one call of the solver."""
     seed = int(os.environ["DPE5G_VERIFY_SEED"])
     ues = np.random.default_rng([seed, 45]).choice(city.n_ue, RETRACE_UES, replace=False)
-    found = city_paths.verify_links(city, ues)
+    ues = np.unique(np.append(ues, city.link_ue[np.argmax(city.power_db)]))
+    return ues, city_paths.retrace_links(city, ues)
+
+
+def test_a_sample_of_the_stored_links_is_what_sionna_traces_today(city, retraced):
+    ues, new = retraced
+    found = city_paths.compare_links(city, ues, new)
     assert not found, f"UEs {ues.tolist()} re-traced differ from the store:\n" + "\n".join(found[:20])
 
 
-def test_verify_links_finds_a_changed_link(city):
+def test_compare_links_finds_a_changed_link(city, retraced):
     """The check above can fail: a stored power moved by 3 dB, or a first path by 1 ns, is reported."""
     k = int(np.argmax(city.power_db))
     power, excess = city.power_db.copy(), city.excess_s.copy()
     power[k] += 3.0
     excess[k, 0] += 1e-9
     changed = city_paths.TracedCity(**{**city.__dict__, "power_db": power, "excess_s": excess})
-    found = city_paths.verify_links(changed, [int(city.link_ue[k])])
+    found = city_paths.compare_links(changed, *retraced)
     assert len(found) == 1 and "power 3 dB, first-path delay 1 ns off" in found[0], found
 
 
