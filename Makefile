@@ -37,15 +37,16 @@ reproduce: $(STAMP)
 
 figures: reproduce
 
-# Build the HTML book; a chapter is re-executed when it changed, every chapter when dpe5g/ or environment.txt changed
+# Build the HTML book, its chapters executed two at a time (scripts/build_book.py: Sphinx's parallel read; BOOK_JOBS=1
+# for one); a chapter is re-executed when it changed, every chapter when dpe5g/ or environment.txt changed
 # (book/_ext/dpe5g_book.py clears the execution cache then),
 # and warnings are errors.  The chapters record the Monte Carlo runs they ask for in RUN_LOG (tests/test_warm.py
 # checks that `dpe5g warm`, which prefills the cache, knows them all).
 RUN_LOG := .cache/book-runs.jsonl
 $(HTML): $(STAMP) $(BOOK_SRC) $(SOURCES)
 	@mkdir -p .cache; rm -f $(RUN_LOG)
-	DPE5G_RUN_LOG=$(CURDIR)/$(RUN_LOG) $(BIN)/jupyter-book build . --config book/_config.yml --toc book/_toc.yml \
-		--path-output book -W -n --keep-going
+	DPE5G_RUN_LOG=$(CURDIR)/$(RUN_LOG) $(BIN)/python scripts/build_book.py build . --config book/_config.yml \
+		--toc book/_toc.yml --path-output book -W -n --keep-going
 	test -f $@ && touch $@
 
 book: $(HTML)
