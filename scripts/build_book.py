@@ -8,8 +8,8 @@ declares them, passes ``jobs`` to Jupyter Book's own build function and runs its
 book``: ``python scripts/build_book.py build . --config ... --toc ...``).  BOOK_JOBS defaults to the number of CPUs.
 
 With more than one job each chapter's kernel computes on one thread (``one_thread_per_kernel``): the engine's batch
-threads and XLA's thread pool are each sized to every CPU, and BOOK_JOBS kernels that each ran that many threads on
-a cold compile cache made no progress for minutes on 2 CPUs.
+threads, XLA's thread pool and OpenBLAS's are each sized to every CPU, and OpenBLAS's threads wait for work by
+spinning, so two kernels in NumPy's lstsq (``bounds``) at once made no progress for minutes on 2 CPUs.
 """
 
 from __future__ import annotations
@@ -52,9 +52,11 @@ def one_per_chunk(docnames, nproc, maxbatch=10):
 
 
 def one_thread_per_kernel() -> None:
-    """Environment for the kernels that the build starts: the engine computes one batch at a time (DPE5G_WORKERS)
-    and XLA runs each program on the calling thread (``--xla_cpu_multi_thread_eigen=false``)."""
-    os.environ.setdefault("DPE5G_WORKERS", "1")
+    """Environment for the kernels that the build starts: the engine computes one batch at a time (DPE5G_WORKERS),
+    OpenBLAS (NumPy's linear algebra) uses one thread and XLA runs each program on the calling thread
+    (``--xla_cpu_multi_thread_eigen=false``)."""
+    for name in ("DPE5G_WORKERS", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
+        os.environ.setdefault(name, "1")
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_cpu_multi_thread_eigen" not in flags:
         os.environ["XLA_FLAGS"] = (flags + " --xla_cpu_multi_thread_eigen=false").strip()
