@@ -33,6 +33,7 @@ Units: frequencies Hz, delays and ToAs s, positions m, SNR dB (per subcarrier), 
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -144,8 +145,8 @@ def toa_fisher(freqs_hz, snr_db, gains=None, tap_delays_s=None) -> float:
     distinct, col = np.unique(delays, return_inverse=True)
     a_col = np.zeros(distinct.size, dtype=complex)
     np.add.at(a_col, col, a)
-    basis = np.exp(-2j * np.pi * np.outer(f, distinct))
-    return _projected_fisher(-2j * np.pi * f * (basis @ a_col), basis, noise_var)
+    basis, span = _columns_and_span(f.tobytes(), distinct.tobytes())  # the same for every link of one TDL profile
+    return _projected_fisher(-2j * np.pi * f * (basis @ a_col), span, noise_var)
 
 
 def toa_crb_s(freqs_hz, snr_db, gains=None, tap_delays_s=None) -> float:
@@ -203,13 +204,30 @@ def window_model_toa_fisher(freqs_hz, snr_db, n_taps: int, gains=None, num: Nume
         raise ValueError(f"gains must be 1 to n_taps = {n_taps} finite complex taps, not all zero; got {a.shape}")
     window = np.exp(-2j * np.pi * np.outer(f, np.arange(n_taps) * num.sample_period_s))  # (|K|, L)
     mu = window[:, : a.size] @ a
-    return _projected_fisher(-2j * np.pi * f * mu, window, noise_var)
+    return _projected_fisher(-2j * np.pi * f * mu, _orthonormal_span(window), noise_var)
 
 
-def _projected_fisher(mu_dot, basis, noise_var) -> float:
-    """(2/σ²) Re{μ̇^H P⊥ μ̇}, P⊥ the projector off the columns of ``basis``."""
-    coef, *_ = np.linalg.lstsq(basis, mu_dot, rcond=None)
-    resid = mu_dot - basis @ coef
+@functools.lru_cache(maxsize=8)
+def _columns_and_span(f_key: bytes, delays_key: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """The columns exp(−2πj f δ) of the distinct delays and their ``_orthonormal_span``, read-only (cached: every
+    link of a TDL profile has the same delays)."""
+    f, delays = np.frombuffer(f_key), np.frombuffer(delays_key)
+    basis = np.exp(-2j * np.pi * np.outer(f, delays))
+    span = _orthonormal_span(basis)
+    basis.flags.writeable = span.flags.writeable = False
+    return basis, span
+
+
+def _orthonormal_span(basis) -> np.ndarray:
+    """An orthonormal basis (|K|, r) of the span of ``basis``'s columns: its left singular vectors above lstsq's
+    cutoff (ε max(|K|, L) times the largest singular value), so that projecting off it is lstsq's residual."""
+    u, s, _ = np.linalg.svd(basis, full_matrices=False)
+    return u[:, s > np.finfo(np.float64).eps * max(basis.shape) * s[0]]
+
+
+def _projected_fisher(mu_dot, span, noise_var) -> float:
+    """(2/σ²) Re{μ̇^H P⊥ μ̇}, P⊥ = I − Q Q^H the projector off the orthonormal columns Q of ``span``."""
+    resid = mu_dot - span @ (span.conj().T @ mu_dot)
     return float(2.0 / noise_var * np.real(np.vdot(resid, resid)))
 
 
