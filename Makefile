@@ -64,6 +64,9 @@ chapter: $(STAMP)
 # tests run in a session of their own whose group is niced to 19 (without setsid or autogroup: plain nice).
 # One seed for the whole run's check of the results store (the chapters' samples and tests/test_store.py's), printed
 # first; DPE5G_VERIFY_SEED=N make test repeats a run's samples.
+# Each pytest worker computes on one thread (as each chapter's kernel does, scripts/build_book.py): two workers and
+# two kernels share 2 CPUs, and thread pools sized to every CPU in each of them spin while they wait for work.
+ONE_THREAD := env OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 XLA_FLAGS="$$XLA_FLAGS --xla_cpu_multi_thread_eigen=false"
 UNIT_LOG := .cache/pytest-unit.log
 test: export DPE5G_VERIFY_SEED := $(or $(DPE5G_VERIFY_SEED),$(shell od -An -N4 -tu4 /dev/urandom | awk '{print $$1 % 2147483648}'))
 test: $(STAMP)
@@ -72,12 +75,12 @@ test: $(STAMP)
 	lowpri() { if command -v setsid > /dev/null; then \
 	    setsid -w sh -c '{ echo 19 > /proc/self/autogroup; } 2> /dev/null; exec nice -n 19 "$$@"' sh "$$@"; \
 	  else nice -n 19 "$$@"; fi; }; \
-	lowpri $(BIN)/python -m pytest -m "not book" > $(UNIT_LOG) 2>&1 & unit=$$!; \
+	lowpri $(ONE_THREAD) $(BIN)/python -m pytest -m "not book" > $(UNIT_LOG) 2>&1 & unit=$$!; \
 	book=0; $(MAKE) --no-print-directory book || book=$$?; \
 	status=0; wait $$unit || status=$$?; \
 	cat $(UNIT_LOG); \
 	test $$book -eq 0 -a $$status -eq 0
-	$(BIN)/python -m pytest -m book
+	$(ONE_THREAD) $(BIN)/python -m pytest -m book
 
 clean:
 	rm -rf book/_build figure-diff
