@@ -52,6 +52,39 @@ def browser():
         b.close()
 
 
+class Loaded:
+    """A page opened once at 1400 x 1000 px, and what happened while it loaded: every request, failed request,
+    response of status 400 or more (the browser's own /favicon.ico excepted: the book has no icon, and chromium asks
+    for one at a time of its choosing) and script error (a missing resource is told by its response)."""
+
+    def __init__(self, browser, url):
+        self.requests, self.console_errors, self.missing, self.failed = [], [], [], []
+        self.page = page = browser.new_page(viewport={"width": 1400, "height": 1000})
+        page.on("request", lambda r: self.requests.append(r.url))
+        page.on("console", lambda m: self.console_errors.append(m.text)
+                if m.type == "error" and not m.text.startswith("Failed to load resource") else None)
+        page.on("pageerror", lambda exc: self.console_errors.append(str(exc)))
+        page.on("response", lambda r: self.missing.append(f"{r.status} {r.url}")
+                if r.status >= 400 and not r.url.endswith("/favicon.ico") else None)
+        page.on("requestfailed", lambda r: self.failed.append(r.url))
+        self.response = page.goto(url, wait_until="load")
+
+
+@pytest.fixture(scope="module")
+def loaded(server, browser):
+    """``loaded(page_path)``: the page, loaded once per test process for the tests that only read it."""
+    held = {}
+
+    def get(page_path):
+        if page_path not in held:
+            held[page_path] = Loaded(browser, f"{server}/{page_path}")
+        return held[page_path]
+
+    yield get
+    for v in held.values():
+        v.page.close()
+
+
 def pages():
     skip = {"genindex.html", "search.html"}
     return sorted(str(p.relative_to(HTML)) for p in HTML.rglob("*.html")
@@ -72,21 +105,9 @@ def test_index_leads_to_landing_page(server, browser):
 
 
 @pytest.mark.parametrize("page_path", pages() or ["index.html"])
-def test_page_renders_offline(server, browser, page_path):
-    page = browser.new_page()
-    requests, console_errors = [], []
-    page.on("request", lambda r: requests.append(r.url))
-    # script errors; a missing resource is told by its response below (the browser's own /favicon.ico excepted: the
-    # book has no icon, and chromium asks for one at a time of its choosing)
-    page.on("console", lambda m: console_errors.append(m.text)
-            if m.type == "error" and not m.text.startswith("Failed to load resource") else None)
-    page.on("pageerror", lambda exc: console_errors.append(str(exc)))
-    missing = []
-    page.on("response", lambda r: missing.append(f"{r.status} {r.url}")
-            if r.status >= 400 and not r.url.endswith("/favicon.ico") else None)
-    failed = []
-    page.on("requestfailed", lambda r: failed.append(r.url))
-    resp = page.goto(f"{server}/{page_path}", wait_until="load")
+def test_page_renders_offline(server, loaded, page_path):
+    got = loaded(page_path)
+    page, resp = got.page, got.response
     assert resp is not None and resp.ok, f"{page_path}: HTTP {resp.status if resp else 'no response'}"
     n_math = page.evaluate("document.querySelectorAll('div.math, span.math').length")
     if n_math:
@@ -108,19 +129,18 @@ def test_page_renders_offline(server, browser, page_path):
             if (!n.parentElement.closest('pre, code, .highlight, script, style')) out.push(n.textContent);
         return out.join(''); }""")  # rendered text outside code blocks
     assert "|---" not in prose and "---|" not in prose, f"{page_path}: a table left as raw pipe text"
-    outside = [u for u in requests if not u.startswith(server) and not u.startswith("data:")]
+    outside = [u for u in got.requests if not u.startswith(server) and not u.startswith("data:")]
     assert not outside, f"{page_path}: requests left localhost: {outside[:5]}"
-    assert not failed, f"{page_path}: failed requests: {failed[:5]}"
+    assert not got.failed, f"{page_path}: failed requests: {got.failed[:5]}"
     # no script error (Thebe's inline config, included twice, redeclared THEBE_JS_URL on every page) and no Thebe:
     # the book is offline and has no live code
-    assert not console_errors, f"{page_path}: console errors: {console_errors[:3]}"
-    assert not missing, f"{page_path}: resources not found: {missing[:3]}"
+    assert not got.console_errors, f"{page_path}: console errors: {got.console_errors[:3]}"
+    assert not got.missing, f"{page_path}: resources not found: {got.missing[:3]}"
     html = (HTML / page_path).read_text()
     assert "thebe" not in html.lower(), f"{page_path}: still loads Thebe"
     # no emoji: the Debian fonts the book is read with have none (a box is drawn in its place)
     emoji = sorted({c for c in html if ord(c) >= 0x1F000 or c in "\u2705\u274c\u2b50"})
     assert not emoji, f"{page_path}: glyphs the fonts lack: {emoji}"
-    page.close()
 
 
 def test_chapters_have_figures_and_math(server, browser):
@@ -139,12 +159,9 @@ TABLES = {"chapters/01_tdl_channel.html": 1, "chapters/03_dpe.html": 2, "chapter
 
 
 @pytest.mark.parametrize("page_path", list(TABLES))
-def test_computed_tables_render_as_tables(server, browser, page_path):
-    page = browser.new_page()
-    page.goto(f"{server}/{page_path}", wait_until="load")
-    n = page.evaluate("document.querySelectorAll('main table, article table').length")
+def test_computed_tables_render_as_tables(loaded, page_path):
+    n = loaded(page_path).page.evaluate("document.querySelectorAll('main table, article table').length")
     assert n >= TABLES[page_path], f"{page_path}: {n} HTML tables, expected at least {TABLES[page_path]}"
-    page.close()
 
 
 def test_meshcat_scene_draws_in_webgl(server, browser):
@@ -174,12 +191,10 @@ def test_meshcat_scene_draws_in_webgl(server, browser):
 
 
 @pytest.mark.parametrize("page_path", [p for p in pages() if p.startswith("chapters/")] or ["index.html"])
-def test_every_figure_is_numbered_and_captioned(server, browser, page_path):
+def test_every_figure_is_numbered_and_captioned(loaded, page_path):
     """Every image and embedded scene of a chapter sits in a numbered <figure> with a caption; a figure that
     reproduces one of the paper's says which ("Reproduces the paper's Fig. N"), every other says it is ours."""
-    page = browser.new_page()
-    page.goto(f"{server}/{page_path}", wait_until="load")
-    found = page.evaluate("""() => Array.from(document.querySelectorAll('main img, main iframe')).map(e => {
+    found = loaded(page_path).page.evaluate("""() => Array.from(document.querySelectorAll('main img, main iframe')).map(e => {
         const f = e.closest('figure'), c = f && f.querySelector('figcaption');
         return {src: (e.src || '').slice(-40), caption: c ? c.textContent.trim().replace(/\u2019/g, "'") : null,
                 number: c && c.querySelector('.caption-number') ? c.querySelector('.caption-number').textContent : null,
@@ -189,7 +204,6 @@ def test_every_figure_is_numbered_and_captioned(server, browser, page_path):
         assert f["number"] and f["number"].startswith("Figure "), f"{page_path}: figure not numbered: {f['caption'][:60]}"
         assert "Reproduces the paper's Fig. " in f["caption"] or "not in the paper" in f["caption"], f["caption"][:80]
         assert f["alt"] is None or not re.fullmatch(r"[0-9a-f]{32,}(\.png)?", f["alt"]), f"{page_path}: hash alt text"
-    page.close()
 
 
 @pytest.mark.parametrize("width", [1280, 768])
@@ -227,31 +241,20 @@ def test_nothing_is_wider_than_its_column(server, browser, width):
 
 
 @pytest.mark.parametrize("page_path", pages() or ["index.html"])
-def test_no_code_block_runs_off_the_page(server, browser, page_path):
+def test_no_code_block_runs_off_the_page(loaded, page_path):
     """Every page: every code or text block wraps inside its box (its content is no wider than the box), so no
     command, code line or docstring is cut off at the right."""
-    page = browser.new_page(viewport={"width": 1400, "height": 1000})
-    try:
-        page.goto(f"{server}/{page_path}")
-        wide = page.evaluate("""() => [...document.querySelectorAll('article pre')]
-            .filter(p => p.scrollWidth > p.clientWidth + 1).map(p => p.textContent.slice(0, 80))""")
-    finally:
-        page.close()
+    wide = loaded(page_path).page.evaluate("""() => [...document.querySelectorAll('article pre')]
+        .filter(p => p.scrollWidth > p.clientWidth + 1).map(p => p.textContent.slice(0, 80))""")
     assert not wide, f"{page_path}: {len(wide)} block(s) scroll sideways, e.g. {wide[0]!r}"
 
 
 @pytest.mark.parametrize("page_path", pages() or ["index.html"])
-def test_figures_are_shown_at_their_own_size(server, browser, page_path):
+def test_figures_are_shown_at_their_own_size(loaded, page_path):
     """Every page: every figure image is shown at least as wide as its pixels (the book never shrinks one).  With
     ``tests/test_legibility.py`` (every figure at most 7.68 in at 100 dpi, every text at least 9 pt) this keeps every
     figure's text at 9 pt or more on the page."""
-    page = browser.new_page(viewport={"width": 1400, "height": 1000})
-    try:
-        page.goto(f"{server}/{page_path}")
-        page.wait_for_load_state("load")
-        shrunk = page.evaluate("""() => [...document.querySelectorAll('article img')]
-            .filter(i => i.naturalWidth > i.clientWidth + 1)
-            .map(i => `${i.src.slice(-24)}: ${i.naturalWidth} px shown at ${i.clientWidth} px`)""")
-    finally:
-        page.close()
+    shrunk = loaded(page_path).page.evaluate("""() => [...document.querySelectorAll('article img')]
+        .filter(i => i.naturalWidth > i.clientWidth + 1)
+        .map(i => `${i.src.slice(-24)}: ${i.naturalWidth} px shown at ${i.clientWidth} px`)""")
     assert not shrunk, f"{page_path}: {len(shrunk)} figure(s) shrunk, their text below 9 pt: {shrunk}"
