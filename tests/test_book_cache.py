@@ -106,12 +106,27 @@ def test_sources_digest_follows_bytes(tmp_path):
     f.write_text("x = 1  # comment\n")
     cache = tmp_path / "cache"
     assert bc.sync(cache, [tmp_path / "src"]) is True
-    cache.mkdir()
     (cache / "kept").write_text("")
     assert bc.sync(cache, [tmp_path / "src"]) is False and (cache / "kept").exists()
     f.write_text("x = 1  # another comment\n")
-    assert bc.sync(cache, [tmp_path / "src"]) is True and not cache.exists()
+    assert bc.sync(cache, [tmp_path / "src"]) is True and not (cache / "kept").exists()
     (tmp_path / "src" / "__pycache__").mkdir()
     (tmp_path / "src" / "__pycache__" / "a.cpython-311.pyc").write_bytes(b"\0")
-    cache.mkdir()
     assert bc.sync(cache, [tmp_path / "src"]) is False
+
+
+def test_sync_leaves_the_execution_cache_database_for_the_parallel_readers(tmp_path):
+    """After ``sync`` the readers only open jupyter-cache's database: its tables exist (two readers creating them at
+    once failed a fresh parallel build)."""
+    import importlib.util
+    import sqlite3
+
+    spec = importlib.util.spec_from_file_location("dpe5g_book", ROOT / "book" / "_ext" / "dpe5g_book.py")
+    bc = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bc)
+    (tmp_path / "src").mkdir()
+    cache = tmp_path / "_build" / ".jupyter_cache"
+    assert bc.sync(cache, [tmp_path / "src"]) is True
+    with sqlite3.connect(cache / "global.db") as db:
+        tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+    assert {"settings", "nbcache", "nbproject"} <= tables

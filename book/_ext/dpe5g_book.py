@@ -48,9 +48,21 @@ def sync(cache: Path, sources: list[Path]) -> bool:
     cleared = not cache.exists() or not stamp.exists() or stamp.read_text().strip() != digest
     if cleared and cache.exists():
         shutil.rmtree(cache)
+    create_database(cache)
     stamp.parent.mkdir(parents=True, exist_ok=True)
     stamp.write_text(digest + "\n")
     return cleared
+
+
+def create_database(cache: Path) -> None:
+    """Create jupyter-cache's folder and database at ``cache`` (nothing if they exist), in Sphinx's main process.
+
+    Each parallel reader (``scripts/build_book.py``) opens the cache and creates both when they are missing; two at
+    once on a fresh clone failed the build ("table settings already exists", CI at 99ab854)."""
+    from jupyter_cache.cache.db import create_db
+
+    cache.mkdir(parents=True, exist_ok=True)
+    create_db(cache).dispose()
 
 
 def _exec_cache(app) -> Path:
