@@ -151,7 +151,12 @@ def numerics() -> dict:
     -------
     dict
     """
+    return {**_library_versions(), "x64": bool(jax.config.jax_enable_x64)}
+
+
+@lru_cache(maxsize=1)
+def _library_versions() -> dict:
+    """{library: installed version}, read once per process (the metadata lookups cost 5 ms a key)."""
     from importlib.metadata import version
 
-    return {**{lib: version(lib) for lib in ("jax", "jaxlib", "numpy", "cvxpy", "clarabel")},
-            "x64": bool(jax.config.jax_enable_x64)}
+    return {lib: version(lib) for lib in ("jax", "jaxlib", "numpy", "cvxpy", "clarabel")}
