@@ -6,8 +6,8 @@
 
 Reads from the log: the total (``fresh-check test: passed in N s``), each chapter's execution time as MyST-NB logs
 it (``chapters/05_rmse_vs_snr.md: Executed notebook in N seconds``) and pytest's summaries (``N passed ... in N s``):
-Where a log holds more than one pytest run (an earlier ``make test`` ran the tests that need no book while the book
-built and those marked "book" after it), the counts are summed and each run's time kept (``pytest_runs_s``).
+Where a log holds more than one pytest run (``make test`` prints the log of the tests that need no book, then that of
+those marked "book"), the counts are summed and each run's time kept (``pytest_runs_s``, in that order).
 Records them with the commit and the machine; ``scripts/readme_tables.py`` renders README's timing paragraph from
 the file.  Exit 2 with one line if the log lacks any of them.
 """

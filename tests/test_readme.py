@@ -57,7 +57,7 @@ def test_fresh_check_log_parsing():
                    "pytest_s": 197.3, "tests_passed": 234, "tests_skipped": 1}
     with pytest.raises(ValueError, match="lacks"):
         mod.parse(log.replace("fresh-check test: passed", "fresh-check test: FAILED"))
-    # make test's two pytest runs (without the book, during its build; the "book" tests after it): counts summed
+    # make test's two pytest runs (the tests that need no book, then those marked "book"): counts summed
     two = log.replace("fresh-check", "====== 20 passed in 31.50s ======\nfresh-check")
     assert mod.parse(two) == {**rec, "pytest_s": 197.3 + 31.5, "tests_passed": 254, "pytest_runs_s": [197.3, 31.5]}
 
