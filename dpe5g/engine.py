@@ -21,12 +21,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _checks, otdoa, receiver, trials
+from . import _checks, otdoa, otdoa_nlos, receiver, trials
 from .trial_draw import trial_keys
 from .cluster import OtherCode, gather, worker_address
 from .errors import Failure
 from .code_key import changed_since_import, code_version
-from .experiment import Experiment, deployment_digest
+from .experiment import OTDOA_DETECTORS, Experiment, deployment_digest
 from .results import Results
 from .chunk_cache import ChunkCache, sliced_chunk, snr_superset_runs
 from .store import stored, stored_fields
@@ -36,6 +36,8 @@ from .store import stored, stored_fields
 #: slowest trial of a batch needs, so its fixes run one trial at a time whatever the batch size
 #: (``ChunkRunner.bnb``), and so do its experiments' OTDoA step 1 and prior centres
 BATCH_SIZE = {"grid": 2, "bnb": 1}
+#: the detector whose ToAs the NLoS-aware OTDoA receiver reads (``otdoa_nlos``)
+FIRST_PATH = OTDOA_DETECTORS.index("first_path")
 
 _BUILDERS = {"grid_trial": trials.grid_trial_fn, "bnb_prep": trials.bnb_prep_fn, "toa": trials.toa_fn,
              "prior": trials.prior_fn}
@@ -187,6 +189,7 @@ class ChunkRunner:
         self.window = jnp.asarray(receiver.receiver_window(e.receiver_search(), e.scenario.prs_reuse)) if self.bnb else None
         # one compiled OTDoA problem per M, built once per run (``otdoa.Solver`` reads cvxpy's data map when built)
         self.solvers = {m: otdoa.Solver(m) for m in e.receiver.m_values} if e.receiver.otdoa else None
+        self.nlos = otdoa_nlos.NlosSolver() if e.receiver.otdoa_nlos else None  # the NLoS-aware OTDoA receiver
 
     def __call__(self, start: int, stop: int, batch_size: int, workers: int = 1) -> dict:
         e = self.e
@@ -196,7 +199,8 @@ class ChunkRunner:
             return self._dpe(keys, ts, None, batch_size, workers)
         # step 1 on the same signals (regenerated from the same keys), then the convex fixes, in pieces: the fixes of
         # piece k+1 (Python, one core) are solved while the DPE of piece k runs (XLA, the GIL released)
-        toas, ue, idx = run_chunk((keys, ts), self.toa_fn, batch_size, workers=workers)
+        out = run_chunk((keys, ts), self.toa_fn, batch_size, workers=workers)
+        (toas, *sigma), ue, idx = out[:-2], out[-2], out[-1]  # σ (eq. (O1)) with ``otdoa_nlos``
         n = stop - start
         step = max(-(-n // self.OTDOA_PIECES), 1)
         ots, dpes = [], []
@@ -204,6 +208,9 @@ class ChunkRunner:
             for a in range(0, n, step):
                 sl = slice(a, min(a + step, n))
                 ot = trials.otdoa_fixes(e, self.dep, toas[sl], ue[sl], idx[sl], self.solvers)
+                if sigma:  # ``otdoa_nlos``: the NLoS-aware receiver on the first-path ToAs
+                    ot |= otdoa_nlos.chunk_fixes(e.receiver.m_values, self.dep.bs_xyz, toas[sl][:, :, FIRST_PATH],
+                                                 sigma[0][sl], ue[sl], idx[sl], self.nlos)
                 ext = trials.otdoa_centers(e, self.dep, ot, idx[sl]) if e.receiver.centring == "otdoa" else None
                 ots.append(ot)
                 dpes.append(background.submit(self._dpe, keys[sl], ts[sl], ext, batch_size, workers))

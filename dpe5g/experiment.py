@@ -25,7 +25,7 @@ from .nr import C
 #: settings added after the results store was first filled, with their defaults: at its default such a setting is
 #: left out of ``Experiment.config_key``, so the stored results of every experiment that does not use it keep their key
 LATER_SETTINGS = {"nlos_excess_median_s": 0.0, "nlos_excess_sigma_lg": 0.0, "snr_offset_db": 0.0,
-                  "clock_window": "clock", "channel": "tdl"}
+                  "clock_window": "clock", "channel": "tdl", "otdoa_nlos": False}
 
 LOS_MODES = ("pr_los", "two_of_four", "all_los", "all_nlos", "free_space", "nearest_two_los")
 SNR_MODES = ("fixed", "link_budget", "nearest")
@@ -216,6 +216,10 @@ class Receiver:
         detectors of ``OTDOA_DETECTORS``.
     toa_method : str
         The detector whose OTDoA fix centres the search in centring "otdoa".
+    otdoa_nlos : bool
+        Also run the NLoS-aware OTDoA receiver (``dpe5g.otdoa_nlos``) on the first-path ToAs, for every SNR and M:
+        each link's ToA standard deviation from its correlogram (eq. (O1)), the weighted fix, the residual test and
+        its exclusions; needs ``otdoa``.
     clock_window : str
         ``CLOCK_WINDOWS``, the clock-bias window in centrings "prior" and "otdoa": "clock" (default) the clock model's
         support; "clock_nlos" that support widened on both sides by the ``CLOCK_NLOS_QUANTILE`` point of c·Δτ of the
@@ -230,6 +234,7 @@ class Receiver:
     otdoa: bool = False
     toa_method: str = "first_path"
     clock_window: str = "clock"
+    otdoa_nlos: bool = False
 
     def __post_init__(self):
         _checks.plain_fields(self)  # lists and NumPy values as the plain Python they hash as
@@ -243,6 +248,8 @@ class Receiver:
         _checks.one_of("toa_method", self.toa_method, otdoa.TOA_METHODS)
         if self.centring == "otdoa" and not self.otdoa:
             raise ValueError("centring 'otdoa' centres the search on the OTDoA fix; set otdoa=True")
+        if self.otdoa_nlos and not self.otdoa:
+            raise ValueError("otdoa_nlos runs the NLoS-aware OTDoA receiver on the OTDoA ToAs; set otdoa=True")
         _checks.one_of("clock_window", self.clock_window, CLOCK_WINDOWS)
         if self.clock_window != "clock" and self.centring == "truth":
             raise ValueError(f"clock_window {self.clock_window!r} sets the window of a receiver not centred on the "

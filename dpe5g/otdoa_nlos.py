@@ -46,13 +46,15 @@ WLS_STOP_STEP_M = 1e-6
 def sigma_from_grid(e, toa_first_s, toa_peak_s, bandwidth_hz: float) -> np.ndarray:
     """Eq. (O1): each link's ToA standard deviation from its correlogram and its two detectors' ToAs.
 
+    Traceable (the Monte Carlo engine computes it with ``otdoa_nlos``).
+
     Parameters
     ----------
     e : float (M, J)
         Each link's one-tap correlogram (the energy of ĥ(τ)) on a uniform grid of the period (``correlogram.energy_grid``).
     toa_first_s, toa_peak_s : float (M,)
         The first-path and strongest-peak ToAs, seconds (``otdoa.toa``, "first_path" and "peak").
-    bandwidth_hz : float
+    bandwidth_hz : float or float (M,)
         B, the pilots' occupied bandwidth, Hz.
 
     Returns
@@ -60,12 +62,38 @@ def sigma_from_grid(e, toa_first_s, toa_peak_s, bandwidth_hz: float) -> np.ndarr
     float (M,)
         σ_m, metres.
     """
-    e = np.asarray(e, dtype=np.float64)
-    floor = np.median(e, axis=-1) / np.log(2.0)
-    snr = np.maximum(np.max(e, axis=-1) - floor, 1e-300) / floor
-    crb = C * np.sqrt(3.0) / (np.sqrt(2.0) * np.pi * bandwidth_hz * np.sqrt(snr))
-    spread = C * np.abs(np.asarray(toa_peak_s) - np.asarray(toa_first_s))
-    return np.sqrt(crb**2 + spread**2 / 12.0)
+    e = jnp.asarray(e, dtype=jnp.float64)
+    floor = jnp.median(e, axis=-1) / jnp.log(2.0)
+    snr = jnp.maximum(jnp.max(e, axis=-1) - floor, 1e-300) / floor
+    crb = C * jnp.sqrt(3.0) / (jnp.sqrt(2.0) * jnp.pi * bandwidth_hz * jnp.sqrt(snr))
+    spread = C * jnp.abs(jnp.asarray(toa_peak_s) - jnp.asarray(toa_first_s))
+    return jnp.sqrt(crb**2 + spread**2 / 12.0)
+
+
+def sigma_of_spectrum(g, prs, toa_first_s, toa_peak_s, upsample: int, scs_hz: float):
+    """Eq. (O1) from the links' LS spectra: ``sigma_from_grid`` on their one-tap correlograms, B each link's occupied
+    bandwidth (its non-zero pilots times Δf).  Traceable (the Monte Carlo engine's ``otdoa_nlos``).
+
+    Parameters
+    ----------
+    g : complex (M, N)
+        The LS spectra (``correlogram.ls_spectrum``).
+    prs : complex (M, N)
+        The pilots.
+    toa_first_s, toa_peak_s : float (M,)
+        The two detectors' ToAs, seconds.
+    upsample : int
+        Grid points per sample of the correlogram.
+    scs_hz : float
+        Δf, Hz.
+
+    Returns
+    -------
+    float (M,)
+        σ_m, metres.
+    """
+    e = correlogram.energy_grid(g.astype(correlogram.GRID_DTYPE), 1, upsample)
+    return sigma_from_grid(e, toa_first_s, toa_peak_s, jnp.count_nonzero(prs, axis=-1) * scs_hz)
 
 
 def link_sigma_m(y, prs, upsample: int = 8, threshold_db: float = -10.0, max_lead_samples: int = 64,
@@ -97,19 +125,18 @@ def link_sigma_m(y, prs, upsample: int = 8, threshold_db: float = -10.0, max_lea
     _checks.in_range("threshold_db", threshold_db, -60.0, -0.1, "dB")
     _checks.integer("max_lead_samples", max_lead_samples, 1, y.shape[1] // 2)
     g = correlogram.ls_spectrum(signal.demodulate(y), jnp.asarray(prs))
-    e, first, peak = (np.asarray(a) for a in _grid_and_toas(g, upsample, float(threshold_db), max_lead_samples,
-                                                             num.sample_period_s))
-    occupied = np.count_nonzero(np.abs(np.asarray(prs)) > 0, axis=-1).mean()
-    return first, sigma_from_grid(e, first, peak, occupied * num.scs_hz)
+    first, sigma = _toa_and_sigma(g, jnp.asarray(prs), upsample, float(threshold_db), max_lead_samples,
+                                  num.sample_period_s, num.scs_hz)
+    return np.asarray(first), np.asarray(sigma)
 
 
 @partial(jax.jit, static_argnames=("upsample", "max_lead_samples"))
-def _grid_and_toas(g, upsample, threshold_db, max_lead_samples, ts):
-    """The one-tap energy grid of each link and its first-path and peak ToAs (``otdoa.toa_row``), in one program."""
+def _toa_and_sigma(g, prs, upsample, threshold_db, max_lead_samples, ts, scs_hz):
+    """The first-path ToA and σ of each link (both detectors by ``otdoa.toa_row``), in one program."""
     e = correlogram.energy_grid(g.astype(correlogram.GRID_DTYPE), 1, upsample)
-    toas = [jax.vmap(lambda row, m=method: otdoa.toa_row(row, m, upsample, threshold_db, max_lead_samples, ts))(e)
-            for method in ("first_path", "peak")]
-    return (e, *toas)
+    first, peak = [jax.vmap(lambda row, m=method: otdoa.toa_row(row, m, upsample, threshold_db, max_lead_samples,
+                                                                ts))(e) for method in ("first_path", "peak")]
+    return first, sigma_of_spectrum(g, prs, first, peak, upsample, scs_hz)
 
 
 def _residual(b, t, ue_z, q):
@@ -310,3 +337,46 @@ class NlosSolver:
         thr = threshold(dof, self.false_alarm)
         return NlosFix(np.array([q[0], q[1], ue_z]), float(q[2]), stat, dof, thr, bool(detected), tuple(excluded),
                        bool(dof >= 1 and stat <= thr), True, "")
+
+
+def chunk_fixes(m_values, bs_xyz, toa_s, sigma_m, ue_xyz, bs_index, solver: NlosSolver) -> dict:
+    """The receiver on a Monte Carlo chunk's first-path ToAs, for every SNR and M (the engine's ``otdoa_nlos``).
+
+    Parameters
+    ----------
+    m_values : tuple of int
+        The M values (the M nearest links of each trial).
+    bs_xyz : float (B, 3)
+        The deployment's base stations, metres.
+    toa_s : float (T, S, I)
+        First-path ToAs of the I nearest links, seconds.
+    sigma_m : float (T, S, I)
+        Their standard deviations, metres (eq. (O1)).
+    ue_xyz : float (T, 3)
+        The true UE positions, metres: their heights (known to the receiver) and the errors.
+    bs_index : int (T, I)
+        The nearest BSs' indices into ``bs_xyz``.
+    solver : NlosSolver
+        The receiver.
+
+    Returns
+    -------
+    dict
+        ``results.Results``'s NLoS-aware fields: "otdoa_sigma_m" (T, S, I); "otdoa_nlos_xyz" (T, S, J, 3) and
+        "otdoa_nlos_error_m" (T, S, J), metres; "otdoa_nlos_detected" (T, S, J); "otdoa_nlos_excluded" (T, S, J, I).
+    """
+    n_t, n_s, n_i = toa_s.shape
+    n_j = len(m_values)
+    xyz = np.full((n_t, n_s, n_j, 3), np.nan)
+    detected = np.zeros((n_t, n_s, n_j), dtype=bool)
+    excluded = np.zeros((n_t, n_s, n_j, n_i), dtype=bool)
+    for t in range(n_t):
+        for j, m in enumerate(m_values):
+            bs = bs_xyz[bs_index[t, :m]]
+            for s in range(n_s):
+                f = solver.fix(bs, toa_s[t, s, :m], sigma_m[t, s, :m], float(ue_xyz[t, 2]))
+                xyz[t, s, j], detected[t, s, j] = f.xyz, f.detected
+                excluded[t, s, j, list(f.excluded)] = True
+    err = np.linalg.norm(xyz[..., :2] - ue_xyz[:, None, None, :2], axis=-1)
+    return {"otdoa_sigma_m": np.asarray(sigma_m), "otdoa_nlos_xyz": xyz, "otdoa_nlos_error_m": err,
+            "otdoa_nlos_detected": detected, "otdoa_nlos_excluded": excluded}

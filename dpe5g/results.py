@@ -48,6 +48,10 @@ class Results:
         With ``otdoa`` (else None), per detector d of ``OTDOA_DETECTORS``: the estimated ToAs (T, S, D, I), seconds
         (clock bias included); the fixes (T, S, D, J, 3) and their horizontal errors (T, S, D, J), metres; and, bool
         (T, S, D, J), False where the fix is flagged.
+    otdoa_sigma_m, otdoa_nlos_xyz, otdoa_nlos_error_m, otdoa_nlos_detected, otdoa_nlos_excluded : arrays or None
+        With ``otdoa_nlos`` (else None), the NLoS-aware OTDoA receiver on the first-path ToAs: each link's ToA
+        standard deviation (T, S, I), metres, eq. (O1); the fixes (T, S, J, 3) and their horizontal errors (T, S, J),
+        metres; bool (T, S, J), the residual test rejected the M links; bool (T, S, J, I), the links it excluded.
     """
 
     experiment: Experiment
@@ -68,10 +72,17 @@ class Results:
     otdoa_xyz: np.ndarray | None = None
     otdoa_error_m: np.ndarray | None = None
     otdoa_ok: np.ndarray | None = None
+    otdoa_sigma_m: np.ndarray | None = None
+    otdoa_nlos_xyz: np.ndarray | None = None
+    otdoa_nlos_error_m: np.ndarray | None = None
+    otdoa_nlos_detected: np.ndarray | None = None
+    otdoa_nlos_excluded: np.ndarray | None = None
 
     FIELDS = ("ue_xyz", "clock_bias_s", "bs_index", "los", "link_snr_db", "link_sinr_db", "est_xyz", "est_bias_s",
               "error_m", "center_xyz", "edge", "gap", "certified")
     OTDOA_FIELDS = ("otdoa_toa_s", "otdoa_xyz", "otdoa_error_m", "otdoa_ok")
+    OTDOA_NLOS_FIELDS = ("otdoa_sigma_m", "otdoa_nlos_xyz", "otdoa_nlos_error_m", "otdoa_nlos_detected",
+                         "otdoa_nlos_excluded")
 
     def rmse_m(self) -> np.ndarray:
         """RMSE of the horizontal error over trials.

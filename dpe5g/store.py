@@ -78,9 +78,10 @@ def stored_fields(e: Experiment) -> tuple[str, ...]:
     Returns
     -------
     tuple of str
-        All of them (the OTDoA fields where ``e`` runs OTDoA).
+        All of them (the OTDoA fields where ``e`` runs OTDoA, the NLoS-aware OTDoA's where it runs that).
     """
-    return Results.FIELDS + (Results.OTDOA_FIELDS if e.receiver.otdoa else ())
+    return (Results.FIELDS + (Results.OTDOA_FIELDS if e.receiver.otdoa else ())
+            + (Results.OTDOA_NLOS_FIELDS if e.receiver.otdoa_nlos else ()))
 
 
 @dataclass(frozen=True)

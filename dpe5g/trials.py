@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _checks, correlogram, deployment, grid_search, otdoa, receiver, signal
+from . import _checks, correlogram, deployment, grid_search, otdoa, otdoa_nlos, receiver, signal
 from .spline_bounds import spline_window
 from .draw import draw_fn, prior_center
 from .trial_draw import CoChannelDraw, ReuseDraw, TrialDraw, trial_key
@@ -38,9 +38,9 @@ PROGRAMS = ("grid_trial", "bnb_prep", "bnb_fix", "toa", "prior")
 def program_config(e: Experiment, program: str) -> Experiment | tuple[SearchConfig, tuple[int, ...]]:
     """The part of ``e`` that ``program`` reads; the one key of compiled programs.
 
-    Every program: not the name, the seed (it enters through the trial keys), nor the trial and chunk counts. "toa",
-    "prior": nothing else is cleared.  "grid_trial", "bnb_prep": nor how a non-truth window centre is obtained (it
-    enters as an input), and for the certified search the receiver window L and its weights (they enter as
+    Every program: not the name, the seed (it enters through the trial keys), nor the trial and chunk counts. "toa":
+    nothing else is cleared; the others: nor ``otdoa_nlos``; "prior" nothing more.  "grid_trial", "bnb_prep": nor how
+    a non-truth window centre is obtained (it enters as an input), and for the certified search the receiver window L and its weights (they enter as
     ``correlogram.window_spectrum``, an input).  "bnb_fix": the receiver's ``SearchConfig`` without its window (it
     enters through the coefficients) and the M values, a pair.  Experiments that differ only in what is cleared share
     one compiled program (and, through JAX's persistent compilation cache, one compiled executable across processes).
@@ -65,7 +65,10 @@ def program_config(e: Experiment, program: str) -> Experiment | tuple[SearchConf
     if program not in PROGRAMS:
         raise ValueError(f"program must be one of {PROGRAMS}, got {program!r}")
     run_free = e.replace(name="", seed=0, n_trials=1, chunk_trials=1)
-    if program in ("toa", "prior"):
+    if program == "toa":
+        return run_free
+    run_free = run_free.replace(otdoa_nlos=False)  # read by "toa" only
+    if program == "prior":
         return run_free
     if program == "bnb_fix":
         return dataclasses.replace(e.receiver_search(), n_taps=1, window_decay_s=0.0), tuple(e.receiver.m_values)
@@ -308,19 +311,25 @@ def toa_fn(e: Experiment, dep: deployment.Deployment):
     -------
     callable
         (key, t) → (ToAs (S, D, I) in seconds with each detector of ``OTDOA_DETECTORS``, the true UE position (3,) m (to
-        score the fixes), the indices (I,) of the nearest BSs).
+        score the fixes), the indices (I,) of the nearest BSs); with ``otdoa_nlos``, (ToAs, σ (S, I) in metres of
+        eq. (O1), position, indices).
     """
     draw = draw_fn(e, dep)
+    with_sigma = e.receiver.otdoa_nlos
 
     def one(key, t):
         d = draw(key, t)
 
         def per_snr(s):
             g = correlogram.ls_spectrum(receiver.spectrum_at(d, s), d.prs)
-            return jnp.stack([otdoa.toa_from_spectrum(g, meth, OTDOA_UPSAMPLE, OTDOA_THRESHOLD_DB, OTDOA_MAX_LEAD,
+            toas = jnp.stack([otdoa.toa_from_spectrum(g, meth, OTDOA_UPSAMPLE, OTDOA_THRESHOLD_DB, OTDOA_MAX_LEAD,
                                                       PAPER.sample_period_s) for meth in OTDOA_DETECTORS])
+            first, peak = (toas[OTDOA_DETECTORS.index(k)] for k in ("first_path", "peak"))
+            return ((toas, otdoa_nlos.sigma_of_spectrum(g, d.prs, first, peak, OTDOA_UPSAMPLE, PAPER.scs_hz))
+                    if with_sigma else toas)
 
-        return jax.lax.map(per_snr, jnp.arange(d.n_snr)), d.ue_xyz, d.bs_index
+        out = jax.lax.map(per_snr, jnp.arange(d.n_snr))
+        return (*out, d.ue_xyz, d.bs_index) if with_sigma else (out, d.ue_xyz, d.bs_index)
 
     return one
 

@@ -133,3 +133,32 @@ def test_link_sigma_bad_input_names_the_parameter():
         otdoa_nlos.link_sigma_m(y, prs, upsample=0)
     with pytest.raises(ValueError, match="threshold_db"):
         otdoa_nlos.link_sigma_m(y, prs, threshold_db=3.0)
+
+
+def test_the_engine_runs_the_receiver_on_each_trials_own_signals(tmp_path):
+    """``otdoa_nlos``: the engine's σ of each link is ``link_sigma_m`` on the trial's received signals (its grid in
+    the engine's precision), its fix the receiver's on them; every other field as computed without it, to the bit."""
+    from dpe5g import engine, experiment, results, search_config, trials
+
+    kw = dict(name="s", n_trials=2, seed=1, snrs_db=(0.0, 20.0), m_values=(5,), otdoa=True, centring="truth",
+              nlos_excess_median_s=31.6e-9, nlos_excess_sigma_lg=0.5,
+              search=search_config.SearchConfig(half_width_m=3.0, bias_half_width_m=3.0))
+    e = experiment.Experiment.build(otdoa_nlos=True, **kw)
+    res = engine.run(e, cache=tmp_path / "a", progress=False, use_store=False)
+    plain = engine.run(experiment.Experiment.build(**kw), cache=tmp_path / "b", progress=False, use_store=False)
+    assert plain.otdoa_sigma_m is None and res.otdoa_sigma_m.shape == res.link_snr_db.shape
+    for f in results.Results.FIELDS + results.Results.OTDOA_FIELDS:
+        np.testing.assert_array_equal(getattr(res, f), getattr(plain, f), err_msg=f)
+    solver = otdoa_nlos.NlosSolver()
+    for t in range(e.run.n_trials):
+        for s in range(e.n_snr):
+            ex = trials.example(e, t, s)
+            toa, sig = otdoa_nlos.link_sigma_m(ex.y, ex.prs)
+            np.testing.assert_allclose(res.otdoa_sigma_m[t, s], sig, rtol=1e-4)
+            f = solver.fix(ex.bs_xyz[:5], toa[:5], sig[:5], ex.ue_xyz[2])  # the receiver on the trial's signals
+            np.testing.assert_allclose(res.otdoa_nlos_xyz[t, s, 0], f.xyz, atol=1e-3)
+            assert res.otdoa_nlos_detected[t, s, 0] == f.detected
+            assert np.flatnonzero(res.otdoa_nlos_excluded[t, s, 0]).tolist() == sorted(f.excluded)
+    assert res.otdoa_nlos_error_m.shape == res.error_m.shape
+    with pytest.raises(ValueError, match="otdoa_nlos"):
+        experiment.Experiment.build(**{**kw, "otdoa": False}, otdoa_nlos=True)
