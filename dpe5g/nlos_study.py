@@ -260,6 +260,25 @@ def fig9_blind_readings(n_trials: int = paper.READING_TRIALS) -> Experiment:
     return fig9_blind(n_trials).replace(name="fig09-blind-readings", snrs_db=paper.READING_SNRS_DB)
 
 
+def nlos_otdoa() -> dict:
+    """The NLoS-aware OTDoA receiver (``otdoa_nlos``) beside the naive one on the UMi trials.
+
+    Fig. 10's experiments centred on OTDoA (``fig10_nlos_excess`` at the UMi median; the 4 nearest BSs: the residual
+    test can detect, not exclude) and Fig. 9's honest one (``fig9_excess``; M = 6 to 24: it can exclude), each with
+    ``otdoa_nlos`` set: the same trials, and the same DPE and naive OTDoA fixes.
+
+    Returns
+    -------
+    dict
+        {"fig10-" + case: Experiment for each case of ``paper.FIG10_CASES``, "fig9": Experiment}, named as their
+        source experiments with "-nlos-otdoa" added.
+    """
+    out = {f"fig10-{case}": e.replace(name=f"{e.run.name}-nlos-otdoa", otdoa_nlos=True)
+           for (case, centring), e in fig10_nlos_excess(UMI.median_s).items() if centring == "otdoa"}
+    e9 = fig9_excess(UMI.median_s)
+    return out | {"fig9": e9.replace(name=f"{e9.run.name}-nlos-otdoa", otdoa_nlos=True)}
+
+
 def all_experiments() -> list[Experiment]:
     """Every experiment of the NLoS-bias chapter, at the trial counts it reads.
 
@@ -276,4 +295,4 @@ def all_experiments() -> list[Experiment]:
         out += list(fig10_snr_offset(offset).values())
     out += list(fig10_window_confound().values()) + list(fig10_nearest_los().values())
     out += [fig9_excess(m) for m in FIG9_EXCESS_MEDIANS_S] + [fig9_truth_excess(), fig9_blind(), fig9_blind_readings()]
-    return out
+    return out + list(nlos_otdoa().values())
