@@ -9,8 +9,9 @@ The paper's OTDoA baseline (``otdoa``) fits every detected first path with equal
        σ_m² = σ_CRB,m² + c² (τ̂_peak,m − τ̂_first,m)² / 12,     σ_CRB,m = c √3 / (√2 π B √SNR̂_m),
 
    σ_CRB the Cramér–Rao bound of a ToA over a flat band B (the pilots' occupied bandwidth; RMS bandwidth B/√12)
-   at the link's post-correlation SNR SNR̂ = (peak − floor) / floor of its correlogram, the noise floor its mean,
-   read from its median (the noise's energy is exponential: mean = median / ln 2); the second term, a uniform spread over
+   at the link's post-correlation SNR SNR̂ = (peak − floor) / floor of its correlogram, the noise floor its mean over
+   the half of the period farthest from the peak (at least 8 µs from it with the paper's numerology, where no path of a TDL
+   channel, excess delay included, arrives); the second term, a uniform spread over
    the span between the first path and the strongest peak, grows when multipath (NLoS: a weak or absent direct path)
    separates them.  No truth enters: neither the SNR the experiment set, nor the LoS state.
 2. ``wls_fix`` — the weighted least squares of the ToAs over (x, y, c δt), the UE height known:
@@ -18,8 +19,11 @@ The paper's OTDoA baseline (``otdoa``) fits every detected first path with equal
    explicit so that any subset of links is fitted alike), by Gauss–Newton from the SOCP fix of ``otdoa.Solver``.
 3. ``NlosSolver.fix`` — the test statistic T = Σ_m e_m² / σ_m² of the fit is χ² with M − 3 degrees of freedom when
    every ToA is unbiased with the modelled σ.  T above its 1 − ``FALSE_ALARM`` quantile detects an inconsistent set;
-   with M − 3 ≥ 2 the link whose leave-one-out fit has the least T is excluded and the test repeated on the rest;
-   an exclusion is made only while the remaining links can still be tested (M − 3 ≥ 1 after it).  With the 4
+   with M − 3 ≥ 2 the link of the largest normalised residual w_m = e_m / √(Q_e)_mm is excluded (Baarda's w-test:
+   Q_e = Σ − J (Jᵀ Σ⁻¹ J)⁻¹ Jᵀ is the covariance of the residuals e at the fit, J their Jacobian, Σ = diag σ²; for
+   a single biased link it points at that link, and it costs one fit per round where leave-one-out fits cost M),
+   then the rest is fitted and tested again; an exclusion is made only while the remaining links can still be
+   tested (M − 3 ≥ 1 after it).  With the 4
    nearest BSs (M − 3 = 1) the test detects but cannot identify: it flags the fix and excludes nothing.
 
 Units: seconds, metres.  Bad input raises ``ValueError``.
@@ -63,7 +67,10 @@ def sigma_from_grid(e, toa_first_s, toa_peak_s, bandwidth_hz: float) -> np.ndarr
         σ_m, metres.
     """
     e = jnp.asarray(e, dtype=jnp.float64)
-    floor = jnp.median(e, axis=-1) / jnp.log(2.0)
+    n = e.shape[-1]
+    k = jnp.argmax(e, axis=-1)
+    far = jnp.mod(k[..., None] + n // 4 + jnp.arange(n // 2), n)  # the half period opposite the peak
+    floor = jnp.mean(jnp.take_along_axis(e, far, axis=-1), axis=-1)
     snr = jnp.maximum(jnp.max(e, axis=-1) - floor, 1e-300) / floor
     crb = C * jnp.sqrt(3.0) / (jnp.sqrt(2.0) * jnp.pi * bandwidth_hz * jnp.sqrt(snr))
     spread = C * jnp.abs(jnp.asarray(toa_peak_s) - jnp.asarray(toa_first_s))
@@ -191,6 +198,31 @@ def wls_fix(bs_xyz, toa_s, sigma_m, ue_z: float, xy0, iters: int = 30) -> tuple[
         if np.linalg.norm(step) < WLS_STOP_STEP_M:
             break
     return q, float(cost)
+
+
+def normalised_residuals(bs_xyz, toa_s, sigma_m, ue_z: float, q) -> np.ndarray:
+    """Baarda's w-test statistics w_m = e_m / √(Q_e)_mm of the weighted fit at q (module docstring, step 3).
+
+    Parameters
+    ----------
+    bs_xyz, toa_s, sigma_m, ue_z
+        As for ``wls_fix``.
+    q : float (3,)
+        The fit (x, y, c δt), metres (``wls_fix``).
+
+    Returns
+    -------
+    float (M,)
+        Standard normal for each link when every ToA is unbiased with its σ.
+    """
+    b, s = np.asarray(bs_xyz, dtype=np.float64), np.asarray(sigma_m, dtype=np.float64)
+    p = np.array([q[0], q[1], ue_z])
+    u = (p - b)[:, :2] / np.maximum(np.linalg.norm(p - b, axis=1), 1e-9)[:, None]
+    J = -np.column_stack([u, np.ones(len(b))])
+    Jw = J / s[:, None]
+    q_e = np.diag(s**2) - J @ np.linalg.solve(Jw.T @ Jw, J.T)
+    e = _residual(b, np.asarray(toa_s, dtype=np.float64), ue_z, q)
+    return e / np.sqrt(np.maximum(np.diag(q_e), 1e-300))
 
 
 @dataclass(frozen=True)
@@ -328,11 +360,10 @@ class NlosSolver:
         detected = len(b) > 3 and stat > threshold(len(b) - 3, self.false_alarm)
         excluded = []
         while self.exclude and len(active) - 3 >= 2 and stat > threshold(len(active) - 3, self.false_alarm):
-            trials = [(wls_fix(b[rest], t[rest], s[rest], ue_z, q[:2]), k)
-                      for k in active for rest in [[i for i in active if i != k]]]
-            (q, stat), k = min(trials, key=lambda tr: tr[0][1])
+            k = active[int(np.argmax(np.abs(normalised_residuals(b[active], t[active], s[active], ue_z, q))))]
             active.remove(k)
             excluded.append(k)
+            q, stat = wls_fix(b[active], t[active], s[active], ue_z, q[:2])
         dof = len(active) - 3
         thr = threshold(dof, self.false_alarm)
         return NlosFix(np.array([q[0], q[1], ue_z]), float(q[2]), stat, dof, thr, bool(detected), tuple(excluded),
