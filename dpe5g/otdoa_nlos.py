@@ -220,7 +220,7 @@ def normalised_residuals(bs_xyz, toa_s, sigma_m, ue_z: float, q) -> np.ndarray:
     u = (p - b)[:, :2] / np.maximum(np.linalg.norm(p - b, axis=1), 1e-9)[:, None]
     J = -np.column_stack([u, np.ones(len(b))])
     Jw = J / s[:, None]
-    q_e = np.diag(s**2) - J @ np.linalg.solve(Jw.T @ Jw, J.T)
+    q_e = np.diag(s**2) - J @ np.linalg.pinv(Jw.T @ Jw) @ J.T  # pinv: links left in a line leave it singular
     e = _residual(b, np.asarray(toa_s, dtype=np.float64), ue_z, q)
     return e / np.sqrt(np.maximum(np.diag(q_e), 1e-300))
 
