@@ -6,12 +6,15 @@ The paper's OTDoA baseline (``otdoa``) fits every detected first path with equal
 1. ``link_sigma_m`` — each link's first-path ToA (``otdoa.toa``'s detector) and its standard deviation in metres,
    from the link's own correlogram only (eq. (O1) of the NLoS chapter):
 
-       σ_m² = σ_CRB,m² + c² (τ̂_peak,m − τ̂_first,m)² / 12,     σ_CRB,m = c √3 / (√2 π B √SNR̂_m),
+       σ_m² = σ_CRB,m² + (c / B)² / 12 + c² (τ̂_peak,m − τ̂_first,m)² / 12,     σ_CRB,m = c √3 / (√2 π B √SNR̂_m),
 
    σ_CRB the Cramér–Rao bound of a ToA over a flat band B (the pilots' occupied bandwidth; RMS bandwidth B/√12)
    at the link's post-correlation SNR SNR̂ = (peak − floor) / floor of its correlogram, the noise floor its mean over
    the half of the period farthest from the peak (at least 8 µs from it with the paper's numerology, where no path of a TDL
-   channel, excess delay included, arrives); the second term, a uniform spread over
+   channel, excess delay included, arrives); the second, a uniform spread over one resolution cell 1/B: paths
+   closer than that are not resolved, and a TDL channel's taps lie within a few cells of each other (the CRB alone,
+   millimetres at Fig. 10's SNRs, made the test flag every four-LoS trial of Fig. 10 under the UMi delay); the
+   third, a uniform spread over
    the span between the first path and the strongest peak, grows when multipath (NLoS: a weak or absent direct path)
    separates them.  No truth enters: neither the SNR the experiment set, nor the LoS state.
 2. ``wls_fix`` — the weighted least squares of the ToAs over (x, y, c δt), the UE height known:
@@ -66,15 +69,32 @@ def sigma_from_grid(e, toa_first_s, toa_peak_s, bandwidth_hz: float) -> np.ndarr
     float (M,)
         σ_m, metres.
     """
+    spread = C * jnp.abs(jnp.asarray(toa_peak_s) - jnp.asarray(toa_first_s))
+    return jnp.sqrt(crb_m(e, bandwidth_hz) ** 2 + (C / bandwidth_hz) ** 2 / 12.0 + spread**2 / 12.0)
+
+
+def crb_m(e, bandwidth_hz):
+    """Eq. (O1)'s first term: the Cramér–Rao bound of a ToA over a flat band at the correlogram's SNR, metres.
+
+    Parameters
+    ----------
+    e : float (M, J)
+        Each link's one-tap correlogram on a uniform grid of the period.
+    bandwidth_hz : float or float (M,)
+        B, Hz.
+
+    Returns
+    -------
+    float (M,)
+        c √3 / (√2 π B √SNR̂), SNR̂ the peak over the mean of the half period opposite it, less one.
+    """
     e = jnp.asarray(e, dtype=jnp.float64)
     n = e.shape[-1]
     k = jnp.argmax(e, axis=-1)
     far = jnp.mod(k[..., None] + n // 4 + jnp.arange(n // 2), n)  # the half period opposite the peak
     floor = jnp.mean(jnp.take_along_axis(e, far, axis=-1), axis=-1)
     snr = jnp.maximum(jnp.max(e, axis=-1) - floor, 1e-300) / floor
-    crb = C * jnp.sqrt(3.0) / (jnp.sqrt(2.0) * jnp.pi * bandwidth_hz * jnp.sqrt(snr))
-    spread = C * jnp.abs(jnp.asarray(toa_peak_s) - jnp.asarray(toa_first_s))
-    return jnp.sqrt(crb**2 + spread**2 / 12.0)
+    return C * jnp.sqrt(3.0) / (jnp.sqrt(2.0) * jnp.pi * bandwidth_hz * jnp.sqrt(snr))
 
 
 def sigma_of_spectrum(g, prs, toa_first_s, toa_peak_s, upsample: int, scs_hz: float):

@@ -7,8 +7,13 @@ import pytest
 from scipy.optimize import least_squares
 from scipy.stats import binom
 
-from dpe5g import cost, nr, otdoa, otdoa_nlos, signal
+from dpe5g import correlogram, cost, nr, otdoa, otdoa_nlos, signal
+from dpe5g.nr import PAPER
 from dpe5g.nr import C
+
+
+#: eq. (O1)'s resolution term, c / (B √12) with the paper's full band B = N Δf
+RESOLUTION_M = C / (PAPER.n_fft * PAPER.scs_hz) / np.sqrt(12)
 
 
 def ring(m, rng):
@@ -20,9 +25,9 @@ def ring(m, rng):
 
 @pytest.mark.parametrize("snr_db", [-10.0, 0.0])
 def test_sigma_is_the_spread_of_the_first_path_toas(snr_db):
-    """One path per link, AWGN: eq. (O1)'s σ, estimated from each received signal, is the standard deviation of the
-    first-path ToAs over 30 noise draws: the median of |error| / σ is a normal's 0.67 within 20 % (σ is the CRB at
-    the estimated SNR, and the detector reaches it)."""
+    """One path per link, AWGN: eq. (O1)'s CRB term, estimated from each received signal, is the standard deviation
+    of the first-path ToAs over 30 noise draws: the median of |error| / CRB is a normal's 0.67 within 20 % (the
+    detector reaches the bound at the estimated SNR); σ is at least the resolution term."""
     m, draws = 6, 30
     prs = nr.prs_matrix(range(m))
     bs = ring(m, np.random.default_rng(1))
@@ -33,8 +38,10 @@ def test_sigma_is_the_spread_of_the_first_path_toas(snr_db):
         t, s = otdoa_nlos.link_sigma_m(y, prs)
         if k == 0:  # the first-path ToAs are otdoa.toa's, to the bit
             np.testing.assert_array_equal(t, np.asarray(otdoa.toa(y, prs)))
+        assert np.all(s >= RESOLUTION_M)
         err.append(C * (t - tau))
-        sig.append(s)
+        sig.append(otdoa_nlos.crb_m(correlogram.energy_grid(correlogram.ls_spectrum(signal.demodulate(y), prs), 1, 8),
+                                    nr.PAPER.n_fft * nr.PAPER.scs_hz))
     err, sig = np.array(err), np.array(sig)
     z = (err - np.median(err, axis=0)) / sig  # each link has its own interpolation bias, of centimetres
     mad = np.median(np.abs(z))  # 0.674 for a standard normal; robust to the detector's rare outliers
@@ -42,13 +49,15 @@ def test_sigma_is_the_spread_of_the_first_path_toas(snr_db):
 
 
 def test_a_late_peak_widens_sigma():
-    """A second path 10 samples after a weaker first one: σ covers the span between the two detectors' ToAs."""
+    """A second path 10 samples after a weaker first one: σ covers the span between the two detectors' ToAs (and the
+    resolution cell; the CRB is negligible at 0 dB over 4096 samples)."""
     prs = nr.prs_matrix(range(1))
     ts = nr.PAPER.sample_period_s
     y = signal.received_samples(jax.random.PRNGKey(0), prs, np.array([[0.5, 1.0]]), np.array([[0.0, 10 * ts]]),
                                 np.array([1e-6]), 0.0)
     _, s = otdoa_nlos.link_sigma_m(y, prs)
-    assert C * 10 * ts / np.sqrt(12) <= s[0] < C * 10 * ts / np.sqrt(12) * 1.05
+    span = C * 10 * ts / np.sqrt(12)
+    assert span <= s[0] < np.hypot(span, RESOLUTION_M) * 1.05
 
 
 def test_wls_fix_is_the_weighted_least_squares_minimum():
