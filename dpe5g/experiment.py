@@ -25,7 +25,7 @@ from .nr import C
 #: settings added after the results store was first filled, with their defaults: at its default such a setting is
 #: left out of ``Experiment.config_key``, so the stored results of every experiment that does not use it keep their key
 LATER_SETTINGS = {"nlos_excess_median_s": 0.0, "nlos_excess_sigma_lg": 0.0, "snr_offset_db": 0.0,
-                  "clock_window": "clock", "channel": "tdl", "otdoa_nlos": False}
+                  "clock_window": "clock", "channel": "tdl", "otdoa_nlos": False, "dpe_nlos": False}
 
 LOS_MODES = ("pr_los", "two_of_four", "all_los", "all_nlos", "free_space", "nearest_two_los")
 SNR_MODES = ("fixed", "link_budget", "nearest")
@@ -224,6 +224,10 @@ class Receiver:
         ``CLOCK_WINDOWS``, the clock-bias window in centrings "prior" and "otdoa": "clock" (default) the clock model's
         support; "clock_nlos" that support widened on both sides by the ``CLOCK_NLOS_QUANTILE`` point of c·Δτ of the
         scenario's NLoS excess-delay model (its law, not the drawn delays).
+    dpe_nlos : bool
+        The DPE is the NLoS-aware one (``dpe5g.dpe_nlos``, eq. (D1)): each link's excess delay integrated out under
+        the scenario's excess-delay law and eq. (11)'s LoS probability; needs the certified search, a centring other
+        than "truth", clock_window "clock_nlos" and a scenario with an excess delay.
     """
 
     m_values: tuple[int, ...] = (6, 12, 18, 24)
@@ -235,6 +239,7 @@ class Receiver:
     toa_method: str = "first_path"
     clock_window: str = "clock"
     otdoa_nlos: bool = False
+    dpe_nlos: bool = False
 
     def __post_init__(self):
         _checks.plain_fields(self)  # lists and NumPy values as the plain Python they hash as
@@ -318,6 +323,11 @@ class Experiment:
         if sc.prs_reuse and self.links.snr_mode == "fixed":
             raise ValueError("prs_reuse > 0 needs each BS's received power for its interference: snr_mode must be "
                              "'link_budget' or 'nearest', got 'fixed'")
+        if rx.dpe_nlos and (rx.search.method != "bnb" or rx.clock_window != "clock_nlos"
+                            or not sc.nlos_excess_median_s):
+            raise ValueError("dpe_nlos integrates the scenario's NLoS excess delay out in the certified search: it "
+                             "needs search.method 'bnb', clock_window 'clock_nlos' and nlos_excess_median_s > 0, got "
+                             f"{rx.search.method!r}, {rx.clock_window!r}, {sc.nlos_excess_median_s!r}")
         if sc.los_mode in ("two_of_four", "nearest_two_los") and max(rx.m_values) != 4:
             raise ValueError(f"los_mode {sc.los_mode!r} fixes the LoS state of the four nearest links; m_values must "
                              f"end in 4, got {rx.m_values!r}")

@@ -260,6 +260,38 @@ def quantile_difference(err_a, err_b, q: float = 0.9, **boot) -> Interval:
     return paired_interval(lambda a, b: _q(a, q) - _q(b, q), err_a, err_b, **boot)
 
 
+def best_difference(family_a: dict, family_b: dict, q: float = 0.9, **boot) -> tuple[str, str, Interval]:
+    """min_a Q_q(a) − min_b Q_q(b): the best receiver of family a against the best of family b, all on the same trials.
+
+    "Best" is the lowest q-point, chosen again in every bootstrap resample, so the interval carries the choice.
+
+    Parameters
+    ----------
+    family_a, family_b : dict of str to float (T,)
+        Each family's receivers by name, their errors (metres) on the same T trials.
+    q, **boot
+        The quantile and ``paired_interval``'s options.
+
+    Returns
+    -------
+    best_a, best_b : str
+        The names of the two best on all the trials.
+    Interval
+        Metres; below zero where family a's best is the better.
+    """
+    names_a, names_b = list(family_a), list(family_b)
+    if not names_a or not names_b:
+        raise ValueError("best_difference needs at least one receiver in each family")
+    n = len(names_a)
+
+    def stat(*errs):
+        return np.min([_q(e, q) for e in errs[:n]], axis=0) - np.min([_q(e, q) for e in errs[n:]], axis=0)
+
+    best_a = min(names_a, key=lambda k: np.quantile(family_a[k], q))
+    best_b = min(names_b, key=lambda k: np.quantile(family_b[k], q))
+    return best_a, best_b, paired_interval(stat, *family_a.values(), *family_b.values(), **boot)
+
+
 def quantile_ratio(err_a, err_b, q: float = 0.9, **boot) -> Interval:
     """Q_q(err_a) / Q_q(err_b) of two receivers' errors on the same trials, with its paired interval.
 

@@ -279,6 +279,31 @@ def nlos_otdoa() -> dict:
     return out | {"fig9": e9.replace(name=f"{e9.run.name}-nlos-otdoa", otdoa_nlos=True)}
 
 
+#: the SNRs of Fig. 9 at which the NLoS-aware DPE runs (the NLoS-aware OTDoA's comparison reads 20 dB)
+NLOS_DPE_FIG9_SNRS_DB = (20.0,)
+
+
+def nlos_dpe() -> dict:
+    """The NLoS-aware DPE (``dpe_nlos``, eq. (D1)) beside the naive one in the same window, on the UMi trials.
+
+    Fig. 10's honest DPE on the OTDoA fix with the clock window that covers the delay (``fig10_clock_nlos``, whose
+    naive DPE is the comparison), and Fig. 9's honest one (``fig9_excess``) with that clock window, naive and aware:
+    the same trials as every other UMi experiment of the chapter, so that the NLoS-aware OTDoA (``nlos_otdoa``) pairs
+    with them by trial.
+
+    Returns
+    -------
+    dict
+        {"fig10-" + case: the aware DPE for each case of ``paper.FIG10_CASES``, "fig9-naive": Fig. 9's naive DPE in the
+        wide clock window, "fig9": its aware DPE}; the aware ones named as their source with "-nlos-dpe" for "-clock-nlos".
+    """
+    out = {f"fig10-{case}": e.replace(name=e.run.name.replace("-clock-nlos", "-nlos-dpe"), dpe_nlos=True)
+           for case, e in fig10_clock_nlos().items()}
+    e9 = fig9_excess(UMI.median_s)
+    naive9 = e9.replace(name=f"{e9.run.name}-clock-nlos", clock_window="clock_nlos", snrs_db=NLOS_DPE_FIG9_SNRS_DB)
+    return out | {"fig9-naive": naive9, "fig9": naive9.replace(name=f"{e9.run.name}-nlos-dpe", dpe_nlos=True)}
+
+
 def all_experiments() -> list[Experiment]:
     """Every experiment of the NLoS-bias chapter, at the trial counts it reads.
 
@@ -295,4 +320,4 @@ def all_experiments() -> list[Experiment]:
         out += list(fig10_snr_offset(offset).values())
     out += list(fig10_window_confound().values()) + list(fig10_nearest_los().values())
     out += [fig9_excess(m) for m in FIG9_EXCESS_MEDIANS_S] + [fig9_truth_excess(), fig9_blind(), fig9_blind_readings()]
-    return out + list(nlos_otdoa().values())
+    return out + list(nlos_otdoa().values()) + list(nlos_dpe().values())

@@ -89,12 +89,32 @@ def crb_m(e, bandwidth_hz):
         c √3 / (√2 π B √SNR̂), SNR̂ the peak over the mean of the half period opposite it, less one.
     """
     e = jnp.asarray(e, dtype=jnp.float64)
+    floor = noise_floor(e)
+    snr = jnp.maximum(jnp.max(e, axis=-1) - floor, 1e-300) / floor
+    return C * jnp.sqrt(3.0) / (jnp.sqrt(2.0) * jnp.pi * bandwidth_hz * jnp.sqrt(snr))
+
+
+def noise_floor(e) -> jax.Array:
+    """A correlogram's noise floor: its mean over the half of the period opposite its peak (traceable).
+
+    With the paper's numerology that half is at least 8 µs from the peak, where no path of a TDL channel, excess delay
+    included, arrives.
+
+    Parameters
+    ----------
+    e : float (..., J)
+        Correlograms on a uniform grid of the period.
+
+    Returns
+    -------
+    float (...)
+        The floor, in the correlogram's units.
+    """
+    e = jnp.asarray(e, dtype=jnp.float64)
     n = e.shape[-1]
     k = jnp.argmax(e, axis=-1)
     far = jnp.mod(k[..., None] + n // 4 + jnp.arange(n // 2), n)  # the half period opposite the peak
-    floor = jnp.mean(jnp.take_along_axis(e, far, axis=-1), axis=-1)
-    snr = jnp.maximum(jnp.max(e, axis=-1) - floor, 1e-300) / floor
-    return C * jnp.sqrt(3.0) / (jnp.sqrt(2.0) * jnp.pi * bandwidth_hz * jnp.sqrt(snr))
+    return jnp.mean(jnp.take_along_axis(e, far, axis=-1), axis=-1)
 
 
 def sigma_of_spectrum(g, prs, toa_first_s, toa_peak_s, upsample: int, scs_hz: float):

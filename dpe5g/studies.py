@@ -317,3 +317,59 @@ def window_misses(blind, reference, margin_m: float = 1.0) -> dict:
     outside = np.max(np.abs(blind.center_xyz[..., :2] - blind.ue_xyz[:, None, None, :2]), axis=-1) > half
     return {"worse": worse.sum(axis=0), "outside": outside.sum(axis=0), "worse_outside": (worse & outside).sum(axis=0),
             "worse_mask": worse}
+
+
+def umi_families(case: str | None, n_trials: int | None = None, snr_db: float = 20.0) -> tuple[dict, dict]:
+    """Every DPE and every OTDoA receiver of the NLoS chapter on one set of UMi trials, in two families (run or loaded).
+
+    DPE: "naive DPE" (the honest receiver, its clock window the clock model's), "naive DPE, wide clock window"
+    ("clock_nlos"), "NLoS-aware DPE" (eq. (D1), ``nlos_study.nlos_dpe``).  OTDoA: "first-path OTDoA" (the paper's
+    baseline), "NLoS-aware OTDoA" (``nlos_study.nlos_otdoa``).  The experiments share their seed and so their
+    trials; the first-path OTDoA fixes, in every one of them, are checked to be the same.
+
+    Parameters
+    ----------
+    case : str or None
+        A case of ``paper.FIG10_CASES`` for Fig. 10 (the 4 nearest BSs, the DPE on the OTDoA fix), or None for Fig. 9's
+        honest experiment.
+    n_trials : int or None
+        The first trials only (a quick look); None, each experiment's own count.
+    snr_db : float
+        Fig. 9's SNR, one of ``nlos_study.NLOS_DPE_FIG9_SNRS_DB``.
+
+    Returns
+    -------
+    dpe, otdoa : dict
+        {receiver: errors (T,) m} for Fig. 10, {receiver: errors (T, J) m, a column per M} for Fig. 9.
+
+    Raises
+    ------
+    ValueError
+        ``case`` or ``snr_db`` not one of the above; or first-path OTDoA fixes that differ between the experiments
+        (not the same trials).
+    """
+    from . import nlos_study, paper, verify
+
+    aware, aware_ot = nlos_study.nlos_dpe(), nlos_study.nlos_otdoa()
+    if case is None:
+        if snr_db not in nlos_study.NLOS_DPE_FIG9_SNRS_DB:
+            raise ValueError(f"snr_db must be one of {nlos_study.NLOS_DPE_FIG9_SNRS_DB}, got {snr_db!r}")
+        exps = {"naive": aware_ot["fig9"], "wide": aware["fig9-naive"], "aware": aware["fig9"], "ot": aware_ot["fig9"]}
+    elif case in paper.FIG10_CASES:
+        exps = {"naive": nlos_study.fig10_nlos_excess(nlos_study.UMI.median_s)[(case, "otdoa")],
+                "wide": nlos_study.fig10_clock_nlos()[case], "aware": aware[f"fig10-{case}"],
+                "ot": aware_ot[f"fig10-{case}"]}
+    else:
+        raise ValueError(f"case must be one of {paper.FIG10_CASES} or None (Fig. 9), got {case!r}")
+    res = {k: engine.run(e.replace(n_trials=n_trials) if n_trials else e, progress=False) for k, e in exps.items()}
+    snr = {k: list(e.to_dict()["snrs_db"]).index(snr_db) if case is None else 0 for k, e in exps.items()}
+    cols = lambda a, k: a[:, snr[k]] if case is None else a[:, snr[k], 0]  # noqa: E731
+    first_path = {k: cols(r.otdoa_error_m[:, :, 0], k) for k, r in res.items()}
+    for k, v in first_path.items():
+        if not np.allclose(v, first_path["naive"], rtol=0, atol=verify.OTDOA_POSITION_ATOL_M):
+            raise ValueError(f"the first-path OTDoA fixes of {exps[k].run.name} and {exps['naive'].run.name} differ: "
+                             "not the same trials")
+    dpe = {"naive DPE": cols(res["naive"].error_m, "naive"),
+           "naive DPE, wide clock window": cols(res["wide"].error_m, "wide"),
+           "NLoS-aware DPE": cols(res["aware"].error_m, "aware")}
+    return dpe, {"first-path OTDoA": first_path["naive"], "NLoS-aware OTDoA": cols(res["ot"].otdoa_nlos_error_m, "ot")}

@@ -18,8 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _checks, correlogram, deployment, grid_search, otdoa, otdoa_nlos, receiver, signal
-from .spline_bounds import spline_window
+from . import _checks, correlogram, deployment, dpe_nlos, grid_search, otdoa, otdoa_nlos, receiver, signal
 from .draw import draw_fn, prior_center
 from .trial_draw import CoChannelDraw, ReuseDraw, TrialDraw, trial_key
 from .experiment import OTDOA_DETECTORS, Experiment, Receiver
@@ -66,10 +65,10 @@ def program_config(e: Experiment, program: str) -> Experiment | tuple[SearchConf
         raise ValueError(f"program must be one of {PROGRAMS}, got {program!r}")
     run_free = e.replace(name="", seed=0, n_trials=1, chunk_trials=1)
     if program == "toa":
-        return run_free
+        return run_free.replace(dpe_nlos=False)  # read by "bnb_prep" only
     run_free = run_free.replace(otdoa_nlos=False)  # read by "toa" only
     if program == "prior":
-        return run_free
+        return run_free.replace(dpe_nlos=False)
     if program == "bnb_fix":
         return dataclasses.replace(e.receiver_search(), n_taps=1, window_decay_s=0.0), tuple(e.receiver.m_values)
     search = (dataclasses.replace(e.receiver.search, n_taps=1, window_decay_s=0.0) if e.receiver.search.method == "bnb"
@@ -204,7 +203,7 @@ def bnb_prep_fn(e: Experiment, dep: deployment.Deployment):
     callable
         (trial key, trial index, window, window centres ext (S, J, 4) m of the non-truth centrings) → (the trial's draw fields
         (``trial_fields``), BS positions (I, 3) m, the window centres (S, J, 4) m, the part of each BS's spline
-        correlogram each window reaches (``spline_window``: coefficients (S, J, I, cells + 3) and their first knots
+        correlogram each window reaches (``dpe_nlos.receiver_window``: coefficients (S, J, I, cells + 3) and their first knots
         (S, J, I))).
     """
     draw = draw_fn(e, dep)
@@ -218,7 +217,7 @@ def bnb_prep_fn(e: Experiment, dep: deployment.Deployment):
         def per_snr(a):
             s, cen = a
             coef = correlograms(s)
-            return jax.vmap(lambda c: spline_window(coef, d.bs_xyz, c, cfg, PAPER))(cen)
+            return jax.vmap(lambda c: dpe_nlos.receiver_window(e, coef, d.bs_xyz, c, cfg, window))(cen)
 
         sls, starts = jax.lax.map(per_snr, (jnp.arange(d.n_snr), centers))  # (S, J, I, ...)
         return trial_fields(d), d.bs_xyz, centers, sls, starts
@@ -239,7 +238,7 @@ def bnb_fix_fn(cfg: SearchConfig, m_values: tuple[int, ...]):
     Returns
     -------
     callable
-        (BS positions (I, 3) m, window centres (S, J, 4) m, the windows of the spline correlograms (``spline_window``:
+        (BS positions (I, 3) m, window centres (S, J, 4) m, the windows of the spline correlograms (``receiver_window``:
         (S, J, I, cells + 3) and (S, J, I))) → ``WindowFix`` (S, J, ...), with the M nearest BSs for each M of
         ``m_values``.
     """

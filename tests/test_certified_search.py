@@ -8,7 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from dpe5g import certified_search, correlogram, cost, experiment, search_config, spline_bounds, trials
+from dpe5g import (certified_search, correlogram, cost, dpe_nlos, experiment, scenario, search_config, spline_bounds,
+                   trials)
 from dpe5g.nr import C, PAPER
 
 N_TRIALS = 24  # each costs an exhaustive evaluation of its window (about 2.5 s)
@@ -201,3 +202,27 @@ def test_first_path_window_rejects_bad_input():
         correlogram.window_spectrum(3, 64, [1.0, -0.5, 0.2])
     with pytest.raises(ValueError, match="decay_s"):
         correlogram.tap_weights(12, -1e-9)
+
+
+def test_certified_search_finds_the_exhaustive_maximum_of_the_nlos_aware_cost(urban_trials):
+    """The NLoS-aware DPE's cost (eq. (D1), ``dpe_nlos.marginal_window``, TR 38.901's UMi excess delay) in the same
+    windows: the certified search reads only the window's coefficients, and the brute force reads them too (put
+    back at their knots of the period, zeros elsewhere, where no ToA of the window reaches)."""
+    e, items = urban_trials
+    umi = scenario.TR38901_EXCESS_DELAY["UMi"]
+    window = jnp.asarray(correlogram.window_spectrum(CFG.n_taps, PAPER.n_fft))
+    aware = jax.jit(lambda coef, bs, c: dpe_nlos.marginal_window(coef, bs, c, CFG, window, umi.median_s, umi.sigma_lg,
+                                                                 experiment.CLOCK_NLOS_QUANTILE))
+    search = jax.jit(lambda sl, st, bs, c: certified_search.certified_search((sl, st), bs, c, CFG))
+    for ex, center in items[:3]:
+        coef = correlogram.spline_correlogram(ex.y, ex.prs, CFG.n_taps, CFG.spline_upsample)
+        bs, c = jnp.asarray(ex.bs_xyz), jnp.asarray(center)
+        sl, st = aware(coef, bs, c)
+        r, r_cost = search(sl, st, bs, c)
+        idx = np.mod(np.asarray(st)[:, None] + np.arange(sl.shape[1]), coef.shape[1])
+        full = np.zeros(coef.shape)
+        np.put_along_axis(full, idx, np.asarray(sl), axis=1)
+        best = _exhaustive_max(jnp.asarray(full), bs, c, CFG)
+        assert float(r_cost) >= best * (1 - 1e-4)
+        if bool(r.certified):
+            assert best <= float(r_cost) * (1 + CFG.gap_tol) * (1 + 1e-12)
