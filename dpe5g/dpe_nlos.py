@@ -93,6 +93,7 @@ def marginal_terms(values, log_masses, noise_power) -> jax.Array:
     float (M, K)
         ℓ_m at the first K knots (≥ ``values`` there).
     """
+    values, log_masses, noise_power = (jnp.asarray(a, dtype=jnp.float64) for a in (values, log_masses, noise_power))
     n_lags = log_masses.shape[-1]
     k = values.shape[-1] - n_lags + 1
     z = values / noise_power[:, None]

@@ -260,10 +260,35 @@ def quantile_difference(err_a, err_b, q: float = 0.9, **boot) -> Interval:
     return paired_interval(lambda a, b: _q(a, q) - _q(b, q), err_a, err_b, **boot)
 
 
-def best_difference(family_a: dict, family_b: dict, q: float = 0.9, **boot) -> tuple[str, str, Interval]:
-    """min_a Q_q(a) − min_b Q_q(b): the best receiver of family a against the best of family b, all on the same trials.
+@dataclass(frozen=True)
+class BestComparison:
+    """The best receiver of one family against the best of another, on the same trials (``best_comparison``).
 
-    "Best" is the lowest q-point, chosen again in every bootstrap resample, so the interval carries the choice.
+    Attributes
+    ----------
+    best_a, best_b : str
+        Each family's receiver with the lowest q point on all the trials.
+    difference : Interval
+        Q_q(best_a) − Q_q(best_b) with its paired interval, metres.
+    a_better, b_better : bool
+        best_a's paired interval against every receiver of family b lies below zero; or best_b's against every
+        receiver of family a lies above it.  Neither: unresolved.
+    """
+
+    best_a: str
+    best_b: str
+    difference: Interval
+    a_better: bool
+    b_better: bool
+
+
+def best_comparison(family_a: dict, family_b: dict, q: float = 0.9, **boot) -> BestComparison:
+    """Does the best receiver of family a beat the best of family b at the q point?  All on the same trials.
+
+    Each family's best is the receiver with the lowest q point on all the trials.  A family wins only where its best
+    beats every receiver of the other family, each paired interval resolved: then it beats the other family's best,
+    whichever that is (an intersection of tests, so no correction for their number).  The choice of the best from
+    the point estimates is not in the intervals.
 
     Parameters
     ----------
@@ -274,22 +299,21 @@ def best_difference(family_a: dict, family_b: dict, q: float = 0.9, **boot) -> t
 
     Returns
     -------
-    best_a, best_b : str
-        The names of the two best on all the trials.
-    Interval
-        Metres; below zero where family a's best is the better.
+    BestComparison
+
+    Raises
+    ------
+    ValueError
+        An empty family.
     """
-    names_a, names_b = list(family_a), list(family_b)
-    if not names_a or not names_b:
-        raise ValueError("best_difference needs at least one receiver in each family")
-    n = len(names_a)
-
-    def stat(*errs):
-        return np.min([_q(e, q) for e in errs[:n]], axis=0) - np.min([_q(e, q) for e in errs[n:]], axis=0)
-
-    best_a = min(names_a, key=lambda k: np.quantile(family_a[k], q))
-    best_b = min(names_b, key=lambda k: np.quantile(family_b[k], q))
-    return best_a, best_b, paired_interval(stat, *family_a.values(), *family_b.values(), **boot)
+    if not family_a or not family_b:
+        raise ValueError("best_comparison needs at least one receiver in each family")
+    best_a = min(family_a, key=lambda k: np.quantile(family_a[k], q))
+    best_b = min(family_b, key=lambda k: np.quantile(family_b[k], q))
+    a_better = all(quantile_difference(family_a[best_a], e, q, **boot).below(0) for e in family_b.values())
+    b_better = all(quantile_difference(family_b[best_b], e, q, **boot).below(0) for e in family_a.values())
+    return BestComparison(best_a, best_b, quantile_difference(family_a[best_a], family_b[best_b], q, **boot),
+                          a_better, b_better)
 
 
 def quantile_ratio(err_a, err_b, q: float = 0.9, **boot) -> Interval:

@@ -66,21 +66,19 @@ def test_growth_difference_covers_the_true_difference_of_growths():
     assert 0.90 <= cov <= 0.99, cov
 
 
-def test_best_difference_covers_the_difference_of_the_two_best_and_names_them():
-    """Families {s = 1, 0.8} and {0.5, 0.3} on the same trials: the best are 0.8 and 0.3, the 95 % interval of
-    min Q90 − min Q90 covers its true value in 90–99 % of experiments, and with one receiver per family it is
-    ``quantile_difference``."""
-    truth = true_p90(0.8) - true_p90(0.3)
-
-    def best(a1, b1, a2, b2, r):
-        return intervals.best_difference({"1": a1, "0.8": a2}, {"0.5": b1, "0.3": b2}, n_boot=400, seed=r)[2]
-
-    assert 0.90 <= coverage(best, truth, n_arrays=4) <= 0.99
-    a, b, c, d = correlated_lognormals(np.random.default_rng(0), 400, 0.7, 4)
-    assert intervals.best_difference({"x": a, "y": c}, {"u": b, "v": d})[:2] == ("y", "v")
-    assert intervals.best_difference({"x": a}, {"u": b}, seed=3)[2] == intervals.quantile_difference(a, b, seed=3)
+def test_best_comparison_names_the_best_and_wins_only_against_every_receiver():
+    """Families on the same trials: the best are the lowest 90 % points; a family wins where its best beats every
+    receiver of the other (resolved), and a tie with one of them leaves it unresolved."""
+    a, b, c, d = correlated_lognormals(np.random.default_rng(0), 2000, 0.9, 4)  # scales 1, 0.5, 0.8, 0.3
+    r = intervals.best_comparison({"1": a, "0.3": d}, {"0.5": b, "0.8": c})
+    assert (r.best_a, r.best_b, r.a_better, r.b_better) == ("0.3", "0.5", True, False)
+    assert r.difference == intervals.quantile_difference(d, b)
+    same_law = np.random.default_rng(1).permutation(d)  # d's law, another trial order
+    tie = intervals.best_comparison({"1": a, "0.3": d}, {"0.3 again": same_law, "0.8": c})
+    assert not tie.a_better and not tie.b_better
+    assert intervals.best_comparison({"0.8": c}, {"0.3": d}).b_better
     with pytest.raises(ValueError, match="family"):
-        intervals.best_difference({}, {"u": b})
+        intervals.best_comparison({}, {"u": b})
 
 
 def test_pairing_narrows_the_interval_of_a_difference_of_correlated_receivers():
