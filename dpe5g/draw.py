@@ -20,6 +20,9 @@ from . import channel, city_draw, cost, deployment, nr, scenario, signal
 from .experiment import Experiment
 from .trial_draw import CoChannelDraw, ReuseDraw, TrialDraw, link_snr_db, sinr_db, trial_keys
 
+#: folded into a trial's key, the key of its links' NLoS excess delays (``excess_delay``)
+EXCESS_KEY_FOLD = 3000
+
 
 def profiles(e: Experiment) -> tuple[channel.TDLProfile, channel.TDLProfile]:
     """The NLoS (TDL-C) and LoS (TDL-D) profiles of the experiment.
@@ -86,8 +89,7 @@ def draw_fn(e: Experiment, dep: deployment.Deployment):
         h, gains = links.channels(los, k_c, k_d, m_max)
         delays = jnp.where(los[:, None], links.delays_d, links.delays_c)
         if e.scenario.nlos_excess_median_s:  # every path of an NLoS link Δτ late, from a key of its own
-            excess = scenario.nlos_excess_delay(jax.random.fold_in(key, 3000), los, e.scenario.nlos_excess_median_s,
-                                                e.scenario.nlos_excess_sigma_lg)
+            excess = excess_delay(e, key, los)
             h = h * signal.delay_phasor(excess)
             delays = delays + excess[:, None]
         prs = links.prs_all[idx]
@@ -185,6 +187,28 @@ class _LinkModel:
         y_x = signal.received_spectrum(self.prs_all[idx_x], h_x, cost.toa(ue, bs_x), bias)
         snr_x = link_snr_db(e, self.received_dbm(d2d[idx_x], bs_x, los_x, k_xs, idx_x), rx[0], self.snrs)
         return CoChannelDraw(res=self.res_all[idx_x], prs=self.prs_all[idx_x], y0=y_x, snr_db=snr_x)
+
+
+def excess_delay(e: Experiment, key, los) -> jax.Array:
+    """The links' NLoS excess delays Δτ of the trial whose key is ``key`` (``scenario.nlos_excess_delay``, from a key
+    of their own: ``EXCESS_KEY_FOLD`` folded into the trial's), as ``draw_fn``'s trial draws them.
+
+    Parameters
+    ----------
+    e : Experiment
+        The experiment; its scenario's ``nlos_excess_median_s`` > 0.
+    key : jax PRNG key
+        The trial's key (``trial_draw.trial_key``).
+    los : bool (I,)
+        The trial's LoS states.
+
+    Returns
+    -------
+    float (I,)
+        Δτ, seconds, 0 on a LoS link.
+    """
+    return scenario.nlos_excess_delay(jax.random.fold_in(key, EXCESS_KEY_FOLD), los, e.scenario.nlos_excess_median_s,
+                                      e.scenario.nlos_excess_sigma_lg)
 
 
 def prior_center(e: Experiment, ue, key) -> jax.Array:
