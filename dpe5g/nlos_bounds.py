@@ -54,7 +54,7 @@ class MisspecifiedBound:
 
     @property
     def horizontal_rmse_m(self) -> np.ndarray:
-        """√(MCRB_xx + MCRB_yy + bias_x² + bias_y²): the bound on the RMS horizontal error, metres (leading axes)."""
+        """The bound on the RMS horizontal error, √(MCRB_xx + MCRB_yy + bias_x² + bias_y²), metres (leading axes)."""
         return np.sqrt(self.horizontal_variance_m2 + np.sum(self.bias_m[..., :2] ** 2, axis=-1))
 
     @property
