@@ -12,7 +12,7 @@ from dpe5g import (certified_search, correlogram, cost, dpe_nlos, experiment, sc
                    trials)
 from dpe5g.nr import C, PAPER
 
-N_TRIALS = 24  # each costs an exhaustive evaluation of its window (about 2.5 s)
+N_TRIALS = 16  # each costs an exhaustive evaluation of its window (about 2.5 s)
 CFG = search_config.SearchConfig(method="bnb", half_width_m=8.0, bias_half_width_m=3 * 5e-9 * C)
 
 
