@@ -6,7 +6,7 @@ Each link (UE u, BS b) that has at least one traced path keeps K of them (``city
 arrive and the strongest others, their delays after the straight line's d/c (float32, seconds) and their complex
 amplitudes (complex64, the path gain with isotropic antennas).  A link with no path is absent: the UE does not hear
 that BS.  ``save_city`` also writes the city's deployment (``deployment.BUILTIN``), whose file names the dataset's
-checksum, so every experiment run on the city is keyed by the paths it read (``experiment.deployment_digest``).
+checksum, so every experiment run on the city is keyed by the paths it read (``deployment.digest``).
 
 Units: metres, seconds, dB.
 """

@@ -49,6 +49,52 @@ def city_fig10(m: int, centring: str, n_trials: int | None = None) -> Experiment
     return e.replace(name=f"city-{CITY}-m{m}-{centring}", deployment=CITY, channel="traced", m_values=(m,))
 
 
+def city_nlos(m: int, n_trials: int | None = None) -> dict:
+    """The NLoS-aware receivers on the trials of the city's honest experiment (``city_fig10(m, "otdoa")``).
+
+    Each assumes TR 38.901's UMi excess delay (``Receiver.nlos_prior`` "umi": the city's delays have no law a
+    receiver could know), and eq. (11)'s LoS probability.
+
+    Parameters
+    ----------
+    m : int
+        The links, the UE's m strongest.
+    n_trials : int or None
+        As ``city_fig10``'s.
+
+    Returns
+    -------
+    dict
+        {"ot": the NLoS-aware OTDoA (``otdoa_nlos``), "wide": the naive DPE in the clock window that covers the
+        delay ("clock_nlos"), "aware": the NLoS-aware DPE (``dpe_nlos``)}, each named as the honest experiment with
+        "-nlos-otdoa", "-clock-nlos" or "-nlos-dpe" added.
+    """
+    e = city_fig10(m, "otdoa", n_trials)
+    wide = e.replace(name=f"{e.run.name}-clock-nlos", clock_window="clock_nlos", nlos_prior="umi")
+    return {"ot": e.replace(name=f"{e.run.name}-nlos-otdoa", otdoa_nlos=True), "wide": wide,
+            "aware": wide.replace(name=f"{e.run.name}-nlos-dpe", dpe_nlos=True)}
+
+
+def city_families(m: int, n_trials: int | None = None) -> tuple[dict, dict]:
+    """Every DPE and every OTDoA receiver on the city's trials with m links (``studies.receiver_families``).
+
+    Parameters
+    ----------
+    m : int
+        The links, the UE's m strongest.
+    n_trials : int or None
+        As ``city_fig10``'s.
+
+    Returns
+    -------
+    dpe, otdoa : dict
+        {receiver: errors (T,) m}.
+    """
+    from . import studies
+
+    return studies.receiver_families({"naive": city_fig10(m, "otdoa", n_trials), **city_nlos(m, n_trials)})
+
+
 def all_experiments() -> list[Experiment]:
     """Every experiment of the city chapter, at the trial counts it reads.
 
@@ -56,7 +102,8 @@ def all_experiments() -> list[Experiment]:
     -------
     list of Experiment
     """
-    return [city_fig10(m, c) for m in CITY_M for c in CITY_CENTRINGS]
+    return [city_fig10(m, c) for m in CITY_M for c in CITY_CENTRINGS] + [e for m in CITY_M
+                                                                          for e in city_nlos(m).values()]
 
 
 @dataclass(frozen=True)

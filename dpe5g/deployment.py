@@ -12,6 +12,7 @@ that act on a deployment (eq. (11), the path loss, the link budget, the clock bi
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import json
 import math
@@ -473,3 +474,19 @@ def tst() -> Deployment:
     Deployment
     """
     return load_deployment(TST_FILE)
+
+
+def digest(name: str) -> str:
+    """SHA-256 of a deployment's file: the packaged file for a name of ``BUILTIN``, else the file at that path.
+
+    Parameters
+    ----------
+    name : str
+        A packaged deployment's name, or the path of a deployment file.
+
+    Returns
+    -------
+    str
+        Hex digest.
+    """
+    return hashlib.sha256((builtin(name) or Path(name)).read_bytes()).hexdigest()

@@ -186,8 +186,8 @@ def marginal_window(coef, bs_xyz, center, cfg: SearchConfig, window, median_s: f
 
 def receiver_window(e: Experiment, coef, bs_xyz, center, cfg: SearchConfig, window):
     """The window of the spline correlograms that experiment e's certified search reads: ``marginal_window`` for the
-    NLoS-aware DPE (``Receiver.dpe_nlos``, the law of the scenario's excess delay to ``CLOCK_NLOS_QUANTILE``, as the
-    clock window), else ``spline_bounds.spline_window``.  Traceable.
+    NLoS-aware DPE (``Receiver.dpe_nlos``, the excess-delay law it assumes, ``Experiment.excess_law``, to
+    ``CLOCK_NLOS_QUANTILE``, as the clock window), else ``spline_bounds.spline_window``.  Traceable.
 
     Parameters
     ----------
@@ -203,6 +203,4 @@ def receiver_window(e: Experiment, coef, bs_xyz, center, cfg: SearchConfig, wind
     """
     if not e.receiver.dpe_nlos:
         return spline_window(coef, bs_xyz, center, cfg, PAPER)
-    sc = e.scenario
-    return marginal_window(coef, bs_xyz, center, cfg, window, sc.nlos_excess_median_s, sc.nlos_excess_sigma_lg,
-                           CLOCK_NLOS_QUANTILE, PAPER)
+    return marginal_window(coef, bs_xyz, center, cfg, window, *e.excess_law(), CLOCK_NLOS_QUANTILE, PAPER)

@@ -21,12 +21,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _checks, otdoa, otdoa_nlos, receiver, trials
+from . import _checks, deployment, otdoa, otdoa_nlos, receiver, trials
 from .trial_draw import trial_keys
 from .cluster import OtherCode, gather, worker_address
 from .errors import Failure
 from .code_key import changed_since_import, code_version
-from .experiment import OTDOA_DETECTORS, Experiment, deployment_digest
+from .experiment import OTDOA_DETECTORS, Experiment
 from .results import Results
 from .chunk_cache import ChunkCache, sliced_chunk, snr_superset_runs
 from .store import stored, stored_fields
@@ -61,7 +61,7 @@ def compiled_program(e: Experiment, program: str):
         The program (jitted).
     """
     key = trials.program_config(e, program)
-    return _compiled(program, key, "" if program == "bnb_fix" else deployment_digest(e))
+    return _compiled(program, key, "" if program == "bnb_fix" else deployment.digest(e.scenario.deployment))
 
 
 @lru_cache(maxsize=32)

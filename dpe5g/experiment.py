@@ -14,7 +14,6 @@ import hashlib
 import json
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -25,7 +24,8 @@ from .nr import C
 #: settings added after the results store was first filled, with their defaults: at its default such a setting is
 #: left out of ``Experiment.config_key``, so the stored results of every experiment that does not use it keep their key
 LATER_SETTINGS = {"nlos_excess_median_s": 0.0, "nlos_excess_sigma_lg": 0.0, "snr_offset_db": 0.0,
-                  "clock_window": "clock", "channel": "tdl", "otdoa_nlos": False, "dpe_nlos": False}
+                  "clock_window": "clock", "channel": "tdl", "otdoa_nlos": False, "dpe_nlos": False,
+                  "nlos_prior": "scenario"}
 
 LOS_MODES = ("pr_los", "two_of_four", "all_los", "all_nlos", "free_space", "nearest_two_los")
 SNR_MODES = ("fixed", "link_budget", "nearest")
@@ -39,6 +39,9 @@ PRIOR_KINDS = ("gaussian", "disc")
 CLOCK_WINDOWS = ("clock", "clock_nlos")
 #: the percentile of c·Δτ that the "clock_nlos" window adds to the clock model's support
 CLOCK_NLOS_QUANTILE = 0.99
+#: the excess-delay law the NLoS-aware receivers assume (the "clock_nlos" window and ``dpe_nlos``): "scenario" — the
+#: law that drew the scenario's delays; "umi" — TR 38.901's UMi row, for a channel with no law of its own (traced)
+NLOS_PRIORS = ("scenario", "umi")
 #: both OTDoA ToA detectors run on the same signals; the first is the main baseline, the second the naive one
 OTDOA_DETECTORS = ("first_path", "peak")
 #: the channel sources: "tdl" — TR 38.901's TDL models (``draw``); "traced" — the ray-traced paths of the city the
@@ -223,11 +226,13 @@ class Receiver:
     clock_window : str
         ``CLOCK_WINDOWS``, the clock-bias window in centrings "prior" and "otdoa": "clock" (default) the clock model's
         support; "clock_nlos" that support widened on both sides by the ``CLOCK_NLOS_QUANTILE`` point of c·Δτ of the
-        scenario's NLoS excess-delay model (its law, not the drawn delays).
+        excess-delay law the receiver assumes (``nlos_prior``; a law, not the drawn delays).
     dpe_nlos : bool
         The DPE is the NLoS-aware one (``dpe5g.dpe_nlos``, eq. (D1)): each link's excess delay integrated out under
-        the scenario's excess-delay law and eq. (11)'s LoS probability; needs the certified search, a centring other
-        than "truth", clock_window "clock_nlos" and a scenario with an excess delay.
+        the excess-delay law it assumes (``nlos_prior``) and eq. (11)'s LoS probability; needs the certified search, a
+        centring other than "truth" and clock_window "clock_nlos".
+    nlos_prior : str
+        ``NLOS_PRIORS``, the excess-delay law of clock_window "clock_nlos" and of dpe_nlos (``Experiment.excess_law``).
     """
 
     m_values: tuple[int, ...] = (6, 12, 18, 24)
@@ -240,6 +245,7 @@ class Receiver:
     clock_window: str = "clock"
     otdoa_nlos: bool = False
     dpe_nlos: bool = False
+    nlos_prior: str = "scenario"
 
     def __post_init__(self):
         _checks.plain_fields(self)  # lists and NumPy values as the plain Python they hash as
@@ -256,6 +262,7 @@ class Receiver:
         if self.otdoa_nlos and not self.otdoa:
             raise ValueError("otdoa_nlos runs the NLoS-aware OTDoA receiver on the OTDoA ToAs; set otdoa=True")
         _checks.one_of("clock_window", self.clock_window, CLOCK_WINDOWS)
+        _checks.one_of("nlos_prior", self.nlos_prior, NLOS_PRIORS)
         if self.clock_window != "clock" and self.centring == "truth":
             raise ValueError(f"clock_window {self.clock_window!r} sets the window of a receiver not centred on the "
                              f"truth; centring 'truth' searches its own search.bias_half_width_m")
@@ -323,11 +330,15 @@ class Experiment:
         if sc.prs_reuse and self.links.snr_mode == "fixed":
             raise ValueError("prs_reuse > 0 needs each BS's received power for its interference: snr_mode must be "
                              "'link_budget' or 'nearest', got 'fixed'")
-        if rx.dpe_nlos and (rx.search.method != "bnb" or rx.clock_window != "clock_nlos"
-                            or not sc.nlos_excess_median_s):
-            raise ValueError("dpe_nlos integrates the scenario's NLoS excess delay out in the certified search: it "
-                             "needs search.method 'bnb', clock_window 'clock_nlos' and nlos_excess_median_s > 0, got "
-                             f"{rx.search.method!r}, {rx.clock_window!r}, {sc.nlos_excess_median_s!r}")
+        if rx.clock_window == "clock_nlos" and not self.excess_law()[0]:
+            raise ValueError("clock_window 'clock_nlos' widens the clock window by an NLoS excess delay the receiver "
+                             "assumes: set nlos_excess_median_s > 0 or nlos_prior 'umi'")
+        if rx.nlos_prior != "scenario" and rx.clock_window != "clock_nlos":
+            raise ValueError(f"nlos_prior {rx.nlos_prior!r} is read by clock_window 'clock_nlos' only")
+        if rx.dpe_nlos and (rx.search.method != "bnb" or rx.clock_window != "clock_nlos"):
+            raise ValueError("dpe_nlos integrates the NLoS excess delay out in the certified search: it needs "
+                             f"search.method 'bnb' and clock_window 'clock_nlos', got {rx.search.method!r}, "
+                             f"{rx.clock_window!r}")
         if sc.los_mode in ("two_of_four", "nearest_two_los") and max(rx.m_values) != 4:
             raise ValueError(f"los_mode {sc.los_mode!r} fixes the LoS state of the four nearest links; m_values must "
                              f"end in 4, got {rx.m_values!r}")
@@ -391,9 +402,23 @@ class Experiment:
         half_b = sc.clock_bound_sigmas * sc.clock_sigma_s * C
         if self.receiver.clock_window == "clock":
             return dataclasses.replace(search, bias_half_width_m=half_b)
-        half_b += C * scenario.excess_quantile_s(sc.nlos_excess_median_s, sc.nlos_excess_sigma_lg, CLOCK_NLOS_QUANTILE)
+        half_b += C * scenario.excess_quantile_s(*self.excess_law(), CLOCK_NLOS_QUANTILE)
         boxes = min(64, max(search.bias_boxes, math.ceil(2 * half_b / search.box_m)))
         return dataclasses.replace(search, bias_half_width_m=half_b, bias_boxes=boxes)
+
+    def excess_law(self) -> tuple[float, float]:
+        """The NLoS excess-delay law the receiver assumes (``Receiver.nlos_prior``): the scenario's, or TR 38.901's UMi
+        row whatever the channel.
+
+        Returns
+        -------
+        median_s, sigma_lg : float
+            The log-normal's median (s; 0: no excess delay) and its σ of lg Δτ (decades).
+        """
+        if self.receiver.nlos_prior == "umi":
+            row = scenario.TR38901_EXCESS_DELAY[scenario.NLOS_EXCESS_ROW]
+            return row.median_s, row.sigma_lg
+        return self.scenario.nlos_excess_median_s, self.scenario.nlos_excess_sigma_lg
 
     @property
     def n_snr(self) -> int:
@@ -463,23 +488,5 @@ class Experiment:
             if d[k] == default:
                 d.pop(k)
         h = hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode())
-        h.update(deployment_digest(self).encode())
+        h.update(deployment.digest(self.scenario.deployment).encode())
         return h.hexdigest()[:16]
-
-
-
-def deployment_digest(e: Experiment) -> str:
-    """SHA-256 of the experiment's deployment file (the packaged file for a name of ``deployment.BUILTIN``).
-
-    Parameters
-    ----------
-    e : Experiment
-        The experiment.
-
-    Returns
-    -------
-    str
-    """
-    name = e.scenario.deployment
-    dep = deployment.builtin(name) or Path(name)
-    return hashlib.sha256(dep.read_bytes()).hexdigest()

@@ -322,10 +322,9 @@ def window_misses(blind, reference, margin_m: float = 1.0) -> dict:
 def umi_families(case: str | None, n_trials: int | None = None, snr_db: float = 20.0) -> tuple[dict, dict]:
     """Every DPE and every OTDoA receiver of the NLoS chapter on one set of UMi trials, in two families (run or loaded).
 
-    DPE: "naive DPE" (the honest receiver, its clock window the clock model's), "naive DPE, wide clock window"
-    ("clock_nlos"), "NLoS-aware DPE" (eq. (D1), ``nlos_study.nlos_dpe``).  OTDoA: "first-path OTDoA" (the paper's
-    baseline), "NLoS-aware OTDoA" (``nlos_study.nlos_otdoa``).  The experiments share their seed and so their
-    trials; the first-path OTDoA fixes, in every one of them, are checked to be the same.
+    ``receiver_families`` of the naive DPE and first-path OTDoA (``nlos_study.fig10_nlos_excess`` at the UMi median,
+    or Fig. 9's ``fig9_excess``), the naive DPE in the wide clock window and the NLoS-aware DPE
+    (``nlos_study.nlos_dpe``), and the NLoS-aware OTDoA (``nlos_study.nlos_otdoa``).
 
     Parameters
     ----------
@@ -340,7 +339,7 @@ def umi_families(case: str | None, n_trials: int | None = None, snr_db: float = 
     Returns
     -------
     dpe, otdoa : dict
-        {receiver: errors (T,) m} for Fig. 10, {receiver: errors (T, J) m, a column per M} for Fig. 9.
+        ``receiver_families``' families: errors (T,) m for Fig. 10, (T, J) m, a column per M, for Fig. 9.
 
     Raises
     ------
@@ -348,7 +347,7 @@ def umi_families(case: str | None, n_trials: int | None = None, snr_db: float = 
         ``case`` or ``snr_db`` not one of the above; or first-path OTDoA fixes that differ between the experiments
         (not the same trials).
     """
-    from . import nlos_study, paper, verify
+    from . import nlos_study, paper
 
     aware, aware_ot = nlos_study.nlos_dpe(), nlos_study.nlos_otdoa()
     if case is None:
@@ -361,9 +360,40 @@ def umi_families(case: str | None, n_trials: int | None = None, snr_db: float = 
                 "ot": aware_ot[f"fig10-{case}"]}
     else:
         raise ValueError(f"case must be one of {paper.FIG10_CASES} or None (Fig. 9), got {case!r}")
-    res = {k: engine.run(e.replace(n_trials=n_trials) if n_trials else e, progress=False) for k, e in exps.items()}
-    snr = {k: list(e.to_dict()["snrs_db"]).index(snr_db) if case is None else 0 for k, e in exps.items()}
-    cols = lambda a, k: a[:, snr[k]] if case is None else a[:, snr[k], 0]  # noqa: E731
+    return receiver_families({k: e.replace(n_trials=n_trials) if n_trials else e for k, e in exps.items()},
+                             snr_db if case is None else None)
+
+
+def receiver_families(exps: dict, snr_db: float | None = None) -> tuple[dict, dict]:
+    """The naive and NLoS-aware receivers of four experiments on the same trials, as a DPE and an OTDoA family.
+
+    DPE: "naive DPE" (the honest receiver, its clock window the clock model's), "naive DPE, wide clock window"
+    ("clock_nlos"), "NLoS-aware DPE" (eq. (D1)).  OTDoA: "first-path OTDoA" (the paper's baseline), "NLoS-aware
+    OTDoA" (``otdoa_nlos``).  The first-path OTDoA fixes, in every experiment, are checked to be the same.
+
+    Parameters
+    ----------
+    exps : dict
+        {"naive": the honest DPE's experiment, "wide": its clock_window "clock_nlos" twin, "aware": the dpe_nlos
+        twin, "ot": the otdoa_nlos twin}, one seed; run or loaded.
+    snr_db : float or None
+        None: one SNR and one M (Fig. 10's shape); else the column of that SNR in each experiment, every M.
+
+    Returns
+    -------
+    dpe, otdoa : dict
+        {receiver: errors (T,) m} with snr_db None, else {receiver: errors (T, J) m, a column per M}.
+
+    Raises
+    ------
+    ValueError
+        First-path OTDoA fixes that differ between the experiments (not the same trials).
+    """
+    from . import verify
+
+    res = {k: engine.run(e, progress=False) for k, e in exps.items()}
+    snr = {k: 0 if snr_db is None else list(e.to_dict()["snrs_db"]).index(snr_db) for k, e in exps.items()}
+    cols = lambda a, k: a[:, snr[k], 0] if snr_db is None else a[:, snr[k]]  # noqa: E731
     first_path = {k: cols(r.otdoa_error_m[:, :, 0], k) for k, r in res.items()}
     for k, v in first_path.items():
         if not np.allclose(v, first_path["naive"], rtol=0, atol=verify.OTDOA_POSITION_ATOL_M):

@@ -99,7 +99,14 @@ def test_dpe_nlos_rejects_what_it_cannot_run():
     e.replace(dpe_nlos=True)  # the certified search, "clock_nlos", the UMi delay: fine
     with pytest.raises(ValueError, match="dpe_nlos"):
         e.replace(dpe_nlos=True, clock_window="clock")
-    with pytest.raises(ValueError, match="dpe_nlos"):
+    with pytest.raises(ValueError, match="clock_nlos.*nlos_prior 'umi'"):  # no delay assumed: nothing to integrate
         e.replace(dpe_nlos=True, nlos_excess_median_s=0.0)
+    umi = e.replace(dpe_nlos=True, nlos_excess_median_s=0.0, nlos_prior="umi")  # the standard's law instead
+    assert umi.excess_law() == (nlos_study.UMI.median_s, nlos_study.UMI.sigma_lg) == e.excess_law()
+    assert umi.receiver_search() == e.receiver_search()
+    with pytest.raises(ValueError, match="nlos_prior"):
+        e.replace(nlos_prior="city")
+    with pytest.raises(ValueError, match="nlos_prior 'umi' is read by clock_window 'clock_nlos' only"):
+        e.replace(nlos_prior="umi", clock_window="clock")
     with pytest.raises(ValueError, match="median_s"):
         dpe_nlos.excess_log_masses(0.5, 2e-6, 0.5, 0.99, KNOT_S)
