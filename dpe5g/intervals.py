@@ -281,6 +281,20 @@ class BestComparison:
     a_better: bool
     b_better: bool
 
+    def verdict(self, a: str = "DPE", b: str = "OTDoA") -> str:
+        """The answer in words: "<a> better", "<b> better" or "unresolved".
+
+        Parameters
+        ----------
+        a, b : str
+            The families' names.
+
+        Returns
+        -------
+        str
+        """
+        return f"{a} better" if self.a_better else f"{b} better" if self.b_better else "unresolved"
+
 
 def best_comparison(family_a: dict, family_b: dict, q: float = 0.9, **boot) -> BestComparison:
     """Does the best receiver of family a beat the best of family b at the q point?  All on the same trials.
