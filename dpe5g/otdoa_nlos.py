@@ -20,6 +20,9 @@ The paper's OTDoA baseline (``otdoa``) fits every detected first path with equal
 2. ``wls_fix`` — the weighted least squares of the ToAs over (x, y, c δt), the UE height known:
    minimise Σ_m (c τ_m − ‖p − b_m‖ − c δt)² / σ_m²  (the TDoA fit with its full covariance, the clock kept
    explicit so that any subset of links is fitted alike), by Gauss–Newton from the SOCP fix of ``otdoa.Solver``.
+   Where that cost has no minimum near the links (it keeps falling as the fix runs away from them, which happens
+   when the weights trust ToAs that no point fits), a fit that stops short of convergence farther from its start
+   than the farthest of its BSs is no fix: the start is kept instead.
 3. ``NlosSolver.fix`` — the test statistic T = Σ_m e_m² / σ_m² of the fit is χ² with M − 3 degrees of freedom when
    every ToA is unbiased with the modelled σ.  T above its 1 − ``FALSE_ALARM`` quantile detects an inconsistent set;
    with M − 3 ≥ 2 the link of the largest normalised residual w_m = e_m / √(Q_e)_mm is excluded (Baarda's w-test:
@@ -195,6 +198,11 @@ def _residual(b, t, ue_z, q):
 def wls_fix(bs_xyz, toa_s, sigma_m, ue_z: float, xy0, iters: int = 30) -> tuple[np.ndarray, float]:
     """The weighted least-squares fix of step 2 of the module docstring, by Gauss–Newton with step halving.
 
+    Every step lowers the weighted cost.  A fit that stops before its steps shrink below ``WLS_STOP_STEP_M`` (after
+    ``iters`` steps, or where no step lowers the cost) farther from xy0 than the farthest BS is from xy0 is running
+    away from the links (its cost has no minimum near them), and the start is returned instead: xy0 with its clock
+    term and its T.
+
     Parameters
     ----------
     bs_xyz : float (M, 3)
@@ -222,6 +230,7 @@ def wls_fix(bs_xyz, toa_s, sigma_m, ue_z: float, xy0, iters: int = 30) -> tuple[
     q = np.array([xy0[0], xy0[1], 0.0])
     q[2] = np.sum(w**2 * _residual(b, t, ue_z, q)) / np.sum(w**2)
     cost = np.sum((w * _residual(b, t, ue_z, q)) ** 2)
+    start, converged = (q.copy(), float(cost)), False
     for _ in range(iters):
         p = np.array([q[0], q[1], ue_z])
         u = (p - b)[:, :2] / np.maximum(np.linalg.norm(p - b, axis=1), 1e-9)[:, None]
@@ -232,11 +241,15 @@ def wls_fix(bs_xyz, toa_s, sigma_m, ue_z: float, xy0, iters: int = 30) -> tuple[
             if new <= cost:
                 break
             step = step / 2
-        else:
+        else:  # no step lowers the cost (it is flat to the last bit, as far out on its way to infinity)
             break
         q, cost = q + step, new
         if np.linalg.norm(step) < WLS_STOP_STEP_M:
+            converged = True
             break
+    reach = np.max(np.linalg.norm(b[:, :2] - start[0][:2], axis=1))
+    if not converged and np.linalg.norm(q[:2] - start[0][:2]) > reach:
+        return start  # still on its way when it stopped, and past every BS: running away from the links
     return q, float(cost)
 
 

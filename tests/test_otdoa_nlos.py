@@ -60,6 +60,34 @@ def test_a_late_peak_widens_sigma():
     assert span <= s[0] < np.hypot(span, RESOLUTION_M) * 1.05
 
 
+def test_wls_fix_keeps_its_start_where_the_weighted_cost_has_no_minimum_near_the_links():
+    """Three of four links late by 22–132 m, each trusted to 0.7 m: no point near the links fits them, and the
+    weighted cost keeps falling as the fix runs away (scipy's least_squares ends hundreds of kilometres out, at a
+    lower cost).  wls_fix then keeps its start.  Other delays put the minimum just outside the BSs' circle,
+    farther from the start than every BS: that fit converges and is kept."""
+    ang = np.array([0.528, 1.504, 4.945, 5.232])
+    b = np.stack([100 * np.cos(ang), 100 * np.sin(ang), np.full(4, 10.0)], axis=-1)
+    t = (np.linalg.norm(np.array([0.0, 0.0, 2.0]) - b, axis=1) + np.array([131.5, 0.0, 50.4, 22.5])) / C
+    s, xy0 = np.full(4, 0.7), np.array([5.0, -5.0])
+    q, stat = otdoa_nlos.wls_fix(b, t, s, 2.0, xy0)
+    start = otdoa_nlos.wls_fix(b, t, s, 2.0, xy0, iters=0)
+    np.testing.assert_array_equal(q, start[0])
+    assert stat == start[1]
+
+    def res(v):
+        return (C * t - np.linalg.norm(np.array([v[0], v[1], 2.0]) - b, axis=1) - v[2]) / s
+
+    away = least_squares(res, start[0], xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=100_000)
+    assert np.linalg.norm(away.x[:2] - xy0) > 1000.0 and np.sum(away.fun**2) < stat
+    ang = np.array([2.248, 3.053, 5.589, 5.869])
+    b = np.stack([100 * np.cos(ang), 100 * np.sin(ang), np.full(4, 10.0)], axis=-1)
+    t = (np.linalg.norm(np.array([0.0, 0.0, 2.0]) - b, axis=1) + np.array([85.7, 0.0, 89.1, 50.7])) / C
+    q, _ = otdoa_nlos.wls_fix(b, t, s, 2.0, xy0)
+    ref = least_squares(res, q, xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    assert np.linalg.norm(q[:2] - xy0) > np.max(np.linalg.norm(b[:, :2] - xy0, axis=1))
+    np.testing.assert_allclose(q, ref.x, atol=1e-4)
+
+
 def test_wls_fix_is_the_weighted_least_squares_minimum():
     """Equal to scipy's least_squares on the same weighted residuals, started at the truth."""
     rng = np.random.default_rng(2)
