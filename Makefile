@@ -59,8 +59,9 @@ chapter: $(STAMP)
 # Every test: unit + property tests, bad input, figure-diff against the committed baselines, browser test of the book.
 # The tests that need neither the book nor the figures' Monte Carlo results run at low priority while the book builds
 # (its Monte Carlo leaves part of the CPUs idle); those marked "book" (figure-diff, browser) start when it is built,
-# beside the rest of them (a browser waits on pages more than it computes); each test file runs in one pytest worker
-# (--dist loadfile), so the browser opens each page once, not once per worker (the book's tests: 72 s -> 57 s).  Low
+# beside the rest of them (a browser waits on pages more than it computes).  Each test file runs in one pytest worker
+# (pyproject.toml's --dist loadfile): the browser opens each page once, not once per worker (the book's tests: 72 s
+# -> 57 s), and a file's tests share the programs they compile (the others, on an idle machine: 310 s -> 299 s).  Low
 # priority takes more than `nice` where Linux groups processes by session (autogroup): Jupyter starts each chapter's kernel in a
 # session of its own, and the scheduler shares the CPUs equally between sessions whatever their nice values, so the
 # tests run in a session of their own whose group is niced to 19 (without setsid or autogroup: plain nice).
@@ -81,7 +82,7 @@ test: $(STAMP)
 	lowpri $(ONE_THREAD) $(BIN)/python -m pytest -m "not book" > $(UNIT_LOG) 2>&1 & unit=$$!; \
 	book=0; $(MAKE) --no-print-directory book || book=$$?; \
 	booktests=0; if test $$book -eq 0; then \
-	  $(ONE_THREAD) $(BIN)/python -m pytest -m book --dist loadfile > $(BOOK_LOG) 2>&1 || booktests=$$?; \
+	  $(ONE_THREAD) $(BIN)/python -m pytest -m book > $(BOOK_LOG) 2>&1 || booktests=$$?; \
 	else echo "make book failed: the tests marked book were not run" > $(BOOK_LOG); fi; \
 	status=0; wait $$unit || status=$$?; \
 	cat $(UNIT_LOG) $(BOOK_LOG); \
