@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import deployment, store
+from . import _checks, deployment, store
 from ._io import atomic_write, jsonable
 from .chunk_cache import arrays_digest, read_npz
 from .errors import DamagedEntry
@@ -117,14 +117,35 @@ class TracedCity:
         """
         return np.bincount(self.link_ue, minlength=self.n_ue)
 
-    def first_excess_s(self) -> np.ndarray:
-        """Each heard link's first-path excess delay: its first path's delay after d/c, seconds (0 on a LoS link).
+    def first_excess_s(self, threshold_db: float | None = None) -> np.ndarray:
+        """Each link's first-path excess delay: its first path's delay after d/c, seconds.
+
+        The first path is the earliest traced path (the straight line's on a LoS link: 0), or, with ``threshold_db``,
+        the earliest kept path whose power ``|a|²`` is within ``threshold_db`` of the link's strongest path's, as a
+        first-path detector finds it (``city_study.FIRST_PATH_THRESHOLD_DB``): never earlier than the earliest path,
+        the strongest path at latest.
+
+        Parameters
+        ----------
+        threshold_db : float or None
+            The first path's power relative to the strongest path, dB, ≤ 0; None: the earliest path, however weak.
 
         Returns
         -------
         float (L,)
+
+        Raises
+        ------
+        ValueError
+            When threshold_db is above 0 dB or not a number.
         """
-        return self.excess_s[:, 0].astype(float)
+        if threshold_db is None:
+            return self.excess_s[:, 0].astype(float)
+        thr = _checks.in_range("threshold_db", threshold_db, -math.inf, 0.0, "dB")
+        p = np.abs(self.gains.astype(np.complex128)) ** 2  # (L, K), 0 where a link has fewer than K paths
+        above = p >= p.max(axis=1, keepdims=True) * 10.0 ** (thr / 10.0)
+        above &= p > 0
+        return self.excess_s[np.arange(len(p)), np.argmax(above, axis=1)].astype(float)
 
 
 def city_file(name: str, root: Path | None = None) -> Path:

@@ -25,7 +25,7 @@ from .nr import C
 #: left out of ``Experiment.config_key``, so the stored results of every experiment that does not use it keep their key
 LATER_SETTINGS = {"nlos_excess_median_s": 0.0, "nlos_excess_sigma_lg": 0.0, "snr_offset_db": 0.0,
                   "clock_window": "clock", "channel": "tdl", "otdoa_nlos": False, "dpe_nlos": False,
-                  "nlos_prior": "scenario"}
+                  "nlos_prior": "scenario", "clock_prior_s": 0.0}
 
 LOS_MODES = ("pr_los", "two_of_four", "all_los", "all_nlos", "free_space", "nearest_two_los")
 SNR_MODES = ("fixed", "link_budget", "nearest")
@@ -34,9 +34,9 @@ SNR_MODES = ("fixed", "link_budget", "nearest")
 PRS_REUSES = (0,) + nr.PRS_COMB_SIZES
 CENTRINGS = ("truth", "prior", "otdoa")
 PRIOR_KINDS = ("gaussian", "disc")
-#: the clock-bias window of a receiver not centred on the truth (``Experiment.receiver_search``): "clock" — the clock
-#: model's support; "clock_nlos" — widened by the 99th percentile of the scenario's NLoS excess delay
-CLOCK_WINDOWS = ("clock", "clock_nlos")
+#: the clock-bias window of a receiver not centred on the truth (``Experiment.receiver_search``): "clock" — the support
+#: of the clock prior; "clock_nlos" — widened by the 99th percentile of the NLoS excess delay; "free" — no clock prior
+CLOCK_WINDOWS = ("clock", "clock_nlos", "free")
 #: the percentile of c·Δτ that the "clock_nlos" window adds to the clock model's support
 CLOCK_NLOS_QUANTILE = 0.99
 #: the excess-delay law the NLoS-aware receivers assume (the "clock_nlos" window and ``dpe_nlos``): "scenario" — the
@@ -129,15 +129,6 @@ class Scenario:
             raise ValueError("channel 'traced' takes LoS and every delay from the traced paths: leave los_mode "
                              "'pr_los', prs_reuse 0 and nlos_excess_median_s 0")
 
-    def load_deployment(self) -> deployment.Deployment:
-        """The deployment this scenario names.
-
-        Returns
-        -------
-        deployment.Deployment
-        """
-        return deployment.named(self.deployment)
-
 
 @dataclass(frozen=True)
 class Links:
@@ -224,9 +215,13 @@ class Receiver:
         each link's ToA standard deviation from its correlogram (eq. (O1)), the weighted fix, the residual test and
         its exclusions; needs ``otdoa``.
     clock_window : str
-        ``CLOCK_WINDOWS``, the clock-bias window in centrings "prior" and "otdoa": "clock" (default) the clock model's
+        ``CLOCK_WINDOWS``, the clock-bias window in centrings "prior" and "otdoa": "clock" (default) the clock prior's
         support; "clock_nlos" that support widened on both sides by the ``CLOCK_NLOS_QUANTILE`` point of c·Δτ of the
-        excess-delay law the receiver assumes (``nlos_prior``; a law, not the drawn delays).
+        excess-delay law the receiver assumes (``nlos_prior``; a law, not the drawn delays); "free" no clock prior:
+        ± √2 half_width_m, centred in centring "otdoa" on the c δt its OTDoA fix implies (``toa_fit.implied_bias_m``).
+    clock_prior_s : float
+        The UE clock's σ the receiver assumes, seconds (1e-10 to 1e-6): its window spans ± clock_bound_sigmas ·
+        clock_prior_s · c; 0 (default): the scenario's clock model, clock_sigma_s.
     dpe_nlos : bool
         The DPE is the NLoS-aware one (``dpe5g.dpe_nlos``, eq. (D1)): each link's excess delay integrated out under
         the excess-delay law it assumes (``nlos_prior``) and eq. (11)'s LoS probability; needs the certified search, a
@@ -246,6 +241,7 @@ class Receiver:
     otdoa_nlos: bool = False
     dpe_nlos: bool = False
     nlos_prior: str = "scenario"
+    clock_prior_s: float = 0.0
 
     def __post_init__(self):
         _checks.plain_fields(self)  # lists and NumPy values as the plain Python they hash as
@@ -263,9 +259,14 @@ class Receiver:
             raise ValueError("otdoa_nlos runs the NLoS-aware OTDoA receiver on the OTDoA ToAs; set otdoa=True")
         _checks.one_of("clock_window", self.clock_window, CLOCK_WINDOWS)
         _checks.one_of("nlos_prior", self.nlos_prior, NLOS_PRIORS)
-        if self.clock_window != "clock" and self.centring == "truth":
-            raise ValueError(f"clock_window {self.clock_window!r} sets the window of a receiver not centred on the "
-                             f"truth; centring 'truth' searches its own search.bias_half_width_m")
+        if self.clock_prior_s != 0.0:
+            _checks.in_range("clock_prior_s", self.clock_prior_s, 1e-10, 1e-6, "s")
+        if (self.clock_window != "clock" or self.clock_prior_s) and self.centring == "truth":
+            raise ValueError(f"clock_window {self.clock_window!r} and clock_prior_s set the window of a receiver not "
+                             f"centred on the truth; centring 'truth' searches its own search.bias_half_width_m")
+        if self.clock_window == "free" and (self.clock_prior_s or self.dpe_nlos):
+            raise ValueError("clock_window 'free' is a window without a clock prior: it needs clock_prior_s 0 and "
+                             "dpe_nlos False")
 
 
 @dataclass(frozen=True)
@@ -386,10 +387,11 @@ class Experiment:
     def receiver_search(self) -> search_config.SearchConfig:
         """The search the receiver runs: ``search`` as given for centring "truth"; otherwise its clock-bias window set.
 
-        That window is ± clock_bound_sigmas · clock_sigma_s · c from the clock model, centred on 0, and with
-        clock_window "clock_nlos" ± that plus the ``CLOCK_NLOS_QUANTILE`` point of c·Δτ
-        (``scenario.excess_quantile_s``), split into boxes of about ``box_m`` in c δt (at least ``bias_boxes``, at most
-        64).
+        That window is ± clock_bound_sigmas · σ · c, σ the clock prior (``Receiver.clock_prior_s``, else the clock
+        model's clock_sigma_s), centred on 0; with clock_window "clock_nlos" ± that plus the ``CLOCK_NLOS_QUANTILE``
+        point of c·Δτ (``scenario.excess_quantile_s``); with "free" ± √2 half_width_m, centred where the OTDoA fix
+        puts it (``trials.otdoa_centers``).  It is split into boxes of about ``box_m`` in c δt (at least
+        ``bias_boxes``, at most 64).
 
         Returns
         -------
@@ -398,11 +400,14 @@ class Experiment:
         search = self.receiver.search
         if self.receiver.centring == "truth":
             return search
-        sc = self.scenario
-        half_b = sc.clock_bound_sigmas * sc.clock_sigma_s * C
-        if self.receiver.clock_window == "clock":
+        sc, rx = self.scenario, self.receiver
+        half_b = sc.clock_bound_sigmas * (rx.clock_prior_s or sc.clock_sigma_s) * C
+        if rx.clock_window == "clock" and not rx.clock_prior_s:
             return dataclasses.replace(search, bias_half_width_m=half_b)
-        half_b += C * scenario.excess_quantile_s(*self.excess_law(), CLOCK_NLOS_QUANTILE)
+        if rx.clock_window == "clock_nlos":
+            half_b += C * scenario.excess_quantile_s(*self.excess_law(), CLOCK_NLOS_QUANTILE)
+        elif rx.clock_window == "free":
+            half_b = math.sqrt(2.0) * search.half_width_m
         boxes = min(64, max(search.bias_boxes, math.ceil(2 * half_b / search.box_m)))
         return dataclasses.replace(search, bias_half_width_m=half_b, bias_boxes=boxes)
 
@@ -437,7 +442,7 @@ class Experiment:
         ValueError
             When an M of m_values exceeds the deployment's BS count.
         """
-        dep = self.scenario.load_deployment()
+        dep = deployment.named(self.scenario.deployment)
         if max(self.receiver.m_values) > dep.n_bs:
             raise ValueError(f"m_values must not exceed the deployment's {dep.n_bs} base stations, "
                              f"got {self.receiver.m_values!r}")

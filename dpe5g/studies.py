@@ -9,7 +9,7 @@ from __future__ import annotations
 import jax
 import numpy as np
 
-from . import channel, correlogram, engine, intervals, nr, results, signal
+from . import channel, correlogram, engine, intervals, nr, results, signal, toa_fit
 from .experiment import OTDOA_DETECTORS
 from .nr import C
 
@@ -368,14 +368,17 @@ def receiver_families(exps: dict, snr_db: float | None = None) -> tuple[dict, di
     """The naive and NLoS-aware receivers of four experiments on the same trials, as a DPE and an OTDoA family.
 
     DPE: "naive DPE" (the honest receiver, its clock window the clock model's), "naive DPE, wide clock window"
-    ("clock_nlos"), "NLoS-aware DPE" (eq. (D1)).  OTDoA: "first-path OTDoA" (the paper's baseline), "NLoS-aware
-    OTDoA" (``otdoa_nlos``).  The first-path OTDoA fixes, in every experiment, are checked to be the same.
+    ("clock_nlos"), "NLoS-aware DPE" (eq. (D1)).  OTDoA: "first-path OTDoA" (the paper's baseline),
+    "strongest-peak OTDoA" (the other detector, same signals), "NLoS-aware OTDoA" (``otdoa_nlos``), and the ToA fits
+    of eq. (T1) with the naive DPE's clock window, "first-path ToA fit" and "strongest-peak ToA fit"
+    (``toa_fit_errors``): the same knowledge of the UE clock as the naive DPE.  The first-path OTDoA fixes, in every
+    experiment, are checked to be the same.
 
     Parameters
     ----------
     exps : dict
-        {"naive": the honest DPE's experiment, "wide": its clock_window "clock_nlos" twin, "aware": the dpe_nlos
-        twin, "ot": the otdoa_nlos twin}, one seed; run or loaded.
+        {"naive": the honest DPE's experiment, "ot": its otdoa_nlos twin, and optionally "wide": its clock_window
+        "clock_nlos" twin, "aware": the dpe_nlos twin}, one seed; run or loaded.
     snr_db : float or None
         None: one SNR and one M (Fig. 10's shape); else the column of that SNR in each experiment, every M.
 
@@ -399,7 +402,46 @@ def receiver_families(exps: dict, snr_db: float | None = None) -> tuple[dict, di
         if not np.allclose(v, first_path["naive"], rtol=0, atol=verify.OTDOA_POSITION_ATOL_M):
             raise ValueError(f"the first-path OTDoA fixes of {exps[k].run.name} and {exps['naive'].run.name} differ: "
                              "not the same trials")
-    dpe = {"naive DPE": cols(res["naive"].error_m, "naive"),
-           "naive DPE, wide clock window": cols(res["wide"].error_m, "wide"),
-           "NLoS-aware DPE": cols(res["aware"].error_m, "aware")}
-    return dpe, {"first-path OTDoA": first_path["naive"], "NLoS-aware OTDoA": cols(res["ot"].otdoa_nlos_error_m, "ot")}
+    names = {"naive": "naive DPE", "wide": "naive DPE, wide clock window", "aware": "NLoS-aware DPE"}
+    dpe = {name: cols(res[k].error_m, k) for k, name in names.items() if k in res}
+    otdoa = {"first-path OTDoA": first_path["naive"],
+             "strongest-peak OTDoA": cols(res["naive"].otdoa_error_m[:, :, OTDOA_DETECTORS.index("peak")], "naive"),
+             "NLoS-aware OTDoA": cols(res["ot"].otdoa_nlos_error_m, "ot")}
+    fits = toa_fit_errors(res["naive"], snr["naive"])
+    return dpe, otdoa | {k: v[:, 0] if snr_db is None else v for k, v in fits.items()}
+
+
+def toa_fit_errors(res: results.Results, s: int = 0) -> dict:
+    """Eq. (T1)'s fixes (``toa_fit``) from a run's OTDoA ToAs, with the clock knowledge of the run's DPE.
+
+    Each detector's fit starts at its own OTDoA fix (the centroid of the M BSs where that failed) and searches the
+    DPE's windows around it (``Experiment.receiver_search``): ± half_width_m in x and y, and the DPE's clock window
+    (none with clock_window "free").
+
+    Parameters
+    ----------
+    res : results.Results
+        A run with ``otdoa``, centred on a prior or the OTDoA fix.
+    s : int
+        The SNR index.
+
+    Returns
+    -------
+    dict
+        {"first-path ToA fit": errors (T, J), "strongest-peak ToA fit": errors (T, J)}, metres, a column per M.
+    """
+    e = res.experiment
+    dep = e.load_deployment()
+    search = e.receiver_search()
+    half = np.inf if e.receiver.clock_window == "free" else search.bias_half_width_m
+    out = {}
+    for k, det in enumerate(OTDOA_DETECTORS):
+        cols = []
+        for j, m in enumerate(e.receiver.m_values):
+            bs = dep.bs_xyz[res.bs_index[:, :m]]
+            start = res.otdoa_xyz[:, s, k, j, :2]
+            start = np.where(np.isfinite(start), start, bs[..., :2].mean(axis=1))
+            f = toa_fit.fit(bs, res.otdoa_toa_s[:, s, k, :m], res.ue_xyz[:, 2], start, half, search.half_width_m)
+            cols.append(np.linalg.norm(f.xy - res.ue_xyz[:, :2], axis=-1))
+        out[f"{det.replace('_', '-').replace('peak', 'strongest-peak')} ToA fit"] = np.stack(cols, axis=1)
+    return out

@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _checks, correlogram, deployment, dpe_nlos, grid_search, otdoa, otdoa_nlos, receiver, signal
+from . import _checks, correlogram, deployment, dpe_nlos, grid_search, otdoa, otdoa_nlos, receiver, signal, toa_fit
 from .draw import draw_fn, prior_center
 from .trial_draw import CoChannelDraw, ReuseDraw, TrialDraw, trial_key
 from .experiment import OTDOA_DETECTORS, Experiment, Receiver
@@ -374,8 +374,8 @@ def otdoa_fixes(e: Experiment, dep: deployment.Deployment, toas: np.ndarray, ue:
 def otdoa_centers(e: Experiment, dep: deployment.Deployment, ot: dict, idx: np.ndarray) -> np.ndarray:
     """Centring "otdoa": the window centre of each (trial, SNR, M) is the OTDoA fix of detector ``toa_method``.
 
-    At the known UE height with c δt = 0; where that fix is not finite (solver failure), the centroid of the M BSs used
-    (known to the receiver).
+    At the known UE height with c δt = 0 (clock_window "free": ``toa_fit.implied_bias_m``); where that fix is not
+    finite (solver failure), the centroid of the M BSs used (known to the receiver).
 
     Parameters
     ----------
@@ -398,9 +398,12 @@ def otdoa_centers(e: Experiment, dep: deployment.Deployment, ot: dict, idx: np.n
     out = np.zeros(xyz.shape[:3] + (4,))
     out[..., :3] = xyz
     out[..., 2] = dep.ue_height_m
-    bad = ~np.all(np.isfinite(xyz), axis=-1)
-    for t, s, j in zip(*np.nonzero(bad)):
-        out[t, s, j, :2] = dep.bs_xyz[idx[t, : e.receiver.m_values[j]], :2].mean(axis=0)
+    for j, m in enumerate(e.receiver.m_values):
+        bs = dep.bs_xyz[idx[:, :m]][:, None]  # (T, 1, m, 3)
+        bad = ~np.all(np.isfinite(xyz[:, :, j]), axis=-1, keepdims=True)  # (T, S, 1)
+        out[:, :, j, :2] = np.where(bad, bs[..., :2].mean(axis=2), out[:, :, j, :2])
+        if e.receiver.clock_window == "free":  # no clock prior: the c δt that the centre and its ToAs imply
+            out[:, :, j, 3] = np.nan_to_num(toa_fit.implied_bias_m(bs, ot["otdoa_toa_s"][:, :, k, :m], out[:, :, j]))
     return out
 
 

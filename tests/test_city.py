@@ -1,12 +1,15 @@
 """The ray-traced city (issue 45): the stored paths re-traced in part, the traced LoS path against free space, the
 traced channel source through the one signal model, its population and link order, and its bad input."""
 
+import inspect
 import os
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from scipy import stats
 
-from dpe5g import city_draw, city_paths, city_study, city_trace, ray_tracer, signal, trial_draw
+from dpe5g import city_draw, city_paths, city_study, city_trace, otdoa, ray_tracer, signal, trial_draw
 from dpe5g.experiment import Experiment
 from dpe5g.nr import C
 
@@ -125,3 +128,99 @@ def test_the_3d_view_is_of_the_first_trial(city):
     lines = np.split(view["points"], view["start"][1:-1])
     assert all(np.allclose(line[0], city.bs_xyz[links.bs_index[0][b]]) and np.allclose(line[-1], city.ue_xyz[
         links.ue_index[0]]) for line, b in zip(lines, view["bs"]))
+
+
+def tiny_city():
+    """Three UEs, three BSs, seven links of two kept paths: lg Δτ of the NLoS links' earliest paths −8, −7 (UE 0),
+    −6, −10 (UE 1), −8 (UE 2); UE 0's first NLoS link's earliest path is 20 dB below its strongest (lg −7), the
+    others' within 6 dB of it or alone.  2-D distances 0 or 36 m."""
+    ns = 1e-9
+    rows = [  # UE, BS, LoS, (Δτ, |a|) of the two kept paths (|a| 0: no path)
+        (0, 0, True, (0.0, 1.0), (50 * ns, 0.5)),
+        (0, 1, False, (10 * ns, 0.1), (100 * ns, 1.0)),
+        (0, 2, False, (100 * ns, 1.0), (1000 * ns, 0.5)),
+        (1, 0, False, (1000 * ns, 1.0), (0.0, 0.0)),
+        (1, 1, False, (0.1 * ns, 0.5), (10 * ns, 1.0)),
+        (2, 0, True, (0.0, 1.0), (0.0, 0.0)),
+        (2, 2, False, (10 * ns, 1.0), (0.0, 0.0))]
+    g = np.array([[r[3][1], r[4][1]] for r in rows], np.complex64)
+    p = (np.abs(g) ** 2).sum(axis=1)
+    return city_paths.TracedCity(
+        name="tiny", spec={}, region=np.array([0.0, 0.0, 36.0, 36.0]),
+        bs_xyz=np.array([[0.0, 0.0, 10.0], [36.0, 0.0, 10.0], [0.0, 36.0, 10.0]]),
+        ue_xyz=np.array([[0.0, 0.0, 2.0], [36.0, 0.0, 2.0], [0.0, 36.0, 2.0]]),
+        link_ue=np.array([r[0] for r in rows]), link_bs=np.array([r[1] for r in rows]),
+        excess_s=np.array([[r[3][0], r[4][0]] for r in rows], np.float32), gains=g,
+        n_paths=(np.abs(g) > 0).sum(axis=1), los=np.array([r[2] for r in rows]),
+        power_db=(10 * np.log10(p)).astype(np.float32), kept_db=np.zeros(len(rows), np.float32))
+
+
+def test_excess_fit_on_a_tiny_city_is_the_hand_computed_one():
+    """``excess_fit`` on hand-made links: the earliest path and the first path within the detector's threshold, every
+    link or a subset given as a mask or as rows (the LoS among them left out), against values computed by hand."""
+    tiny = tiny_city()
+    fit = city_study.excess_fit(tiny, n_boot=50)
+    lg = np.array([-8.0, -7.0, -6.0, -10.0, -8.0])
+    assert (fit.n_links, fit.n_ues, fit.threshold_db) == (5, 3, None)
+    assert np.isclose(fit.mean_lg, -7.8, atol=1e-6) and np.isclose(fit.std_lg, np.sqrt(1.76), atol=1e-6)
+    assert np.isclose(fit.median_s, 1e-8, rtol=1e-6) and fit.below_1ns == 0.2
+    assert np.isclose(fit.ks_p, stats.kstest(lg, stats.norm(-7.5, 0.5).cdf).pvalue, rtol=1e-5)
+    # UEs 0 and 1 (UE 2 has one NLoS link): means −7.5, −8; MSB 0.25, MSW 4.25, k₀ 2
+    assert np.isclose(fit.icc, (0.25 - 4.25) / (0.25 + 4.25), atol=1e-6)
+    assert -20 < city_study.FIRST_PATH_THRESHOLD_DB < -6  # the hand values below: 20 dB down is out, 6 dB in
+    thr = city_study.excess_fit(tiny, threshold_db=city_study.FIRST_PATH_THRESHOLD_DB, n_boot=50)
+    assert thr.threshold_db == city_study.FIRST_PATH_THRESHOLD_DB
+    assert np.isclose(thr.mean_lg, -7.6, atol=1e-6)  # UE 0's first link: −8 → −7
+    assert np.isclose(thr.median_s, 1e-7, rtol=1e-6) and thr.below_1ns == 0.2
+    assert city_study.excess_fit(tiny, np.ones(7, bool), n_boot=50) == fit
+    sub = city_study.excess_fit(tiny, np.array([4, 0, 3, 1, 2]), n_boot=50)  # UEs 0 and 1, a LoS link among them
+    assert sub == city_study.excess_fit(tiny, np.arange(7) < 5, n_boot=50)
+    assert (sub.n_links, sub.n_ues) == (4, 2) and np.isclose(sub.mean_lg, -7.75, atol=1e-6)
+    with pytest.raises(ValueError, match="no NLoS link"):
+        city_study.excess_fit(tiny, [0, 5])
+    with pytest.raises(ValueError, match="shape"):
+        city_study.excess_fit(tiny, np.ones(6, bool))
+    with pytest.raises(ValueError, match="link indices"):
+        city_study.excess_fit(tiny, [1, 7])
+    with pytest.raises(ValueError, match="threshold_db"):
+        city_study.excess_fit(tiny, threshold_db=3.0)
+    shares = city_study.los_shares(tiny, {"all": None, "nlos": ~tiny.los})
+    p36 = 0.5 + 0.5 * np.exp(-1.0)  # eq. (11) at 36 m: 18/36 + (1 − 18/36) e^(−1)
+    assert shares["all"]["n_links"] == 7 and np.isclose(shares["all"]["share"], 2 / 7)
+    assert np.isclose(shares["all"]["eq11"], (3 + 4 * p36) / 7)
+    assert shares["nlos"]["share"] == 0 and np.isclose(shares["nlos"]["eq11"], (1 + 1 + 3 * p36) / 5)
+
+
+def test_the_first_path_threshold_is_the_detectors_and_never_earlier_than_the_earliest_path(city):
+    """The threshold is the first-path OTDoA detector's default; the first path it picks is the earliest kept path
+    within it of the link's strongest, so never earlier than the earliest path and never later than the strongest."""
+    assert city_study.FIRST_PATH_THRESHOLD_DB == inspect.signature(otdoa.toa).parameters["threshold_db"].default
+    earliest, first = city.first_excess_s(), city.first_excess_s(city_study.FIRST_PATH_THRESHOLD_DB)
+    p = np.abs(city.gains.astype(complex)) ** 2
+    strong = p >= p.max(axis=1, keepdims=True) * 10 ** (city_study.FIRST_PATH_THRESHOLD_DB / 10)
+    tau = city.excess_s.astype(float)
+    assert np.all(first >= earliest)
+    assert np.all(first <= tau[np.arange(len(p)), np.argmax(p, axis=1)])
+    assert np.all(np.any((tau == first[:, None]) & strong, axis=1))  # it is a path within the threshold ...
+    assert not np.any((tau < first[:, None]) & strong & (p > 0))  # ... and no earlier path is
+    assert np.mean(first > earliest) > 0.1  # the threshold changes many links' first paths
+    assert np.array_equal(city.first_excess_s(-300.0), earliest)
+    assert np.array_equal(first[city.los], earliest[city.los])  # every LoS link's direct path is within it
+
+
+def test_the_trials_links_are_heard_links_are_traced_links(city):
+    """``link_populations``: the trial links (each trial's UE with its four strongest heard links) within the heard
+    links within the traced links, their LoS states the trials'; another experiment's run is refused."""
+    e = city_study.city_fig10(city_study.CITY_M[0], "otdoa")
+    _, links = city_draw.population(e)
+    t = e.run.n_trials
+    res = SimpleNamespace(ue_xyz=city.ue_xyz[links.ue_index[:t]], bs_index=links.bs_index[:t], los=links.los[:t])
+    pops = city_study.link_populations(city, e, res)
+    assert tuple(pops) == city_study.POPULATIONS
+    assert pops["all"].all() and np.all(pops["heard"] <= pops["all"]) and np.all(pops["trial"] <= pops["heard"])
+    assert pops["trial"].sum() == t * city_study.CITY_M[0] < pops["heard"].sum() < pops["all"].sum()
+    assert np.isclose(city_study.los_shares(city, pops)["trial"]["share"], res.los.mean())
+    nlos = {k: v & ~city.los for k, v in pops.items()}
+    assert 0 < nlos["trial"].sum() < nlos["heard"].sum() < nlos["all"].sum()
+    with pytest.raises(ValueError, match="not a run of"):
+        city_study.link_populations(city, e, SimpleNamespace(**{**res.__dict__, "bs_index": res.bs_index[::-1]}))
