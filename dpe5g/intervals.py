@@ -4,6 +4,9 @@ An interval of one receiver's statistic (``quantile_interval``), or paired betwe
 (``paired_interval``: differences, ratios and growths of quantiles, RMSE ratios), every one drawn from the same
 stream of trial indices (``bootstrap_draws``); a claim's verdict against an interval (``Interval.verdict``): it
 holds, fails, or is unresolved when the interval straddles its threshold.
+
+A quantile difference's bootstrap p value comes from its interval's own draws (``quantile_difference_test``,
+``quantile_difference_p``); the tests per group of trials and their correction are ``significance``'s.
 """
 
 from __future__ import annotations
@@ -205,6 +208,13 @@ def paired_interval(stat, *arrays, n_boot: int = 2000, seed: int = 0, level: flo
     ValueError
         When the arrays do not share their first axis, or ``level`` is out of range.
     """
+    value, draws, n_trials = _paired_draws(stat, arrays, n_boot, seed, level)
+    lo, hi = np.quantile(draws, [(1 - level) / 2, (1 + level) / 2])
+    return Interval(value, float(lo), float(hi), n_trials, level)
+
+
+def _paired_draws(stat, arrays, n_boot, seed, level):
+    """``paired_interval``'s statistic on all trials, on each of its draws (n_boot,), and the number of trials."""
     arrs = [np.asarray(a, dtype=float) for a in arrays]
     if not arrs or arrs[0].ndim == 0 or any(a.ndim == 0 or a.shape[0] != arrs[0].shape[0] for a in arrs):
         raise ValueError(f"paired_interval needs arrays of the same trials (the same first axis), got shapes "
@@ -216,8 +226,7 @@ def paired_interval(stat, *arrays, n_boot: int = 2000, seed: int = 0, level: flo
     block = max(1, 4_000_000 // per_draw)  # draws per block: about 4 M resampled values in memory at once
     draws = np.concatenate([np.asarray(stat(*(a[idx[i:i + block]] for a in arrs)), dtype=float)
                             for i in range(0, n_boot, block)])
-    lo, hi = np.quantile(draws, [(1 - level) / 2, (1 + level) / 2])
-    return Interval(value, float(lo), float(hi), int(arrs[0].shape[0]), level)
+    return value, draws, int(arrs[0].shape[0])
 
 
 def _q(a, q):
@@ -258,6 +267,55 @@ def quantile_difference(err_a, err_b, q: float = 0.9, **boot) -> Interval:
         Metres; the growth a change causes when err_a and err_b are one receiver with and without it.
     """
     return paired_interval(lambda a, b: _q(a, q) - _q(b, q), err_a, err_b, **boot)
+
+
+def quantile_difference_test(err_a, err_b, q: float = 0.9, n_boot: int = 2000, seed: int = 0,
+                             level: float = 0.95) -> tuple[Interval, float]:
+    """``quantile_difference``'s Interval and ``quantile_difference_p``'s p value, from one set of draws.
+
+    Parameters
+    ----------
+    err_a, err_b : float (T,)
+        Errors, metres, on the same trials.
+    q : float
+        The quantile (0.9: the 90 % point).
+    n_boot, seed, level
+        ``paired_interval``'s options.
+
+    Returns
+    -------
+    difference : Interval
+        Equal to ``quantile_difference`` with the same arguments, metres.
+    p : float
+        Equal to ``quantile_difference_p`` with the same arguments.
+    """
+    value, draws, n_trials = _paired_draws(lambda a, b: _q(a, q) - _q(b, q), (err_a, err_b), n_boot, seed, level)
+    lo, hi = np.quantile(draws, [(1 - level) / 2, (1 + level) / 2])
+    p = max(1 / draws.size, min(1.0, 2 * min(np.mean(draws <= 0), np.mean(draws >= 0))))
+    return Interval(value, float(lo), float(hi), n_trials, level), float(p)
+
+
+def quantile_difference_p(err_a, err_b, q: float = 0.9, **boot) -> float:
+    """The two-sided bootstrap p value of Q_q(err_a) − Q_q(err_b) = 0, from ``quantile_difference``'s own draws.
+
+    p = min(1, 2 min(share of the draws ≤ 0, share ≥ 0)), floored at 1/n_boot (no finer share exists).  With the
+    same ``q`` and ``boot``, p < 1 − level where ``quantile_difference``'s percentile interval excludes 0, up to the
+    interpolation of its ends (a draw or two).  ``quantile_difference_test`` returns both from one set of draws.
+
+    Parameters
+    ----------
+    err_a, err_b : float (T,)
+        Errors, metres, on the same trials.
+    q, **boot
+        The quantile and ``paired_interval``'s options (``n_boot``, ``seed``: the same draws); ``level`` leaves p as
+        it is.
+
+    Returns
+    -------
+    float
+        In [1/n_boot, 1].
+    """
+    return quantile_difference_test(err_a, err_b, q, **boot)[1]
 
 
 @dataclass(frozen=True)
