@@ -52,30 +52,30 @@ def plot_city_cdf(errors: dict, grid_m):
     return fig
 
 
-def plot_excess(first_excess_s, los) -> Figure:
-    """Histogram of lg Δτ of the traced NLoS links' first paths, with TR 38.901's UMi normal over it.
+def plot_excess(populations: dict) -> Figure:
+    """Histograms of lg Δτ of NLoS links' first paths, a population each, with TR 38.901's UMi normal over them.
 
     Parameters
     ----------
-    first_excess_s : float (L,)
-        Each traced link's first-path excess delay, seconds.
-    los : bool (L,)
-        Its LoS state (only NLoS links are drawn).
+    populations : dict
+        {label: the first-path excess delays of a population's NLoS links, seconds (n,)} (``city_study.link_populations``).
 
     Returns
     -------
     matplotlib.figure.Figure
     """
     umi = scenario.TR38901_EXCESS_DELAY[scenario.NLOS_EXCESS_ROW]
-    lg = np.log10(np.maximum(np.asarray(first_excess_s)[~np.asarray(los)], 1e-12))
     edges = np.arange(-11.0, -5.49, 0.125)
     x = np.linspace(edges[0], edges[-1], 400)
+    colours = ("#3182bd", "#31a354", "#e6550d", "#756bb1")
     with style():
         fig = Figure(figsize=(7.4, 4.4), layout="constrained")
         ax = fig.subplots()
-        ax.hist(np.clip(lg, edges[0], edges[-1]), bins=edges, density=True, color="#9ecae1", edgecolor="#3182bd",
-                label=f"traced NLoS links ({lg.size}): mean {lg.mean():.2f}, σ {lg.std():.2f}")
-        ax.plot(x, stats.norm(umi.mu_lg, umi.sigma_lg).pdf(x), color="#d62728", lw=2,
+        for (label, dt), colour in zip(populations.items(), colours):
+            lg = np.log10(np.maximum(np.asarray(dt, dtype=float), 1e-12))
+            ax.hist(np.clip(lg, edges[0], edges[-1]), bins=edges, density=True, histtype="step", lw=1.8, color=colour,
+                    label=f"{label} ({lg.size}): mean {lg.mean():.2f}, σ {lg.std():.2f}")
+        ax.plot(x, stats.norm(umi.mu_lg, umi.sigma_lg).pdf(x), color="#d62728", lw=2, ls="--",
                 label=f"TR 38.901 Table 7.6.9-1, UMi: mean {umi.mu_lg:g}, σ {umi.sigma_lg:g}")
         ax.set_xlabel("lg(first-path excess delay Δτ / 1 s)   (−9: 1 ns, −8: 10 ns, −7: 100 ns)")
         ax.set_ylabel("density (per decade)")
