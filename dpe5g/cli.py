@@ -271,7 +271,7 @@ def _reproduce(args) -> int:
 def _trace(args) -> int:
     import time
 
-    from . import city_paths, city_study, city_trace, ray_tracer, store
+    from . import city_paths, city_sensitivity, city_study, city_trace, ray_tracer, store
 
     writable_dir("DPE5G_STORE", store.STORE_DIR)
     spec, name = city_trace.CitySpec(), city_study.CITY
@@ -288,6 +288,8 @@ def _trace(args) -> int:
               f"{path} in {provenance['seconds']:.0f} s", flush=True)
     path = city_paths.save_view(name, _city_view(spec, name))
     print(f"trace: the 3-D view of its first trial's UE written to {path}", flush=True)
+    for line in city_sensitivity.trace_stale(city_paths.load_city(name), args.force):  # the solver's settings tested
+        print(f"trace: {line}", flush=True)
     return 0
 
 

@@ -184,7 +184,9 @@ def add_store_commands(sub) -> None:
                         description="Place the BSs and UEs in Sionna RT's scene, trace every link (city_trace.CitySpec) "
                                     "and write the paths to the results store (figures/trials/cities) and the "
                                     "city's deployment beside them, unless they were traced with today's settings "
-                                    "and tracing code; then the 3-D view (the buildings, one UE's traced paths).  "
+                                    "and tracing code; then the 3-D view (the buildings, one UE's traced paths), "
+                                    "and a subset of its UEs under each solver setting of "
+                                    "city_sensitivity.VARIANTS that is not stored yet.  "
                                     "`make reproduce` runs it first (about 20 minutes on 2 cores); it needs "
                                     "Debian's libllvm19.")
     tc.add_argument("--progress", action="store_true", help="a progress bar over the UEs on stderr")
