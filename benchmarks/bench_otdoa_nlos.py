@@ -3,7 +3,7 @@
     .venv/bin/python benchmarks/bench_otdoa_nlos.py [--out benchmarks/bench_otdoa_nlos.json]
 
 1. One fix from given ToAs: ``otdoa.Solver.solve`` (the SOCP and its polish, the paper's baseline) against
-   ``otdoa_nlos.NlosSolver.fix`` (SOCP start, weighted fit, residual test, exclusions), for M = 4, 6 and 12 links,
+   ``otdoa_nlos.NlosSolver.fix`` (the weighted SOCP and polish, residual test, exclusions), for M = 4, 6 and 12 links,
    every ToA unbiased and with one link 30 m late (where M ≥ 5, the exclusion's leave-one-out fits run);
 2. the per-link detection from the received signals: ``otdoa.toa`` (first path) against ``otdoa_nlos.link_sigma_m``
    (both detectors and the correlogram's SNR), M = 6, N = 4096.

@@ -165,6 +165,8 @@ class Fix:
         R_1 − ‖p − b_1‖ of the convex solution, metres (0 when the relaxation is tight).
     residual_m : float
         The RMS range-difference residual at the fix, metres.
+    polish_rejected : bool
+        The polish moved farther than ``MAX_POLISH_MOVE_M`` and the convex solution was kept (``ok`` is then False).
     """
 
     xyz: np.ndarray
@@ -172,6 +174,7 @@ class Fix:
     reason: str
     gap_m: float
     residual_m: float
+    polish_rejected: bool = False
 
 
 def check_geometry(bs_xyz) -> np.ndarray:
@@ -291,7 +294,7 @@ class Solver:
         """The parameters as one vector, in ``_set``'s order."""
         return np.concatenate([np.ravel(A), np.ravel(beta), np.ravel(ref), [float(dz)]])
 
-    def parameters(self, bs_xyz, toa_s, ue_z) -> tuple:
+    def parameters(self, bs_xyz, toa_s, ue_z, weights=None) -> tuple:
         """The values of the problem's Parameters for one fix: ``system`` and the reference BS's position.
 
         Parameters
@@ -302,6 +305,8 @@ class Solver:
             Their ToAs, seconds.
         ue_z : float
             The known UE height, metres.
+        weights : float (M−1,) or None
+            w_m, m = 2 … M: equation m of ``system`` (its row of A, its β) times w_m; None: all 1.
 
         Returns
         -------
@@ -311,7 +316,8 @@ class Solver:
         """
         b = np.asarray(bs_xyz, dtype=np.float64)
         A, beta = self.system(b, np.asarray(toa_s, dtype=np.float64), ue_z)
-        return A, beta, b[0, :2] / 1000.0, (ue_z - b[0, 2]) / 1000.0
+        w = np.ones(len(beta)) if weights is None else np.asarray(weights, dtype=np.float64)  # x · 1.0 is x
+        return A * w[:, None], beta * w, b[0, :2] / 1000.0, (ue_z - b[0, 2]) / 1000.0
 
     def set_parameters(self, bs_xyz, toa_s, ue_z) -> None:
         """Write ``parameters`` into the cvxpy Parameters, for a variant of the problem built on them.
@@ -352,7 +358,7 @@ class Solver:
         beta = (np.sum(b[1:] ** 2, 1) - np.sum(b[0] ** 2) - r**2 - 2.0 * db[:, 2] * z)
         return A, beta
 
-    def solve(self, bs_xyz, toa_s, ue_z: float, polish: bool = True) -> Fix:
+    def solve(self, bs_xyz, toa_s, ue_z: float, polish: bool = True, weights=None) -> Fix:
         """One OTDoA fix: the SOCP, then (with ``polish``) the Gauss–Newton polish.
 
         Parameters
@@ -365,12 +371,14 @@ class Solver:
             The known UE height, metres.
         polish : bool
             Polish the convex solution with ``gauss_newton``; without it, a relaxation that is not tight is flagged.
+        weights : float (M−1,) or None
+            w_m > 0 scales range difference m = 2 … M in the SOCP and the polish (``otdoa_nlos.wls_fix``); None: 1.
 
         Returns
         -------
         Fix
             The fix; a solver failure, a relaxation that is not tight (without polish) or a polish that moves more than
-            ``MAX_POLISH_MOVE_M`` from the convex solution is flagged (``ok`` False with the reason).
+            ``MAX_POLISH_MOVE_M`` from the convex solution is flagged (``ok`` False, the reason; ``polish_rejected``).
 
         Raises
         ------
@@ -385,7 +393,7 @@ class Solver:
         if not np.all(np.isfinite(t)):
             raise ValueError("toa_s must be finite (a NaN ToA cannot enter a TDoA)")
         _checks.finite("ue_z", ue_z)
-        data = self.data(*self.parameters(b, t, ue_z))
+        data = self.data(*self.parameters(b, t, ue_z, weights))
         try:
             # no warm start (cvxpy's default): it made a fix depend, by up to a few µm, on the solves before it, so
             # the Monte Carlo's OTDoA fixes depended on its chunking
@@ -398,14 +406,14 @@ class Solver:
         th = self.theta.value * 1000.0
         p = np.array([th[0], th[1], ue_z])
         gap = float(th[2] - np.linalg.norm(p - b[0]))
-        ok, reason = True, ""
+        ok, reason, rejected = True, "", False
         if polish:
-            xy = gauss_newton(b, t, ue_z, p[:2])
+            xy = gauss_newton(b, t, ue_z, p[:2], weights=weights)
             moved = float(np.linalg.norm(xy - p[:2]))
             if moved > MAX_POLISH_MOVE_M:
                 # the range-difference cost can fall towards infinity when the TDoAs are inconsistent; keep the
                 # convex solution and say so
-                ok, reason = False, f"Gauss-Newton moved {moved:.3g} m from the convex solution; kept the latter"
+                ok, rejected, reason = False, True, f"Gauss-Newton moved {moved:.3g} m; kept the convex solution"
             else:
                 p[:2] = xy
         elif gap > TIGHTNESS_TOL_M:
@@ -413,7 +421,7 @@ class Solver:
         if not np.all(np.isfinite(p)):
             ok, reason = False, "non-finite fix"
         res = _rd_residual(b, t, ue_z, p[:2])
-        return Fix(p, ok, reason, gap, float(np.sqrt(np.mean(res**2))))
+        return Fix(p, ok, reason, gap, float(np.sqrt(np.mean(res**2))), rejected)
 
 
 def _rd_residual(b, t, ue_z, xy):
@@ -422,8 +430,8 @@ def _rd_residual(b, t, ue_z, xy):
     return (d[1:] - d[0]) - C * (t[1:] - t[0])
 
 
-def gauss_newton(bs_xyz, toa_s, ue_z, xy0, iters: int = 10) -> np.ndarray:
-    """Minimise Σ_m (‖p − b_m‖ − ‖p − b_1‖ − r_m)² over p_xy by Gauss–Newton (step halving if the cost rises).
+def gauss_newton(bs_xyz, toa_s, ue_z, xy0, iters: int = 10, weights=None) -> np.ndarray:
+    """Minimise Σ_m w_m² (‖p − b_m‖ − ‖p − b_1‖ − r_m)² over p_xy by Gauss–Newton (halving a step that raises it).
 
     Parameters
     ----------
@@ -438,6 +446,8 @@ def gauss_newton(bs_xyz, toa_s, ue_z, xy0, iters: int = 10) -> np.ndarray:
     iters : int
         At most this many steps; it stops earlier once a step is shorter than ``POLISH_STOP_STEP_M`` or when no
         halved step lowers the cost.
+    weights : float (M−1,) or None
+        w_m, m = 2 … M; None: all 1 (the paper's polish, to the bit: x · 1.0 is x).
 
     Returns
     -------
@@ -446,16 +456,16 @@ def gauss_newton(bs_xyz, toa_s, ue_z, xy0, iters: int = 10) -> np.ndarray:
     """
     b = np.asarray(bs_xyz, dtype=np.float64)
     t = np.asarray(toa_s, dtype=np.float64)
-    xy = np.asarray(xy0, dtype=np.float64).copy()
-    cost = np.sum(_rd_residual(b, t, ue_z, xy) ** 2)
+    w, xy = np.ones(len(b) - 1) if weights is None else np.asarray(weights, dtype=np.float64), np.array(xy0, float)
+    cost = np.sum((w * _rd_residual(b, t, ue_z, xy)) ** 2)
     for _ in range(iters):
         p = np.array([xy[0], xy[1], ue_z])
         u = (p - b)[:, :2] / np.maximum(np.linalg.norm(p - b, axis=1), 1e-9)[:, None]
-        J = u[1:] - u[0]
-        r = _rd_residual(b, t, ue_z, xy)
+        J = w[:, None] * (u[1:] - u[0])
+        r = w * _rd_residual(b, t, ue_z, xy)
         step = np.linalg.lstsq(J, -r, rcond=None)[0]
         for _ in range(20):
-            new = np.sum(_rd_residual(b, t, ue_z, xy + step) ** 2)
+            new = np.sum((w * _rd_residual(b, t, ue_z, xy + step)) ** 2)
             if new <= cost:
                 break
             step = step / 2

@@ -17,16 +17,24 @@ The paper's OTDoA baseline (``otdoa``) fits every detected first path with equal
    third, a uniform spread over
    the span between the first path and the strongest peak, grows when multipath (NLoS: a weak or absent direct path)
    separates them.  No truth enters: neither the SNR the experiment set, nor the LoS state.
-2. ``wls_fix`` — the weighted least squares of the ToAs over (x, y, c δt), the UE height known:
-   minimise Σ_m (c τ_m − ‖p − b_m‖ − c δt)² / σ_m²  (the TDoA fit with its full covariance, the clock kept
-   explicit so that any subset of links is fitted alike), by Gauss–Newton from the SOCP fix of ``otdoa.Solver``.
-   Where that cost has no minimum near the links (it keeps falling as the fix runs away from them, which happens
-   when the weights trust ToAs that no point fits), a fit that stops short of convergence farther from its start
-   than the farthest of its BSs is no fix: the start is kept instead.
-3. ``NlosSolver.fix`` — the test statistic T = Σ_m e_m² / σ_m² of the fit is χ² with M − 3 degrees of freedom when
-   every ToA is unbiased with the modelled σ.  T above its 1 − ``FALSE_ALARM`` quantile detects an inconsistent set;
-   with M − 3 ≥ 2 the link of the largest normalised residual w_m = e_m / √(Q_e)_mm is excluded (Baarda's w-test:
-   Q_e = Σ − J (Jᵀ Σ⁻¹ J)⁻¹ Jᵀ is the covariance of the residuals e at the fit, J their Jacobian, Σ = diag σ²; for
+2. ``wls_fix`` — the paper's OTDoA fit, weighted: ``otdoa.Solver.solve`` (the SOCP on the range differences to a
+   reference link, its Gauss–Newton polish, and its acceptance: a polish that moves farther than
+   ``otdoa.MAX_POLISH_MOVE_M`` keeps the convex solution, the *fallback*), the reference the most trusted link (the
+   smallest σ; among equals the first, the nearest BS, as in ``otdoa``) and range difference m weighted by its
+   variance (``difference_weights``): minimise Σ_m (‖p − b_m‖ − ‖p − b_ref‖ − r_m)² · 2 σ_ref² / (σ_ref² + σ_m²),
+   the UE height known.  The correlation the shared reference puts between the differences (at most 1/2, the
+   smaller the more trusted the reference) is left out, as the paper's fit leaves it out (weighting by the full
+   covariance instead, with the same steps and acceptance, did worse in the city and the TDL model, at p90).  With
+   equal σ every weight is 1 to the bit and the fix is the paper's.  (The fit it replaces, the ToAs' weighted least
+   squares over (x, y, c δt) by its own Gauss–Newton from the SOCP fix, was not the paper's fit with equal σ: its
+   cost fitted the clock where the paper's differences it away, it stopped after 30 steps, and it kept any fit short
+   of every BS; in the ray-traced city its 90 % error with equal σ was 159.5 m against the paper's 71.9 m.)
+3. ``NlosSolver.fix`` — the residuals ê of the ToAs' weighted least squares over (x, y, c δt), linearised at the fix
+   (``gls_residuals``; at that least squares' minimum they are its residuals), give T = Σ_m ê_m² / σ_m², χ² with
+   M − 3 degrees of freedom when every ToA is unbiased with the modelled σ, whichever unbiased fit supplied the
+   point.  T above its 1 − ``FALSE_ALARM`` quantile detects an inconsistent set;
+   with M − 3 ≥ 2 the link of the largest normalised residual w_m = ê_m / √(Q_e)_mm is excluded (Baarda's w-test:
+   Q_e = Σ − J (Jᵀ Σ⁻¹ J)⁻¹ Jᵀ is the covariance of ê, J the Jacobian of the ToAs in (x, y, c δt), Σ = diag σ²; for
    a single biased link it points at that link, and it costs one fit per round where leave-one-out fits cost M),
    then the rest is fitted and tested again; an exclusion is made only while the remaining links can still be
    tested (M − 3 ≥ 1 after it).  With the 4
@@ -49,8 +57,6 @@ from .nr import C, PAPER
 
 #: the residual test's false-alarm rate: the probability that a set of unbiased ToAs with the modelled σ is flagged
 FALSE_ALARM = 0.01
-#: Gauss–Newton of ``wls_fix`` stops once its step is shorter than this (m)
-WLS_STOP_STEP_M = 1e-6
 
 
 def sigma_from_grid(e, toa_first_s, toa_peak_s, bandwidth_hz: float) -> np.ndarray:
@@ -189,19 +195,35 @@ def _toa_and_sigma(g, prs, upsample, threshold_db, max_lead_samples, ts, scs_hz)
     return first, sigma_of_spectrum(g, prs, first, peak, upsample, scs_hz)
 
 
-def _residual(b, t, ue_z, q):
-    """e_m = c τ_m − ‖p − b_m‖ − c δt at q = (x, y, c δt); metres."""
-    p = np.array([q[0], q[1], ue_z])
-    return C * t - np.linalg.norm(p - b, axis=1) - q[2]
+def difference_weights(sigma_m) -> tuple[np.ndarray, np.ndarray]:
+    """The weighted fit's reference link and the weights of its range differences (module docstring, step 2).
+
+    Parameters
+    ----------
+    sigma_m : float (M,)
+        The links' σ, metres, > 0.
+
+    Returns
+    -------
+    order : int (M,)
+        The links, the reference first (the smallest σ, the first of equals), the others in their order.
+    weights : float (M−1,)
+        w_m = √(2 σ_ref² / (σ_ref² + σ_m²)) of the others, in that order: 1 to the bit where σ_m = σ_ref.
+    """
+    s = np.asarray(sigma_m, dtype=np.float64)
+    ref = int(np.argmin(s))
+    order = np.r_[ref, np.delete(np.arange(len(s)), ref)]
+    v = s[ref] ** 2
+    return order, np.sqrt(2.0 * v / (v + s[order[1:]] ** 2))
 
 
-def wls_fix(bs_xyz, toa_s, sigma_m, ue_z: float, xy0, iters: int = 30) -> tuple[np.ndarray, float]:
-    """The weighted least-squares fix of step 2 of the module docstring, by Gauss–Newton with step halving.
+def wls_fix(bs_xyz, toa_s, sigma_m, ue_z: float, solver=None) -> tuple[np.ndarray, float, otdoa.Fix]:
+    """The weighted fix of step 2 of the module docstring: ``otdoa.Solver.solve`` on the links ordered and weighted by
+    ``difference_weights``, and its residual test's T (``gls_residuals``).
 
-    Every step lowers the weighted cost.  A fit that stops before its steps shrink below ``WLS_STOP_STEP_M`` (after
-    ``iters`` steps, or where no step lowers the cost) farther from xy0 than the farthest BS is from xy0 is running
-    away from the links (its cost has no minimum near them), and the start is returned instead: xy0 with its clock
-    term and its T.
+    With equal σ it is ``otdoa.Solver.solve``'s fix to the bit.  A polish that moves farther than
+    ``otdoa.MAX_POLISH_MOVE_M`` keeps the weighted SOCP's solution, as the paper's fit keeps its own (the fallback:
+    ``fix.polish_rejected``).
 
     Parameters
     ----------
@@ -213,69 +235,77 @@ def wls_fix(bs_xyz, toa_s, sigma_m, ue_z: float, xy0, iters: int = 30) -> tuple[
         Their standard deviations, metres, > 0.
     ue_z : float
         The known UE height, metres.
-    xy0 : float (2,)
-        The start, metres (the clock term starts at the weighted mean of c τ_m − ‖p − b_m‖ there).
-    iters : int
-        At most this many steps.
+    solver : otdoa.Solver or None
+        The compiled problem for M links (``NlosSolver.solver``); None: built here.
 
     Returns
     -------
     q : float (3,)
-        (x, y, c δt), metres.
+        (x, y, c δt), metres, c δt the σ⁻²-weighted mean of c τ_m − ‖p − b_m‖ at the fix; NaN where the SOCP failed.
     statistic : float
-        T = Σ_m e_m² / σ_m² at q.
+        T = Σ_m ê_m² / σ_m² at q (``gls_residuals``); NaN where the SOCP failed.
+    fix : otdoa.Fix
+        The fix as ``otdoa.Solver.solve`` returns it (``ok``, ``reason``, ``polish_rejected``).
     """
     b, t = np.asarray(bs_xyz, dtype=np.float64), np.asarray(toa_s, dtype=np.float64)
-    w = 1.0 / np.asarray(sigma_m, dtype=np.float64)
-    q = np.array([xy0[0], xy0[1], 0.0])
-    q[2] = np.sum(w**2 * _residual(b, t, ue_z, q)) / np.sum(w**2)
-    cost = np.sum((w * _residual(b, t, ue_z, q)) ** 2)
-    start, converged = (q.copy(), float(cost)), False
-    for _ in range(iters):
-        p = np.array([q[0], q[1], ue_z])
-        u = (p - b)[:, :2] / np.maximum(np.linalg.norm(p - b, axis=1), 1e-9)[:, None]
-        J = -np.column_stack([u, np.ones(len(b))])  # ∂e/∂q
-        step = np.linalg.lstsq(w[:, None] * J, -w * _residual(b, t, ue_z, q), rcond=None)[0]
-        for _ in range(30):
-            new = np.sum((w * _residual(b, t, ue_z, q + step)) ** 2)
-            if new <= cost:
-                break
-            step = step / 2
-        else:  # no step lowers the cost (it is flat to the last bit, as far out on its way to infinity)
-            break
-        q, cost = q + step, new
-        if np.linalg.norm(step) < WLS_STOP_STEP_M:
-            converged = True
-            break
-    reach = np.max(np.linalg.norm(b[:, :2] - start[0][:2], axis=1))
-    if not converged and np.linalg.norm(q[:2] - start[0][:2]) > reach:
-        return start  # still on its way when it stopped, and past every BS: running away from the links
-    return q, float(cost)
+    s = np.asarray(sigma_m, dtype=np.float64)
+    order, w = difference_weights(s)
+    f = (otdoa.Solver(len(b)) if solver is None else solver).solve(b[order], t[order], ue_z, weights=w)
+    if not np.all(np.isfinite(f.xyz)):
+        return np.full(3, np.nan), np.nan, f
+    p = f.xyz
+    e = C * t - np.linalg.norm(p - b, axis=1)
+    e_hat, _ = gls_residuals(b, t, s, ue_z, p[:2])
+    return np.array([p[0], p[1], np.sum(e / s**2) / np.sum(1 / s**2)]), float(np.sum((e_hat / s) ** 2)), f
 
 
-def normalised_residuals(bs_xyz, toa_s, sigma_m, ue_z: float, q) -> np.ndarray:
-    """Baarda's w-test statistics w_m = e_m / √(Q_e)_mm of the weighted fit at q (module docstring, step 3).
+def gls_residuals(bs_xyz, toa_s, sigma_m, ue_z: float, xy) -> tuple[np.ndarray, np.ndarray]:
+    """The residual test's residuals at a fix: the ToAs' weighted least squares over (x, y, c δt), linearised at xy.
+
+    ê = e − J (Jᵀ Σ⁻¹ J)⁺ Jᵀ Σ⁻¹ e, e_m = c τ_m − ‖p − b_m‖ at p = (xy, ue_z), J the Jacobian of e in (x, y, c δt),
+    Σ = diag σ²: the residuals of one Gauss–Newton step of that least squares from xy, which its minimum leaves
+    unchanged; independent of the clock, and to first order of where near the minimum xy lies.
 
     Parameters
     ----------
     bs_xyz, toa_s, sigma_m, ue_z
         As for ``wls_fix``.
-    q : float (3,)
-        The fit (x, y, c δt), metres (``wls_fix``).
+    xy : float (2,)
+        The fix, metres.
+
+    Returns
+    -------
+    e_hat : float (M,)
+        ê, metres.
+    q_diag : float (M,)
+        The diagonal of their covariance Q_e = Σ − J (Jᵀ Σ⁻¹ J)⁺ Jᵀ, m² (⁺: links left in a line leave it singular).
+    """
+    b, s = np.asarray(bs_xyz, dtype=np.float64), np.asarray(sigma_m, dtype=np.float64)
+    p = np.array([xy[0], xy[1], ue_z])
+    u = (p - b)[:, :2] / np.maximum(np.linalg.norm(p - b, axis=1), 1e-9)[:, None]
+    J = -np.column_stack([u, np.ones(len(b))])
+    g = np.linalg.pinv((J / s[:, None]).T @ (J / s[:, None]))
+    e = C * np.asarray(toa_s, dtype=np.float64) - np.linalg.norm(p - b, axis=1)
+    return e - J @ (g @ (J.T @ (e / s**2))), s**2 - np.einsum("mi,ij,mj->m", J, g, J)
+
+
+def normalised_residuals(bs_xyz, toa_s, sigma_m, ue_z: float, q) -> np.ndarray:
+    """Baarda's w-test statistics w_m = ê_m / √(Q_e)_mm at the fix q (module docstring, step 3).
+
+    Parameters
+    ----------
+    bs_xyz, toa_s, sigma_m, ue_z
+        As for ``wls_fix``.
+    q : float (2,) or (3,)
+        The fix, metres (``wls_fix``): its (x, y) is read.
 
     Returns
     -------
     float (M,)
         Standard normal for each link when every ToA is unbiased with its σ.
     """
-    b, s = np.asarray(bs_xyz, dtype=np.float64), np.asarray(sigma_m, dtype=np.float64)
-    p = np.array([q[0], q[1], ue_z])
-    u = (p - b)[:, :2] / np.maximum(np.linalg.norm(p - b, axis=1), 1e-9)[:, None]
-    J = -np.column_stack([u, np.ones(len(b))])
-    Jw = J / s[:, None]
-    q_e = np.diag(s**2) - J @ np.linalg.pinv(Jw.T @ Jw) @ J.T  # pinv: links left in a line leave it singular
-    e = _residual(b, np.asarray(toa_s, dtype=np.float64), ue_z, q)
-    return e / np.sqrt(np.maximum(np.diag(q_e), 1e-300))
+    e_hat, q_diag = gls_residuals(bs_xyz, toa_s, sigma_m, ue_z, q[:2])
+    return e_hat / np.sqrt(np.maximum(q_diag, 1e-300))
 
 
 @dataclass(frozen=True)
@@ -301,9 +331,12 @@ class NlosFix:
     consistent : bool
         The final set passes the test (False also where it could not be tested).
     ok : bool
-        The start was found (False with ``reason`` otherwise).
+        Every fit was found (False with ``reason`` where the SOCP failed: the fix is then NaN).
     reason : str
         Why not ok.
+    fallback : bool
+        The final fit's polish moved farther than ``otdoa.MAX_POLISH_MOVE_M`` and it kept its convex solution
+        (``otdoa.Fix.polish_rejected``).
     """
 
     xyz: np.ndarray
@@ -316,6 +349,7 @@ class NlosFix:
     consistent: bool
     ok: bool
     reason: str
+    fallback: bool
 
 
 def threshold(dof: int, false_alarm: float = FALSE_ALARM) -> float:
@@ -353,26 +387,21 @@ class NlosSolver:
         self.exclude = bool(exclude)
         self._solvers = {}
 
-    def start(self, b, t, ue_z) -> otdoa.Fix:
-        """The SOCP fix of ``otdoa.Solver`` without its polish (the start of the weighted fit).
+    def solver(self, m: int) -> otdoa.Solver:
+        """The compiled ``otdoa.Solver`` for m links (``wls_fix``'s), built on first use and kept.
 
         Parameters
         ----------
-        b : float (M, 3)
-            Base-station positions, metres.
-        t : float (M,)
-            ToAs, seconds.
-        ue_z : float
-            The known UE height, metres.
+        m : int
+            The number of links.
 
         Returns
         -------
-        otdoa.Fix
+        otdoa.Solver
         """
-        m = len(b)
         if m not in self._solvers:
             self._solvers[m] = otdoa.Solver(m)
-        return self._solvers[m].solve(b, t, ue_z, polish=False)
+        return self._solvers[m]
 
     def fix(self, bs_xyz, toa_s, sigma_m, ue_z: float) -> NlosFix:
         """One fix: weighted fit, residual test and, where the links allow, exclusion (module docstring).
@@ -404,23 +433,20 @@ class NlosSolver:
         if not (np.all(np.isfinite(t)) and np.all(np.isfinite(s)) and np.all(s > 0)):
             raise ValueError("toa_s must be finite and sigma_m finite and > 0 (metres)")
         _checks.finite("ue_z", ue_z)
-        first = self.start(b, t, ue_z)
-        if not np.all(np.isfinite(first.xyz)):
-            return NlosFix(np.full(3, np.nan), np.nan, np.nan, len(b) - 3, np.nan, False, (), False, False,
-                           first.reason)
-        active = list(range(len(b)))
-        q, stat = wls_fix(b, t, s, ue_z, first.xyz[:2])
-        detected = len(b) > 3 and stat > threshold(len(b) - 3, self.false_alarm)
-        excluded = []
+        active, excluded = list(range(len(b))), []
+        q, stat, f = wls_fix(b, t, s, ue_z, self.solver(len(b)))
+        detected = len(b) > 3 and stat > threshold(len(b) - 3, self.false_alarm)  # False where the SOCP failed (NaN)
         while self.exclude and len(active) - 3 >= 2 and stat > threshold(len(active) - 3, self.false_alarm):
             k = active[int(np.argmax(np.abs(normalised_residuals(b[active], t[active], s[active], ue_z, q))))]
             active.remove(k)
             excluded.append(k)
-            q, stat = wls_fix(b[active], t[active], s[active], ue_z, q[:2])
+            q, stat, f = wls_fix(b[active], t[active], s[active], ue_z, self.solver(len(active)))
         dof = len(active) - 3
         thr = threshold(dof, self.false_alarm)
-        return NlosFix(np.array([q[0], q[1], ue_z]), float(q[2]), stat, dof, thr, bool(detected), tuple(excluded),
-                       bool(dof >= 1 and stat <= thr), True, "")
+        ok = bool(np.all(np.isfinite(q)))
+        return NlosFix(np.array([q[0], q[1], ue_z if ok else np.nan]), float(q[2]), stat, dof, thr, bool(detected),
+                       tuple(excluded), bool(dof >= 1 and stat <= thr), ok, "" if ok else f.reason,
+                       bool(f.polish_rejected))
 
 
 def chunk_fixes(m_values, bs_xyz, toa_s, sigma_m, ue_xyz, bs_index, solver: NlosSolver) -> dict:
@@ -447,20 +473,21 @@ def chunk_fixes(m_values, bs_xyz, toa_s, sigma_m, ue_xyz, bs_index, solver: Nlos
     -------
     dict
         ``results.Results``'s NLoS-aware fields: "otdoa_sigma_m" (T, S, I); "otdoa_nlos_xyz" (T, S, J, 3) and
-        "otdoa_nlos_error_m" (T, S, J), metres; "otdoa_nlos_detected" (T, S, J); "otdoa_nlos_excluded" (T, S, J, I).
+        "otdoa_nlos_error_m" (T, S, J), metres; "otdoa_nlos_detected" (T, S, J); "otdoa_nlos_excluded" (T, S, J, I);
+        "otdoa_nlos_fallback" (T, S, J), ``NlosFix.fallback``.
     """
     n_t, n_s, n_i = toa_s.shape
     n_j = len(m_values)
     xyz = np.full((n_t, n_s, n_j, 3), np.nan)
-    detected = np.zeros((n_t, n_s, n_j), dtype=bool)
+    detected, fallback = np.zeros((n_t, n_s, n_j), dtype=bool), np.zeros((n_t, n_s, n_j), dtype=bool)
     excluded = np.zeros((n_t, n_s, n_j, n_i), dtype=bool)
     for t in range(n_t):
         for j, m in enumerate(m_values):
             bs = bs_xyz[bs_index[t, :m]]
             for s in range(n_s):
                 f = solver.fix(bs, toa_s[t, s, :m], sigma_m[t, s, :m], float(ue_xyz[t, 2]))
-                xyz[t, s, j], detected[t, s, j] = f.xyz, f.detected
+                xyz[t, s, j], detected[t, s, j], fallback[t, s, j] = f.xyz, f.detected, f.fallback
                 excluded[t, s, j, list(f.excluded)] = True
     err = np.linalg.norm(xyz[..., :2] - ue_xyz[:, None, None, :2], axis=-1)
     return {"otdoa_sigma_m": np.asarray(sigma_m), "otdoa_nlos_xyz": xyz, "otdoa_nlos_error_m": err,
-            "otdoa_nlos_detected": detected, "otdoa_nlos_excluded": excluded}
+            "otdoa_nlos_detected": detected, "otdoa_nlos_excluded": excluded, "otdoa_nlos_fallback": fallback}

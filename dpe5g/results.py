@@ -52,6 +52,9 @@ class Results:
         With ``otdoa_nlos`` (else None), the NLoS-aware OTDoA receiver on the first-path ToAs: each link's ToA
         standard deviation (T, S, I), metres, eq. (O1); the fixes (T, S, J, 3) and their horizontal errors (T, S, J),
         metres; bool (T, S, J), the residual test rejected the M links; bool (T, S, J, I), the links it excluded.
+    otdoa_nlos_fallback : bool (T, S, J) or None
+        With ``otdoa_nlos``: the weighted fit's polish moved farther than ``otdoa.MAX_POLISH_MOVE_M`` and its convex
+        solution was kept (``otdoa_nlos.NlosFix.fallback``).
     """
 
     experiment: Experiment
@@ -77,12 +80,13 @@ class Results:
     otdoa_nlos_error_m: np.ndarray | None = None
     otdoa_nlos_detected: np.ndarray | None = None
     otdoa_nlos_excluded: np.ndarray | None = None
+    otdoa_nlos_fallback: np.ndarray | None = None
 
     FIELDS = ("ue_xyz", "clock_bias_s", "bs_index", "los", "link_snr_db", "link_sinr_db", "est_xyz", "est_bias_s",
               "error_m", "center_xyz", "edge", "gap", "certified")
     OTDOA_FIELDS = ("otdoa_toa_s", "otdoa_xyz", "otdoa_error_m", "otdoa_ok")
     OTDOA_NLOS_FIELDS = ("otdoa_sigma_m", "otdoa_nlos_xyz", "otdoa_nlos_error_m", "otdoa_nlos_detected",
-                         "otdoa_nlos_excluded")
+                         "otdoa_nlos_excluded", "otdoa_nlos_fallback")
 
     def rmse_m(self) -> np.ndarray:
         """RMSE of the horizontal error over trials.
