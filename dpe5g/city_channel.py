@@ -291,3 +291,95 @@ def population_lsps(city: city_paths.TracedCity, e, res) -> dict:
     from . import city_study
 
     return {name: lsp_summary(city, mask) for name, mask in city_study.link_populations(city, e, res).items()}
+
+
+@dataclass(frozen=True)
+class Hearability:
+    """Who hears whom, by distance, in the traced city and under TR 38.901's UMi path loss (``hearability``).
+
+    Attributes
+    ----------
+    edges_m : float (n + 1,)
+        The 2-D distance bins, metres.
+    n_pairs : int (2, n)
+        (UE, BS) pairs per bin, [0] LoS (a traced straight line), [1] NLoS (every other pair, with a path or not).
+    traced : float (2, n)
+        The share of those pairs heard in the traced city (``city_draw.heard_links``).
+    umi : float (2, n)
+        The probability that a pair at those distances is heard under TR 38.901 Table 7.4.1-1's UMi-Street Canyon path
+        loss with its log-normal shadow fading (σ 4 dB LoS, 7.82 dB NLoS), the same link budget and threshold, averaged
+        over the bin's pairs.
+    gain_db : float (2, n)
+        The traced path gain of the bin's pairs with a path, median, dB (NaN where none).
+    umi_gain_db : float (2, n)
+        −PL of TR 38.901's model at the bin's median distance, dB.
+    """
+
+    edges_m: np.ndarray
+    n_pairs: np.ndarray
+    traced: np.ndarray
+    umi: np.ndarray
+    gain_db: np.ndarray
+    umi_gain_db: np.ndarray
+
+
+def hearability(city: city_paths.TracedCity, e, dep, edges_m) -> Hearability:
+    """The share of (UE, BS) pairs a UE hears by 2-D distance, LoS and NLoS, traced against TR 38.901 UMi's.
+
+    A pair is heard when its per-sample SNR from the link budget reaches ``city_draw.DETECTION_SNR_DB``
+    (``city_draw.heard_links``); under the standard's model its received power is P − PL(d) − SF with SF normal of
+    σ ``scenario.SIGMA_SF_LOS_DB`` or ``SIGMA_SF_NLOS_DB``, so a pair is heard with probability Φ((P − PL − P*) / σ),
+    P* the least received power heard.
+
+    Parameters
+    ----------
+    city : city_paths.TracedCity
+        The traced city.
+    e : Experiment
+        A city experiment: its link budget.
+    dep : deployment.Deployment
+        The city's deployment: the BSs' powers, dBm.
+    edges_m : float (n + 1,)
+        Distance bins, metres, increasing.
+
+    Returns
+    -------
+    Hearability
+    """
+    from scipy import stats
+
+    from . import city_draw, scenario, signal
+
+    edges = np.asarray(edges_m, dtype=float)
+    if edges.ndim != 1 or edges.size < 2 or np.any(np.diff(edges) <= 0):
+        raise ValueError(f"edges_m must be at least two increasing distances, got {edges_m!r}")
+    b = e.links.budget
+    rx = np.linspace(-200.0, 0.0, 200_001)  # the least received power heard, dBm, on a 1 mdB grid
+    snr = np.asarray(signal.per_sample_snr_db(b.model_snr_db(rx - b.noise_dbm), e.links.snr_convention))
+    p_min = rx[np.argmax(snr >= city_draw.DETECTION_SNR_DB)]
+    d = np.linalg.norm(city.ue_xyz[:, None, :2] - city.bs_xyz[None, :, :2], axis=-1)  # (U, B)
+    los = np.zeros(d.shape, bool)
+    los[city.link_ue, city.link_bs] = city.los
+    heard, gain = np.zeros(d.shape, bool), np.full(d.shape, np.nan)
+    heard[city.link_ue, city.link_bs] = city_draw.heard_links(e, city, dep)
+    gain[city.link_ue, city.link_bs] = city.power_db
+    power = np.broadcast_to(np.asarray(dep.power_dbm, dtype=float)[None, :], d.shape)
+    n = len(edges) - 1
+    out = {k: np.full((2, n), np.nan) for k in ("traced", "umi", "gain_db", "umi_gain_db")}
+    n_pairs = np.zeros((2, n), int)
+    for i, is_los in enumerate((True, False)):
+        sigma = scenario.SIGMA_SF_LOS_DB if is_los else scenario.SIGMA_SF_NLOS_DB
+        for k in range(n):
+            sel = (los == is_los) & (d >= edges[k]) & (d < edges[k + 1])
+            n_pairs[i, k] = sel.sum()
+            if not sel.any():
+                continue
+            pl = np.asarray(scenario.path_loss_umi_db(d[sel], city.spec["bs_height_m"], city.spec["ue_height_m"],
+                                                      b.fc_hz, is_los))
+            out["traced"][i, k] = heard[sel].mean()
+            out["umi"][i, k] = stats.norm.cdf((power[sel] - pl - p_min) / sigma).mean()
+            g = gain[sel][np.isfinite(gain[sel])]
+            out["gain_db"][i, k] = np.median(g) if g.size else np.nan
+            out["umi_gain_db"][i, k] = -float(np.asarray(scenario.path_loss_umi_db(
+                np.median(d[sel]), city.spec["bs_height_m"], city.spec["ue_height_m"], b.fc_hz, is_los)))
+    return Hearability(edges_m=edges, n_pairs=n_pairs, **out)

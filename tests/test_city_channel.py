@@ -137,3 +137,24 @@ def test_bad_input_is_refused_naming_the_parameter(stored):
         city_errors.genie_split(city, e, res, threshold_db=3.0)
     with pytest.raises(ValueError, match="not a run of"):
         city_errors.genie_split(city, e, SimpleNamespace(**{**res.__dict__, "bs_index": res.bs_index[:, ::-1]}))
+
+
+def test_hearability_counts_the_heard_pairs_and_the_standards_probability():
+    """The traced share of a bin is ``city_draw.heard_links``' share of its pairs; under the standard's model a pair
+    whose median received power is the least heard is heard with probability 1/2, and the probability falls with
+    distance; every pair is counted once."""
+    from dpe5g import city_draw
+
+    city = city_paths.load_city(city_study.CITY)
+    e = city_study.city_fig10(4, "otdoa", n_trials=1)
+    dep = e.load_deployment()
+    edges = np.array([0.0, 50.0, 100.0, 200.0, 1000.0])
+    h = city_channel.hearability(city, e, dep, edges)
+    assert h.n_pairs.sum() == city.n_ue * city.n_bs
+    d = np.linalg.norm(city.ue_xyz[city.link_ue, :2] - city.bs_xyz[city.link_bs, :2], axis=-1)
+    heard = city_draw.heard_links(e, city, dep)
+    sel = city.los & (d >= 50.0) & (d < 100.0)
+    assert h.traced[0, 1] == pytest.approx(heard[sel].sum() / h.n_pairs[0, 1], abs=1e-12)
+    assert np.all(np.diff(h.umi[1]) < 0)
+    with pytest.raises(ValueError, match="edges_m"):
+        city_channel.hearability(city, e, dep, [100.0, 50.0])
