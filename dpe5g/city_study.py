@@ -10,7 +10,7 @@ first-path excess delays against TR 38.901's log-normal (``excess_fit``), and it
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import stats
@@ -154,6 +154,27 @@ def clock_families(m: int, prior_s: float | None, n_trials: int | None = None) -
     return studies.receiver_families({"naive": city_clock(m, prior_s, n_trials), "ot": city_nlos(m, n_trials)["ot"]})
 
 
+def city_window(m: int, n_taps: int, n_trials: int | None = None) -> Experiment:
+    """The honest DPE of ``city_fig10(m, "otdoa")`` with a receiver window of n_taps taps (eq. (10)'s L) instead of
+    ``search_config.DEFAULT_TAPS``: the same trials, signals and clock prior (name "-L{n_taps}").
+
+    Parameters
+    ----------
+    m : int
+        The links, the UE's m strongest.
+    n_taps : int
+        The window L, taps.
+    n_trials : int or None
+        As ``city_fig10``'s.
+
+    Returns
+    -------
+    Experiment
+    """
+    e = city_fig10(m, "otdoa", n_trials)
+    return e.replace(name=f"{e.run.name}-L{n_taps}", search=replace(e.receiver.search, n_taps=n_taps))
+
+
 def all_experiments() -> list[Experiment]:
     """Every experiment of the city chapter, at the trial counts it reads.
 
@@ -162,7 +183,7 @@ def all_experiments() -> list[Experiment]:
     list of Experiment
     """
     return ([city_fig10(m, c) for m in CITY_M for c in CITY_CENTRINGS] + [e for m in CITY_M for e in city_nlos(m).values()]
-            + [city_clock(m, p) for m in CITY_M for p in CITY_CLOCK_PRIORS_S[1:]])
+            + [city_clock(m, p) for m in CITY_M for p in CITY_CLOCK_PRIORS_S[1:]] + [city_window(CITY_M[0], 1)])
 
 
 #: the first path's power below the link's strongest path, dB, by which ``excess_fit`` may define a link's first path:
