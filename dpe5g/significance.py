@@ -3,13 +3,15 @@
 Receivers run on the same trials, compared in groups of them (by the number of NLoS links, say): the Wilcoxon
 signed-rank test of the paired differences (``signed_rank``), Holm's step-down correction for many tests (``holm``),
 and both with ``intervals``' paired quantile differences and their bootstrap p values per group, every verdict
-corrected together (``group_comparisons``); and the coverage of a quantile difference's bootstrap interval at a
+corrected together (``group_comparisons``), the best of two families of receivers per group likewise
+(``best_group_comparisons``); and the coverage of a quantile difference's bootstrap interval at a
 given number of trials, simulated (``bootstrap_coverage``), which says how far a small group's interval can be trusted.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -343,3 +345,101 @@ def bootstrap_coverage(n: int, q: float, n_rep: int, seed: int, n_boot: int = 10
         hits += iv.holds(true_a - true_b)
     coverage = float(hits / n_rep)
     return coverage, float(np.sqrt(coverage * (1 - coverage) / n_rep))
+
+
+@dataclass(frozen=True)
+class BestGroupRow:
+    """The best receiver of one family against the best of another on one group of trials (``best_group_comparisons``).
+
+    Attributes
+    ----------
+    label : str
+        The group.
+    n : int
+        Its trials.
+    best_a, best_b : str
+        Each family's receiver with the lowest q point on the group ("" when too few).
+    difference : Interval or None
+        Q_q(best_a) − Q_q(best_b) with its paired interval, metres; None when too few.
+    p, p_holm : float
+        The p value that one family's best beats every receiver of the other (the largest of those paired tests' p
+        values: an intersection–union test), and its Holm-adjusted value across the groups; NaN when too few.
+    verdict : str
+        "a better", "b better", "unresolved" or ``TOO_FEW``.
+    """
+
+    label: str
+    n: int
+    best_a: str
+    best_b: str
+    difference: Interval | None
+    p: float
+    p_holm: float
+    verdict: str
+
+
+def _wins(best, errs: dict, others: dict, q: float, boot: dict) -> float:
+    """The intersection–union p value that ``errs[best]`` beats every receiver of ``others`` at q (1 where a point
+    estimate says it does not)."""
+    ps = []
+    for e in others.values():
+        d, p = quantile_difference_test(errs[best], e, q, **boot)
+        if not d.value < 0:
+            return 1.0
+        ps.append(p)
+    return max(ps)
+
+
+def best_group_comparisons(family_a: dict, family_b: dict, groups: dict, q: float = 0.9, alpha: float = 0.05,
+                           min_n: int = 20, **boot) -> list[BestGroupRow]:
+    """``intervals.best_comparison`` on each group of trials, its verdicts Holm-corrected across the groups.
+
+    In each group a family wins where its best receiver (the lowest q point there) beats every receiver of the other
+    family; the test of that is the largest of the paired tests' bootstrap p values (``quantile_difference_test``),
+    and those p values, one per group, are corrected together (``holm``).
+
+    Parameters
+    ----------
+    family_a, family_b : dict of str to float (T,)
+        Each family's receivers by name, their errors (metres) on the same T trials.
+    groups : dict of str to bool (T,)
+        The groups, by label.
+    q : float
+        The quantile.
+    alpha : float
+        The family-wise level.
+    min_n : int
+        Groups with fewer trials are reported as ``TOO_FEW`` and left out of the correction.
+    **boot
+        ``paired_interval``'s options.
+
+    Returns
+    -------
+    list of BestGroupRow
+        One per group, in the order of ``groups``.
+
+    Raises
+    ------
+    ValueError
+        An empty family, masks that are not bool (T,), or alpha out of range.
+    """
+    if not family_a or not family_b:
+        raise ValueError("best_group_comparisons needs at least one receiver in each family")
+    n_trials = len(next(iter(family_a.values())))
+    masks = _group_masks(groups, n_trials)
+    rows, tested = [], []
+    for label, m in masks.items():
+        if m.sum() < min_n:
+            rows.append(BestGroupRow(str(label), int(m.sum()), "", "", None, math.nan, math.nan, TOO_FEW))
+            continue
+        fa, fb = ({k: np.asarray(v, dtype=float)[m] for k, v in f.items()} for f in (family_a, family_b))
+        ba = min(fa, key=lambda k: np.quantile(fa[k], q))
+        bb = min(fb, key=lambda k: np.quantile(fb[k], q))
+        pa, pb = _wins(ba, fa, fb, q, boot), _wins(bb, fb, fa, q, boot)
+        rows.append(BestGroupRow(str(label), int(m.sum()), ba, bb, quantile_difference(fa[ba], fb[bb], q, **boot),
+                                 min(pa, pb), math.nan, "b better" if pb < pa else "a better"))
+        tested.append(len(rows) - 1)
+    adjusted, reject = holm([rows[i].p for i in tested], alpha)
+    for i, h, r in zip(tested, adjusted, reject):
+        rows[i] = replace(rows[i], p_holm=float(h), verdict=rows[i].verdict if r else "unresolved")
+    return rows

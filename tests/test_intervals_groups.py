@@ -175,3 +175,22 @@ def test_coverage_at_45_trials_is_at_least_the_level(q):
     ref, ref_se = COVERAGE_45[q]
     assert abs(coverage - ref) <= 3 * np.hypot(se, ref_se), (q, coverage, se)
     assert coverage >= 0.95 - 2 * se, (q, coverage, se)
+
+
+def test_best_group_comparisons_corrects_the_groups_together():
+    """Family a's best beats b in the first group by far and ties it in the second; the first is resolved, the second
+    not; a tiny group is too few; with a second, worse receiver in family b nothing changes in the first group."""
+    rng = np.random.default_rng(7)
+    t = 400
+    base = np.exp(rng.normal(1.0, 0.8, t))
+    groups = {"far": np.arange(t) < 200, "tie": (np.arange(t) >= 200) & (np.arange(t) < 395),
+              "tiny": np.arange(t) >= 395}
+    a = np.where(groups["far"], 0.3 * base, base)
+    b = base * np.exp(rng.normal(0.0, 0.05, t))
+    rows = significance.best_group_comparisons({"a": a}, {"b": b, "b2": 2 * b}, groups, min_n=20)
+    far, tie, tiny = rows
+    assert (far.best_a, far.best_b, far.verdict) == ("a", "b", "a better") and far.difference.below(0)
+    assert tie.verdict == "unresolved" and tiny.verdict == significance.TOO_FEW and tiny.difference is None
+    assert far.p_holm >= far.p and 0 <= far.p_holm <= 1
+    with pytest.raises(ValueError, match="at least one receiver"):
+        significance.best_group_comparisons({}, {"b": b}, groups)
