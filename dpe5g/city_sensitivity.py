@@ -26,6 +26,8 @@ from .chunk_cache import arrays_digest
 
 #: the UEs of the subset: the stored city's first SUBSET_UES, every BS
 SUBSET_UES = 200
+#: UEs per call of the solver where diffuse reflection is traced (``batch_ues``)
+DIFFUSE_BATCH_UES = 50
 
 
 @dataclass(frozen=True)
@@ -104,8 +106,27 @@ def variant_name(city: str, key: str) -> str:
     return f"{city}-settings-{key}"
 
 
+def batch_ues(key: str) -> int:
+    """UEs per call of the solver for ``VARIANTS[key]``.
+
+    ``SUBSET_UES`` (one call, as the stored city traces batches of 250), or ``DIFFUSE_BATCH_UES`` with diffuse
+    reflection, whose paths fill the memory (200 UEs at S = 0.3 needed more than this machine's 23 GB).
+
+    Parameters
+    ----------
+    key : str
+        A key of ``VARIANTS``.
+
+    Returns
+    -------
+    int
+    """
+    return DIFFUSE_BATCH_UES if VARIANTS[key][1].diffuse_reflection else SUBSET_UES
+
+
 def trace_variant(city: city_paths.TracedCity, key: str, n_ue: int = SUBSET_UES) -> dict:
-    """The first n_ue UEs of ``city`` traced again with every BS under ``VARIANTS[key]``, in one call of the solver.
+    """The first n_ue UEs of ``city`` traced again with every BS under ``VARIANTS[key]``, ``batch_ues(key)`` UEs per
+    call of the solver.
 
     Parameters
     ----------
@@ -124,10 +145,8 @@ def trace_variant(city: city_paths.TracedCity, key: str, n_ue: int = SUBSET_UES)
     """
     import mitsuba as mi
     import sionna.rt as rt
-    from sionna.rt.path_solvers.sb_candidate_generator import SBCandidateGenerator
 
     from . import city_trace
-    from .ray_tracer import CHAIN_SLOTS_PER_UE
 
     variant = VARIANTS[key][1]
     spec = replace(city_trace.CitySpec(**city.spec), max_depth=variant.max_depth,
@@ -138,11 +157,32 @@ def trace_variant(city: city_paths.TracedCity, key: str, n_ue: int = SUBSET_UES)
     ues = np.asarray(city.ue_xyz[:_checks.integer("n_ue", n_ue, 1, city.n_ue)], float)
     for b, p in enumerate(city.bs_xyz):
         scene.add(rt.Transmitter(f"bs{b}", position=mi.Point3f(*map(float, p)), power_dbm=spec.power_dbm))
-    for u, p in enumerate(ues):
-        scene.add(rt.Receiver(f"ue{u}", position=mi.Point3f(*map(float, p))))
-    default = SBCandidateGenerator.MIN_SPEC_COUNT_SIZE  # as ``ray_tracer.solve_paths`` sizes it
+    parts, seconds, step = [], 0.0, batch_ues(key)
+    for u0 in range(0, len(ues), step):
+        for name in list(scene.receivers):
+            scene.remove(name)
+        for u, p in enumerate(ues[u0:u0 + step]):
+            scene.add(rt.Receiver(f"ue{u}", position=mi.Point3f(*map(float, p))))
+        t0 = time.perf_counter()
+        part = _solve(scene, spec, variant, city.bs_xyz, ues[u0:u0 + step])
+        seconds += time.perf_counter() - t0
+        part["link_ue"] = part["link_ue"] + u0
+        parts.append(part)
+    links = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    return {"region": city.region, "bs_xyz": city.bs_xyz, "ue_xyz": ues, **links, "seconds": seconds}
+
+
+def _solve(scene, spec, variant: SolverVariant, bs_xyz, ues) -> dict:
+    """One call of the path solver on the scene's receivers, its paths kept as ``city_trace.compact_links`` keeps
+    them, its table of specular chains sized as ``ray_tracer.solve_paths`` sizes it."""
+    import sionna.rt as rt
+    from sionna.rt.path_solvers.sb_candidate_generator import SBCandidateGenerator
+
+    from . import city_trace
+    from .ray_tracer import CHAIN_SLOTS_PER_UE
+
+    default = SBCandidateGenerator.MIN_SPEC_COUNT_SIZE
     SBCandidateGenerator.MIN_SPEC_COUNT_SIZE = max(default, CHAIN_SLOTS_PER_UE * len(ues))
-    t0 = time.perf_counter()
     try:
         paths = rt.PathSolver()(scene, max_depth=spec.max_depth, samples_per_src=spec.samples_per_src, los=True,
                                 specular_reflection=True, diffuse_reflection=variant.diffuse_reflection,
@@ -151,12 +191,10 @@ def trace_variant(city: city_paths.TracedCity, key: str, n_ue: int = SUBSET_UES)
         a, tau = paths.cir(normalize_delays=False, out_type="numpy")  # (U, 1, B, 1, P, 1), (U, B, P)
     finally:
         SBCandidateGenerator.MIN_SPEC_COUNT_SIZE = default
-    seconds = time.perf_counter() - t0
     a = a[:, 0, :, 0, :, 0]
     valid = np.asarray(paths.valid.numpy()) & (np.abs(a) > 0)
     direct = np.all(np.asarray(paths.interactions.numpy()) == 0, axis=0) & valid  # no interaction: the LoS path
-    links = city_trace.compact_links(a, tau, valid, direct, city.bs_xyz, ues, spec.n_paths)
-    return {"region": city.region, "bs_xyz": city.bs_xyz, "ue_xyz": ues, **links, "seconds": seconds}
+    return city_trace.compact_links(a, tau, valid, direct, bs_xyz, ues, spec.n_paths)
 
 
 def save_variant(city: city_paths.TracedCity, key: str, traced: dict, provenance: dict) -> str:
@@ -185,6 +223,7 @@ def save_variant(city: city_paths.TracedCity, key: str, traced: dict, provenance
     spec = {**city.spec, "max_depth": VARIANTS[key][1].max_depth, "samples_per_src": VARIANTS[key][1].samples_per_src}
     city_sum = json.loads(city_paths.city_file(city.name).with_suffix(".json").read_text())["checksum"]
     meta = {"name": name, "spec": spec, "variant": asdict(VARIANTS[key][1]), "label": VARIANTS[key][0],
+            "ues_per_call": batch_ues(key),
             "checksum": arrays_digest(arrays), "city_checksum": city_sum, "provenance": {**provenance, "seconds": float(traced["seconds"])}}
     path = city_paths.city_file(name)
     atomic_write(path, buf.getvalue())
