@@ -275,6 +275,60 @@ def load_variant(city: str, key: str) -> tuple[city_paths.TracedCity, dict]:
     return sub, json.loads(city_paths.city_file(name).with_suffix(".json").read_text())
 
 
+def materials_file(city: str):
+    """The store's record of the radio materials of ``city``'s scene as Sionna RT loads them (``save_materials``).
+
+    Parameters
+    ----------
+    city : str
+        The stored city's name.
+
+    Returns
+    -------
+    pathlib.Path
+    """
+    return city_paths.city_file(f"{city}-settings-materials").with_suffix(".json")
+
+
+def save_materials(city: city_paths.TracedCity) -> dict:
+    """Record each radio material of ``city``'s scene as loaded: its ITU type, slab thickness (m) and scattering
+    coefficient, the properties that decide what refraction and diffuse reflection add.
+
+    Parameters
+    ----------
+    city : city_paths.TracedCity
+        The stored city.
+
+    Returns
+    -------
+    dict
+        {material: {"itu_type", "thickness_m", "scattering_coefficient"}}, also written to ``materials_file``.
+    """
+    from . import city_trace
+
+    scene = city_trace.load_scene(city_trace.CitySpec(**city.spec))
+    out = {name: {"itu_type": str(m.itu_type), "thickness_m": float(np.asarray(m.thickness).ravel()[0]),
+                  "scattering_coefficient": float(np.asarray(m.scattering_coefficient).ravel()[0])}
+           for name, m in scene.radio_materials.items()}
+    atomic_write(materials_file(city.name), json.dumps(out, indent=1).encode())
+    return out
+
+
+def load_materials(city: str) -> dict:
+    """``save_materials``' record.
+
+    Parameters
+    ----------
+    city : str
+        The stored city's name.
+
+    Returns
+    -------
+    dict
+    """
+    return json.loads(materials_file(city).read_text())
+
+
 def trace_stale(city: city_paths.TracedCity, force: bool = False):
     """Trace and store every subset of ``VARIANTS`` that is not current (``is_current``), or all with ``force``.
 
@@ -292,6 +346,8 @@ def trace_stale(city: city_paths.TracedCity, force: bool = False):
     """
     from . import ray_tracer, store
 
+    if force or not materials_file(city.name).exists():
+        yield f"{materials_file(city.name).name}: {len(save_materials(city))} materials recorded"
     for key, (label, _) in VARIANTS.items():
         if not force and is_current(city, key):
             yield f"{variant_name(city.name, key)} ({label}) is current"

@@ -187,7 +187,8 @@ def add_store_commands(sub) -> None:
                                     "and tracing code; then the 3-D view (the buildings, one UE's traced paths), "
                                     "and a subset of its UEs under each solver setting of "
                                     "city_sensitivity.VARIANTS that is not stored yet.  "
-                                    "`make reproduce` runs it first (about 20 minutes on 2 cores); it needs "
+                                    "`make reproduce` runs it first (from scratch about 20 minutes on 2 cores for the city and 40 for the "
+                                    "subsets); it needs "
                                     "Debian's libllvm19.")
     tc.add_argument("--progress", action="store_true", help="a progress bar over the UEs on stderr")
     tc.add_argument("--force", action="store_true", help="trace again even if the stored city is current")

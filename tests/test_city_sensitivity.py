@@ -1,0 +1,52 @@
+"""The tracer's settings tested (``city_sensitivity``): the stored subsets are current and checksummed, the subset
+traced as stored is the stored city's, and settings that cannot mean anything are refused."""
+
+from dataclasses import asdict
+
+import numpy as np
+import pytest
+
+from dpe5g import city_paths, city_sensitivity, city_study
+
+
+@pytest.fixture(scope="module")
+def city():
+    return city_paths.load_city(city_study.CITY)
+
+
+def test_every_variant_is_stored_and_current(city):
+    """``make reproduce`` would trace none of them again; each loads with its checksum and records its settings."""
+    for key, (label, variant) in city_sensitivity.VARIANTS.items():
+        assert city_sensitivity.is_current(city, key), key
+        sub, meta = city_sensitivity.load_variant(city.name, key)
+        assert meta["variant"] == asdict(variant) and meta["label"] == label
+        assert sub.n_ue == city_sensitivity.SUBSET_UES and np.array_equal(sub.bs_xyz, city.bs_xyz)
+        assert np.array_equal(sub.ue_xyz, city.ue_xyz[:city_sensitivity.SUBSET_UES])
+    assert set(city_sensitivity.load_materials(city.name))  # the scene's materials, recorded
+
+
+def test_the_subset_traced_as_stored_is_the_stored_citys(city):
+    """The same links (UE, BS) as the stored city's first UEs, their power within ``city_paths.VERIFY_POWER_DB`` and
+    their first path at the same delay: the subset's other rows differ from the city by their settings alone."""
+    sub, _ = city_sensitivity.load_variant(city.name, "stored")
+    n = city_sensitivity.SUBSET_UES
+    mine = {(u, b): i for i, (u, b) in enumerate(zip(sub.link_ue, sub.link_bs))}
+    rows = np.nonzero(city.link_ue < n)[0]
+    theirs = {(u, b): i for i, (u, b) in zip(rows, zip(city.link_ue[rows], city.link_bs[rows]))}
+    assert set(mine) == set(theirs)
+    i, j = np.array([mine[k] for k in theirs]), np.array(list(theirs.values()))
+    assert np.max(np.abs(sub.power_db[i] - city.power_db[j])) <= city_paths.VERIFY_POWER_DB
+    assert np.max(np.abs(sub.first_excess_s()[i] - city.first_excess_s()[j])) <= city_paths.VERIFY_EXCESS_S
+
+
+def test_settings_that_mean_nothing_are_refused():
+    with pytest.raises(ValueError, match="scattering_coefficient must be > 0 exactly when diffuse_reflection"):
+        city_sensitivity.SolverVariant(scattering_coefficient=0.3)
+    with pytest.raises(ValueError, match="scattering_coefficient must be > 0 exactly when diffuse_reflection"):
+        city_sensitivity.SolverVariant(diffuse_reflection=True)
+    with pytest.raises(ValueError, match="max_depth"):
+        city_sensitivity.SolverVariant(max_depth=0)
+    with pytest.raises(ValueError, match="variant must be one of"):
+        city_sensitivity.variant_name("munich", "diffuse09")
+    assert city_sensitivity.batch_ues("diffuse03") == city_sensitivity.DIFFUSE_BATCH_UES
+    assert city_sensitivity.batch_ues("stored") == city_sensitivity.SUBSET_UES
