@@ -92,7 +92,7 @@ def receiver_fixes(bs_xyz, toa_s, ue_z, bias_half_m: float = math.inf, half_widt
     Parameters
     ----------
     bs_xyz : float (T, M, 3)
-        Each trial's BSs, metres, the reference (the strongest) first, M ≥ 3.
+        Each trial's BSs, metres, in the run's order (the first the reference of ``otdoa.Solver``), M ≥ 3.
     toa_s : float (T, M)
         Their ToAs, seconds (clock bias included).
     ue_z : float or float (T,)
@@ -195,12 +195,6 @@ class GenieSplit:
     refix_gap_m: float
 
 
-def _windows(e: Experiment) -> tuple[float, float]:
-    """The ToA fit's clock and position half-widths (m) in the run's DPE windows, as ``studies.toa_fit_errors``."""
-    search = e.receiver_search()
-    return (math.inf if e.receiver.clock_window == "free" else search.bias_half_width_m), search.half_width_m
-
-
 def genie_split(city: city_paths.TracedCity, e: Experiment, res, threshold_db: float | None = None,
                 s: int = 0) -> GenieSplit:
     """The first-path OTDoA and ToA fit on ``res``'s trials from the ToAs as detected and from the genie's
@@ -237,7 +231,7 @@ def genie_split(city: city_paths.TracedCity, e: Experiment, res, threshold_db: f
     dt = city.first_excess_s(threshold_db)[rows[:, :m]]
     bs = e.load_deployment().bs_xyz[np.asarray(res.bs_index)[:, :m]]
     toa, ue = toa_all[:, s, k, :m].astype(np.float64), np.asarray(res.ue_xyz, dtype=np.float64)
-    half_b, half_w = _windows(e)
+    half_b, half_w = toa_fit.dpe_windows(e)
     raw, genie = genie_fixes(bs, toa, dt, ue[:, 2], half_b, half_w)
     err = lambda xy: np.linalg.norm(xy - ue[:, :2], axis=-1)  # noqa: E731
     stored = np.asarray(res.otdoa_xyz)[:, s, k, j, :2]
@@ -314,7 +308,7 @@ def los_trials(city: city_paths.TracedCity, e: Experiment, res, s: int = 0) -> L
     bs = e.load_deployment().bs_xyz[np.asarray(res.bs_index)[t, :m]]
     ue = np.asarray(res.ue_xyz, dtype=np.float64)[t]
     toa = np.asarray(res.otdoa_toa_s)[t, s, k, :m].astype(np.float64)
-    fit = receiver_fixes(bs, toa, ue[:, 2], *_windows(e)).fit_xy
+    fit = receiver_fixes(bs, toa, ue[:, 2], *toa_fit.dpe_windows(e)).fit_xy
     rho = np.linalg.norm(ue[:, None] - bs, axis=-1) + C * np.asarray(res.clock_bias_s)[t, None]
     est = np.asarray(res.est_xyz)[t, s, j, None, :3]
     dpe_rho = np.linalg.norm(est - bs, axis=-1) + C * np.asarray(res.est_bias_s)[t, s, j, None]

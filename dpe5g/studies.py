@@ -432,8 +432,7 @@ def toa_fit_errors(res: results.Results, s: int = 0) -> dict:
     """
     e = res.experiment
     dep = e.load_deployment()
-    search = e.receiver_search()
-    half = np.inf if e.receiver.clock_window == "free" else search.bias_half_width_m
+    half, half_w = toa_fit.dpe_windows(e)
     out = {}
     for k, det in enumerate(OTDOA_DETECTORS):
         cols = []
@@ -441,7 +440,7 @@ def toa_fit_errors(res: results.Results, s: int = 0) -> dict:
             bs = dep.bs_xyz[res.bs_index[:, :m]]
             start = res.otdoa_xyz[:, s, k, j, :2]
             start = np.where(np.isfinite(start), start, bs[..., :2].mean(axis=1))
-            f = toa_fit.fit(bs, res.otdoa_toa_s[:, s, k, :m], res.ue_xyz[:, 2], start, half, search.half_width_m)
+            f = toa_fit.fit(bs, res.otdoa_toa_s[:, s, k, :m], res.ue_xyz[:, 2], start, half, half_w)
             cols.append(np.linalg.norm(f.xy - res.ue_xyz[:, :2], axis=-1))
         out[f"{det.replace('_', '-').replace('peak', 'strongest-peak')} ToA fit"] = np.stack(cols, axis=1)
     return out

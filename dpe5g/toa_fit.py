@@ -10,7 +10,8 @@ over (x, y, c δt) in the same windows is (ours, not the paper's)
 
 the clock bias projected out: at a fixed p the cost is a parabola in c δt, whose minimum over the window is β(p).
 With no clock prior (B = ∞) β is the mean and (T1) is the range-difference fit with the differences' correlated noise
-accounted for.  ``fit`` minimises it by projected Gauss–Newton from the OTDoA fix, every trial at once;
+accounted for.  ``fit`` minimises it by projected Gauss–Newton from the best point of a grid over the window,
+every trial at once;
 ``implied_bias_m`` is β, which also centres the DPE's clock window when it has no prior (``trials.otdoa_centers``).
 Units: seconds, metres.
 """
@@ -25,9 +26,28 @@ from .nr import C
 
 #: the fit stops once no trial's step is longer than this, metres
 STOP_STEP_M = 1e-6
+#: the grid over the position window whose best point starts Gauss–Newton, metres (the cost has local minima there)
+GRID_STEP_M = 2.0
 #: Gauss–Newton steps at most, and halvings of a step that raises the cost
 MAX_STEPS = 50
 MAX_HALVINGS = 30
+
+
+def dpe_windows(e) -> tuple[float, float]:
+    """The windows of eq. (T1) that give the fit what an experiment's DPE knows: its clock window B (∞ where the DPE
+    has no clock prior, clock_window "free") and its position window H, metres (``Experiment.receiver_search``).
+
+    Parameters
+    ----------
+    e : experiment.Experiment
+        The experiment whose DPE the fit matches.
+
+    Returns
+    -------
+    bias_half_m, half_width_m : float
+    """
+    search = e.receiver_search()
+    return (np.inf if e.receiver.clock_window == "free" else search.bias_half_width_m), search.half_width_m
 
 
 def implied_bias_m(bs_xyz, toa_s, xyz, bias_half_m: float = np.inf) -> np.ndarray:
@@ -89,9 +109,28 @@ def _residuals(bs, rho, z, xy, half):
     return r - beta[:, None], diff[..., :2] / np.maximum(d, 1e-9)[..., None], np.abs(free) < half, beta
 
 
+def _grid_start(bs, rho, z, xy0, half_b, half_w):
+    """The point of lowest eq. (T1) cost on a ``GRID_STEP_M`` grid over each trial's window (xy0 among them), (T, 2)."""
+    g = np.arange(-half_w, half_w + 1e-9, min(GRID_STEP_M, half_w))
+    offsets = np.concatenate([[[0.0, 0.0]], np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)])
+    best = np.empty_like(xy0)
+    step = max(1, 2_000_000 // (len(offsets) * bs.shape[1]))  # trials per block: about 2 M residuals at once
+    for t0 in range(0, len(xy0), step):
+        sl = slice(t0, t0 + step)
+        pts = xy0[sl, None, :] + offsets  # (t, K, 2)
+        p = np.concatenate([pts, np.broadcast_to(z[sl, None, None], pts.shape[:2] + (1,))], axis=-1)
+        r = rho[sl, None, :] - np.linalg.norm(p[:, :, None, :] - bs[sl, None], axis=-1)  # (t, K, M)
+        beta = np.clip(r.mean(axis=-1, keepdims=True), -half_b, half_b)
+        k = np.argmin(np.sum((r - beta) ** 2, axis=-1), axis=1)
+        best[sl] = pts[np.arange(len(k)), k]
+    return best
+
+
 def fit(bs_xyz, toa_s, ue_z, xy0, bias_half_m: float = np.inf, half_width_m: float = np.inf) -> ToaFix:
-    """Eq. (T1) for T trials at once: Gauss–Newton over (x, y) from xy0, each step projected on the window W and
-    halved until the cost falls; a coordinate held on W's edge steps no further out, the other steps alone.
+    """Eq. (T1) for T trials at once: Gauss–Newton over (x, y), each step projected on the window W and halved until
+    the cost falls; a coordinate held on W's edge steps no further out, the other steps alone.  With a finite W it
+    starts at the lowest-cost point of a ``GRID_STEP_M`` grid over W (xy0 among them): the cost has local minima
+    there (eq. (T1)'s clip and the NLoS links), and Gauss–Newton from xy0 alone stopped in one on city trials.
 
     A trial stops when it moves less than ``STOP_STEP_M`` or no halving lowers its cost; all stop after
     ``MAX_STEPS``.
@@ -134,6 +173,8 @@ def fit(bs_xyz, toa_s, ue_z, xy0, bias_half_m: float = np.inf, half_width_m: flo
         raise ValueError("fit needs finite BS positions, ToAs, starts and heights")
     rho, n = C * toa, bs.shape[0]
     lo, hi, dist = xy - half_width_m, xy + half_width_m, np.zeros(n)
+    if np.isfinite(half_width_m):  # the cost has local minima in the window: start at the best point of a grid
+        xy = _grid_start(bs, rho, z, xy, bias_half_m, half_width_m)
     e, u, free, beta = _residuals(bs, rho, z, xy, bias_half_m)
     cost = np.sum(e**2, axis=-1)
     active, steps = np.ones(n, dtype=bool), np.zeros(n, dtype=int)
