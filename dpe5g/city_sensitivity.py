@@ -1,13 +1,13 @@
-"""The ray tracer's settings tested: a subset of the city's UEs traced again with what the stored city leaves out.
+"""The ray tracer's settings tested: a subset of the city's UEs traced again under each setting of the path solver.
 
-The stored city (``city_trace.CitySpec``, ``ray_tracer.solve_paths``) traces the line of sight, specular reflections
-and wedge diffraction, up to 3 interactions, 10⁵ rays per BS; diffuse reflection, refraction and edge diffraction are
-off, and Sionna RT loads the scene's ITU materials with a scattering coefficient S of 0, so that diffuse reflection
-adds nothing until S is set.  ``VARIANTS`` names each setting tried (``SolverVariant``); ``trace_variant`` traces the
-first ``SUBSET_UES`` UEs of the stored city, with every BS, under one of them (the first variant as stored, so that
-the subset is compared with itself traced the same way); ``save_variant`` and ``load_variant`` keep each in the
-results store beside the city, in its format (``city_paths``).  ``make reproduce`` traces them (``dpe5g trace``).
-No material of the scene comes with a measured S: the values swept are ours.
+The city was first traced (``SPECULAR``) with the line of sight, specular reflections and wedge diffraction, up to 3
+interactions, 10⁵ rays per BS; diffuse reflection, refraction and edge diffraction off, and Sionna RT loads the scene's
+ITU materials with a scattering coefficient S of 0, so that diffuse reflection adds nothing until S is set.
+``VARIANTS`` names each setting tried, as ``city_trace.CitySpec`` fields (``variant_spec``); ``trace_variant`` traces
+the first ``SUBSET_UES`` UEs of the stored city, with every BS, under one of them (the variant with the city's own
+settings is the city's first UEs traced again, so that the subset is compared with itself); ``save_variant`` and
+``load_variant`` keep each in the results store beside the city, in its format (``city_paths``).  ``make reproduce``
+traces them (``dpe5g trace``).  No material of the scene comes with a measured S: the values swept are ours.
 Units: metres, seconds.
 """
 
@@ -16,7 +16,7 @@ from __future__ import annotations
 import io
 import json
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
@@ -26,59 +26,31 @@ from .chunk_cache import arrays_digest
 
 #: the UEs of the subset: the stored city's first SUBSET_UES, every BS
 SUBSET_UES = 200
-#: UEs per call of the solver where diffuse reflection is traced (``batch_ues``)
+#: UEs per call of the solver where diffuse reflection is traced (its paths fill the memory: 200 UEs at S = 0.3 needed
+#: more than this machine's 23 GB); the others trace the subset in one call
 DIFFUSE_BATCH_UES = 50
 
-
-@dataclass(frozen=True)
-class SolverVariant:
-    """One setting of Sionna RT's path solver beside the stored city's.
-
-    Attributes
-    ----------
-    max_depth : int
-        Most interactions per path (the stored city's 3).
-    samples_per_src : int
-        Rays shot per BS (the stored city's 10⁵).
-    diffuse_reflection : bool
-        Diffuse reflection (scattering off rough walls) traced.
-    scattering_coefficient : float
-        S in [0, 1] set on every material of the scene (Sionna RT's default 0); needs diffuse_reflection.
-    refraction : bool
-        Transmission through walls traced.
-    edge_diffraction : bool
-        Sionna RT's diffraction on free edges (a flag apart from wedge diffraction).
-    """
-
-    max_depth: int = 3
-    samples_per_src: int = 100_000
-    diffuse_reflection: bool = False
-    scattering_coefficient: float = 0.0
-    refraction: bool = False
-    edge_diffraction: bool = False
-
-    def __post_init__(self):
-        _checks.integer("max_depth", self.max_depth, 1, 6)
-        _checks.integer("samples_per_src", self.samples_per_src, 1000, 10_000_000)
-        _checks.in_range("scattering_coefficient", self.scattering_coefficient, 0.0, 1.0, "")
-        if (self.scattering_coefficient > 0) != self.diffuse_reflection:
-            raise ValueError("scattering_coefficient must be > 0 exactly when diffuse_reflection is on (with S = 0 "
-                             f"diffuse reflection adds nothing), got {self.scattering_coefficient!r} and "
-                             f"{self.diffuse_reflection!r}")
+#: the solver's settings of the city as first traced (LoS, specular reflections, wedge diffraction, 3 interactions, 10⁵
+#: rays per BS): every variant is these with some changed (``city_trace.CitySpec``'s fields)
+SPECULAR = {"max_depth": 3, "samples_per_src": 100_000, "diffuse_reflection": False, "scattering_coefficient": 0.0,
+            "refraction": False, "edge_diffraction": False, "ues_per_call": SUBSET_UES}
 
 
-#: the settings tried, by name (a file name in the store) and label
+def _diffuse(s: float) -> dict:
+    return {**SPECULAR, "diffuse_reflection": True, "scattering_coefficient": s, "ues_per_call": DIFFUSE_BATCH_UES}
+
+
+#: the settings tried, by name (a file name in the store): their label and their solver settings
 VARIANTS = {
-    "stored": ("as stored", SolverVariant()),
-    "depth5": ("5 interactions", SolverVariant(max_depth=5)),
-    "rays1e6": ("10⁶ rays per BS", SolverVariant(samples_per_src=1_000_000)),
-    "refraction": ("refraction", SolverVariant(refraction=True)),
-    "edge": ("edge diffraction", SolverVariant(edge_diffraction=True)),
-    "diffuse01": ("diffuse, S = 0.1", SolverVariant(diffuse_reflection=True, scattering_coefficient=0.1)),
-    "diffuse03": ("diffuse, S = 0.3", SolverVariant(diffuse_reflection=True, scattering_coefficient=0.3)),
-    "diffuse05": ("diffuse, S = 0.5", SolverVariant(diffuse_reflection=True, scattering_coefficient=0.5)),
-    "all03": ("all of them, S = 0.3", SolverVariant(max_depth=5, diffuse_reflection=True, scattering_coefficient=0.3,
-                                                     refraction=True, edge_diffraction=True)),
+    "specular": ("specular only (the city as first traced)", SPECULAR),
+    "depth5": ("5 interactions", {**SPECULAR, "max_depth": 5}),
+    "rays1e6": ("10⁶ rays per BS", {**SPECULAR, "samples_per_src": 1_000_000}),
+    "refraction": ("refraction", {**SPECULAR, "refraction": True}),
+    "edge": ("edge diffraction", {**SPECULAR, "edge_diffraction": True}),
+    "diffuse01": ("diffuse, S = 0.1", _diffuse(0.1)),
+    "diffuse03": ("diffuse, S = 0.3 (the city's settings)", _diffuse(0.3)),
+    "diffuse05": ("diffuse, S = 0.5", _diffuse(0.5)),
+    "all03": ("all of them, S = 0.3", {**_diffuse(0.3), "max_depth": 5, "refraction": True, "edge_diffraction": True}),
 }
 
 
@@ -106,27 +78,42 @@ def variant_name(city: str, key: str) -> str:
     return f"{city}-settings-{key}"
 
 
-def batch_ues(key: str) -> int:
-    """UEs per call of the solver for ``VARIANTS[key]``.
-
-    ``SUBSET_UES`` (one call, as the stored city traces batches of 250), or ``DIFFUSE_BATCH_UES`` with diffuse
-    reflection, whose paths fill the memory (200 UEs at S = 0.3 needed more than this machine's 23 GB).
+def variant_spec(city: city_paths.TracedCity, key: str):
+    """``city``'s ``city_trace.CitySpec`` (scene, deployment, seed) with the solver settings of ``VARIANTS[key]``.
 
     Parameters
     ----------
+    city : city_paths.TracedCity
+        The stored city.
     key : str
         A key of ``VARIANTS``.
 
     Returns
     -------
-    int
+    city_trace.CitySpec
     """
-    return DIFFUSE_BATCH_UES if VARIANTS[key][1].diffuse_reflection else SUBSET_UES
+    from . import city_trace
+
+    variant_name(city.name, key)
+    return replace(city_trace.CitySpec(**city.spec), **VARIANTS[key][1])
+
+
+def positions_digest(city: city_paths.TracedCity) -> str:
+    """Digest of the subset's positions: ``city``'s BSs and first ``SUBSET_UES`` UEs (what a subset is traced at).
+
+    Parameters
+    ----------
+    city : city_paths.TracedCity
+
+    Returns
+    -------
+    str
+    """
+    return arrays_digest({"bs_xyz": np.asarray(city.bs_xyz), "ue_xyz": np.asarray(city.ue_xyz[:SUBSET_UES])})
 
 
 def trace_variant(city: city_paths.TracedCity, key: str, n_ue: int = SUBSET_UES) -> dict:
-    """The first n_ue UEs of ``city`` traced again with every BS under ``VARIANTS[key]``, ``batch_ues(key)`` UEs per
-    call of the solver.
+    """The first n_ue UEs of ``city`` traced again with every BS under ``VARIANTS[key]`` (``city_trace.trace_links``).
 
     Parameters
     ----------
@@ -143,58 +130,13 @@ def trace_variant(city: city_paths.TracedCity, key: str, n_ue: int = SUBSET_UES)
         ``city_trace.trace_city``'s arrays for the subset (its region, BSs, the n_ue UEs and their links), and
         "seconds", the solver's time.
     """
-    import mitsuba as mi
-    import sionna.rt as rt
-
     from . import city_trace
 
-    variant = VARIANTS[key][1]
-    spec = replace(city_trace.CitySpec(**city.spec), max_depth=variant.max_depth,
-                   samples_per_src=variant.samples_per_src)
-    scene = city_trace.load_scene(spec)
-    for mat in scene.radio_materials.values():
-        mat.scattering_coefficient = variant.scattering_coefficient
+    spec = variant_spec(city, key)
     ues = np.asarray(city.ue_xyz[:_checks.integer("n_ue", n_ue, 1, city.n_ue)], float)
-    for b, p in enumerate(city.bs_xyz):
-        scene.add(rt.Transmitter(f"bs{b}", position=mi.Point3f(*map(float, p)), power_dbm=spec.power_dbm))
-    parts, seconds, step = [], 0.0, batch_ues(key)
-    for u0 in range(0, len(ues), step):
-        for name in list(scene.receivers):
-            scene.remove(name)
-        for u, p in enumerate(ues[u0:u0 + step]):
-            scene.add(rt.Receiver(f"ue{u}", position=mi.Point3f(*map(float, p))))
-        t0 = time.perf_counter()
-        part = _solve(scene, spec, variant, city.bs_xyz, ues[u0:u0 + step])
-        seconds += time.perf_counter() - t0
-        part["link_ue"] = part["link_ue"] + u0
-        parts.append(part)
-    links = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-    return {"region": city.region, "bs_xyz": city.bs_xyz, "ue_xyz": ues, **links, "seconds": seconds}
-
-
-def _solve(scene, spec, variant: SolverVariant, bs_xyz, ues) -> dict:
-    """One call of the path solver on the scene's receivers, its paths kept as ``city_trace.compact_links`` keeps
-    them, its table of specular chains sized as ``ray_tracer.solve_paths`` sizes it."""
-    import sionna.rt as rt
-    from sionna.rt.path_solvers.sb_candidate_generator import SBCandidateGenerator
-
-    from . import city_trace
-    from .ray_tracer import CHAIN_SLOTS_PER_UE
-
-    default = SBCandidateGenerator.MIN_SPEC_COUNT_SIZE
-    SBCandidateGenerator.MIN_SPEC_COUNT_SIZE = max(default, CHAIN_SLOTS_PER_UE * len(ues))
-    try:
-        paths = rt.PathSolver()(scene, max_depth=spec.max_depth, samples_per_src=spec.samples_per_src, los=True,
-                                specular_reflection=True, diffuse_reflection=variant.diffuse_reflection,
-                                refraction=variant.refraction, diffraction=spec.diffraction,
-                                edge_diffraction=variant.edge_diffraction, seed=spec.seed)
-        a, tau = paths.cir(normalize_delays=False, out_type="numpy")  # (U, 1, B, 1, P, 1), (U, B, P)
-    finally:
-        SBCandidateGenerator.MIN_SPEC_COUNT_SIZE = default
-    a = a[:, 0, :, 0, :, 0]
-    valid = np.asarray(paths.valid.numpy()) & (np.abs(a) > 0)
-    direct = np.all(np.asarray(paths.interactions.numpy()) == 0, axis=0) & valid  # no interaction: the LoS path
-    return city_trace.compact_links(a, tau, valid, direct, bs_xyz, ues, spec.n_paths)
+    t0 = time.perf_counter()
+    links = city_trace.trace_links(city_trace.load_scene(spec), city.bs_xyz, ues, spec)
+    return {"region": city.region, "bs_xyz": city.bs_xyz, "ue_xyz": ues, **links, "seconds": time.perf_counter() - t0}
 
 
 def save_variant(city: city_paths.TracedCity, key: str, traced: dict, provenance: dict) -> str:
@@ -220,11 +162,9 @@ def save_variant(city: city_paths.TracedCity, key: str, traced: dict, provenance
     arrays = {k: np.asarray(traced[k]) for k in city_paths.ARRAYS}
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)
-    spec = {**city.spec, "max_depth": VARIANTS[key][1].max_depth, "samples_per_src": VARIANTS[key][1].samples_per_src}
-    city_sum = json.loads(city_paths.city_file(city.name).with_suffix(".json").read_text())["checksum"]
-    meta = {"name": name, "spec": spec, "variant": asdict(VARIANTS[key][1]), "label": VARIANTS[key][0],
-            "ues_per_call": batch_ues(key),
-            "checksum": arrays_digest(arrays), "city_checksum": city_sum, "provenance": {**provenance, "seconds": float(traced["seconds"])}}
+    meta = {"name": name, "spec": variant_spec(city, key).to_dict(), "label": VARIANTS[key][0],
+            "checksum": arrays_digest(arrays), "positions": positions_digest(city),
+            "provenance": {**provenance, "seconds": float(traced["seconds"])}}
     path = city_paths.city_file(name)
     atomic_write(path, buf.getvalue())
     atomic_write(path.with_suffix(".json"), json.dumps(jsonable(meta), indent=1).encode())
@@ -244,15 +184,17 @@ def is_current(city: city_paths.TracedCity, key: str) -> bool:
     Returns
     -------
     bool
-        Its files exist, and its record names this variant and the city's checksum.
+        Its files exist, and its record names this variant's settings (``variant_spec``) and the positions of today's
+        city (``positions_digest``): a city traced again with other solver settings at the same positions leaves them
+        current.
     """
     path = city_paths.city_file(variant_name(city.name, key))
     try:
         meta = json.loads(path.with_suffix(".json").read_text())
     except (OSError, ValueError):
         return False
-    city_sum = json.loads(city_paths.city_file(city.name).with_suffix(".json").read_text())["checksum"]
-    return path.exists() and meta.get("variant") == asdict(VARIANTS[key][1]) and meta.get("city_checksum") == city_sum
+    return (path.exists() and meta.get("spec") == variant_spec(city, key).to_dict()
+            and meta.get("positions") == positions_digest(city))
 
 
 def load_variant(city: str, key: str) -> tuple[city_paths.TracedCity, dict]:

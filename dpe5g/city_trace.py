@@ -47,7 +47,18 @@ class CitySpec:
     samples_per_src : int
         Rays shot per transmitter.
     diffraction : bool
-        Whether paths diffracted on edges are traced.
+        Whether paths diffracted on wedges are traced.
+    edge_diffraction : bool
+        Sionna RT's diffraction on free edges (a flag apart from wedge diffraction).
+    diffuse_reflection : bool
+        Whether diffuse reflection (scattering off rough walls) is traced.
+    scattering_coefficient : float
+        S in [0, 1], set on every material of the scene (Sionna RT loads them with S = 0, where diffuse reflection adds
+        nothing); > 0 exactly when ``diffuse_reflection``.  No material of the scene comes with a measured S.
+    refraction : bool
+        Whether transmission through walls is traced.
+    ues_per_call : int
+        UEs per call of the solver (its diffuse paths fill the memory: 200 UEs at S = 0.3 needed more than 23 GB).
     n_paths : int
         Paths kept per link (``compact_links``): the first to arrive and the strongest others.
     clearance_m : float
@@ -68,6 +79,11 @@ class CitySpec:
     max_depth: int = 3
     samples_per_src: int = 100_000
     diffraction: bool = True
+    edge_diffraction: bool = False
+    diffuse_reflection: bool = True
+    scattering_coefficient: float = 0.3
+    refraction: bool = False
+    ues_per_call: int = 50
     n_paths: int = 16
     clearance_m: float = 1.0
     seed: int = 20261205
@@ -81,6 +97,13 @@ class CitySpec:
         _checks.integer("n_ue", self.n_ue, 1, 100_000)
         _checks.integer("max_depth", self.max_depth, 0, 6)
         _checks.integer("n_paths", self.n_paths, 1, 256)
+        _checks.integer("samples_per_src", self.samples_per_src, 1000, 10_000_000)
+        _checks.integer("ues_per_call", self.ues_per_call, 1, 1000)
+        _checks.in_range("scattering_coefficient", self.scattering_coefficient, 0.0, 1.0, "")
+        if (self.scattering_coefficient > 0) != self.diffuse_reflection:
+            raise ValueError("scattering_coefficient must be > 0 exactly when diffuse_reflection is on (with S = 0 "
+                             f"diffuse reflection adds nothing), got {self.scattering_coefficient!r} and "
+                             f"{self.diffuse_reflection!r}")
 
     def to_dict(self) -> dict:
         """The settings as plain JSON values.
@@ -114,12 +137,13 @@ def code_digest() -> str:
 
 
 def load_scene(spec: CitySpec):
-    """The Sionna RT scene of ``spec``: its ITU materials, isotropic vertically polarised antennas at both ends.
+    """The Sionna RT scene of ``spec``: its ITU materials with the scattering coefficient ``spec.scattering_coefficient``,
+    isotropic vertically polarised antennas at both ends.
 
     Parameters
     ----------
     spec : CitySpec
-        The scene's name, carrier and bandwidth.
+        The scene's name, carrier, bandwidth and scattering coefficient.
 
     Returns
     -------
@@ -133,6 +157,8 @@ def load_scene(spec: CitySpec):
     scene.bandwidth = spec.bandwidth_hz
     scene.tx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization="V")
     scene.rx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization="V")
+    for material in scene.radio_materials.values():
+        material.scattering_coefficient = spec.scattering_coefficient
     return scene
 
 
@@ -298,10 +324,10 @@ def place_ues(scene, region, spec: CitySpec) -> np.ndarray:
     return np.column_stack([xy, np.full(spec.n_ue, spec.ue_height_m)])
 
 
-def trace_links(scene, bs_xyz, ue_xyz, spec: CitySpec, batch: int = 250, progress=None) -> dict:
+def trace_links(scene, bs_xyz, ue_xyz, spec: CitySpec, batch: int | None = None, progress=None) -> dict:
     """Trace every BS → UE link (``solve_paths``) and keep each link's ``spec.n_paths`` paths (``compact_links``).
 
-    UEs are traced ``batch`` at a time.
+    UEs are traced ``batch`` at a time (``spec.ues_per_call`` when None).
 
     Parameters
     ----------
@@ -313,7 +339,7 @@ def trace_links(scene, bs_xyz, ue_xyz, spec: CitySpec, batch: int = 250, progres
         Receivers, metres.
     spec : CitySpec
         The solver's settings and the paths kept.
-    batch : int
+    batch : int or None
         UEs per call of the solver.
     progress : callable or None
         Called with the number of UEs done after each batch.
@@ -323,7 +349,7 @@ def trace_links(scene, bs_xyz, ue_xyz, spec: CitySpec, batch: int = 250, progres
     dict
         ``compact_links``'s arrays over the links that have a path, their UE and BS indices in "link_ue", "link_bs".
     """
-    parts = []
+    parts, batch = [], batch or spec.ues_per_call
     for u0 in range(0, len(ue_xyz), batch):
         ues = np.asarray(ue_xyz[u0:u0 + batch], float)
         paths = solve_paths(scene, bs_xyz, ues, spec)

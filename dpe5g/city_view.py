@@ -42,7 +42,8 @@ def scene_triangles(scene, region, margin_m: float = 20.0) -> np.ndarray:
 
 
 def example_paths(scene, bs_xyz, ue_xyz, spec: CitySpec) -> dict:
-    """One UE's traced paths from the BSs ``bs_xyz`` as polylines (BS, interaction points, UE), for the 3-D view.
+    """One UE's traced paths from the BSs ``bs_xyz`` as polylines (BS, interaction points, UE), for the 3-D view: of
+    each BS's, the first and the strongest others, ``spec.n_paths`` in all (the paths a link keeps, ``compact_links``).
 
     Parameters
     ----------
@@ -68,6 +69,12 @@ def example_paths(scene, bs_xyz, ue_xyz, spec: CitySpec) -> dict:
     kinds = np.asarray(paths.interactions.numpy())[:, 0]  # (depth, J, P)
     verts = np.asarray(paths.vertices.numpy())[:, 0]  # (depth, J, P, 3)
     valid = np.asarray(paths.valid.numpy())[0] & (np.abs(a) > 0)
+    tau = np.where(valid, np.asarray(paths.tau.numpy())[0], np.inf)  # (J, P)
+    rank = np.where(valid, np.abs(a) ** 2, -1.0)
+    rank[np.arange(len(rank)), np.argmin(tau, axis=1)] = np.inf
+    kept = np.zeros_like(valid)
+    np.put_along_axis(kept, np.argsort(-rank, axis=1, kind="stable")[:, :spec.n_paths], True, axis=1)
+    valid &= kept
     pts, start, bs, power = [], [0], [], []
     for j, p in zip(*np.nonzero(valid)):
         hops = [verts[k, j, p] for k in range(kinds.shape[0]) if kinds[k, j, p] != 0]

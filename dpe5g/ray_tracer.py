@@ -78,8 +78,9 @@ def solve_paths(scene, bs_xyz, ue_xyz, spec):
     ue_xyz : float (U, 3)
         Receivers, metres.
     spec : city_trace.CitySpec
-        The solver's settings: LoS, specular reflections and (with ``spec.diffraction``) diffraction, up to
-        ``spec.max_depth`` interactions, the scene's ITU materials, the solver seeded by ``spec.seed``.
+        The solver's settings: LoS, specular reflections and, where ``spec`` turns them on, wedge and edge diffraction,
+        diffuse reflection (off the materials' scattering coefficient, ``load_scene``) and refraction, up to
+        ``spec.max_depth`` interactions, ``spec.samples_per_src`` rays per BS, the solver seeded by ``spec.seed``.
 
     Returns
     -------
@@ -99,8 +100,9 @@ def solve_paths(scene, bs_xyz, ue_xyz, spec):
     SBCandidateGenerator.MIN_SPEC_COUNT_SIZE = max(default, CHAIN_SLOTS_PER_UE * len(scene.receivers))
     try:
         return rt.PathSolver()(scene, max_depth=spec.max_depth, samples_per_src=spec.samples_per_src, los=True,
-                               specular_reflection=True, diffuse_reflection=False, refraction=False,
-                               diffraction=spec.diffraction, seed=spec.seed)
+                               specular_reflection=True, diffuse_reflection=spec.diffuse_reflection,
+                               refraction=spec.refraction, diffraction=spec.diffraction,
+                               edge_diffraction=spec.edge_diffraction, seed=spec.seed)
     finally:
         SBCandidateGenerator.MIN_SPEC_COUNT_SIZE = default
 

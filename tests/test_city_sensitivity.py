@@ -1,12 +1,10 @@
 """The tracer's settings tested (``city_sensitivity``): the stored subsets are current and checksummed, the subset
-traced as stored is the stored city's, and settings that cannot mean anything are refused."""
-
-from dataclasses import asdict
+traced with the city's settings is the stored city's, and settings that cannot mean anything are refused."""
 
 import numpy as np
 import pytest
 
-from dpe5g import city_paths, city_sensitivity, city_study
+from dpe5g import city_paths, city_sensitivity, city_study, city_trace
 
 
 @pytest.fixture(scope="module")
@@ -16,19 +14,26 @@ def city():
 
 def test_every_variant_is_stored_and_current(city):
     """``make reproduce`` would trace none of them again; each loads with its checksum and records its settings."""
-    for key, (label, variant) in city_sensitivity.VARIANTS.items():
+    for key, (label, settings) in city_sensitivity.VARIANTS.items():
         assert city_sensitivity.is_current(city, key), key
         sub, meta = city_sensitivity.load_variant(city.name, key)
-        assert meta["variant"] == asdict(variant) and meta["label"] == label
+        assert meta["label"] == label and {k: meta["spec"][k] for k in settings} == settings
         assert sub.n_ue == city_sensitivity.SUBSET_UES and np.array_equal(sub.bs_xyz, city.bs_xyz)
         assert np.array_equal(sub.ue_xyz, city.ue_xyz[:city_sensitivity.SUBSET_UES])
     assert set(city_sensitivity.load_materials(city.name))  # the scene's materials, recorded
 
 
-def test_the_subset_traced_as_stored_is_the_stored_citys(city):
+def city_key(city):
+    """The variant whose settings are the stored city's."""
+    keys = [k for k in city_sensitivity.VARIANTS if city_sensitivity.variant_spec(city, k).to_dict() == city.spec]
+    assert len(keys) == 1, keys
+    return keys[0]
+
+
+def test_the_subset_traced_with_the_citys_settings_is_the_stored_citys(city):
     """The same links (UE, BS) as the stored city's first UEs, their power within ``city_paths.VERIFY_POWER_DB`` and
     their first path at the same delay: the subset's other rows differ from the city by their settings alone."""
-    sub, _ = city_sensitivity.load_variant(city.name, "stored")
+    sub, _ = city_sensitivity.load_variant(city.name, city_key(city))
     n = city_sensitivity.SUBSET_UES
     mine = {(u, b): i for i, (u, b) in enumerate(zip(sub.link_ue, sub.link_bs))}
     rows = np.nonzero(city.link_ue < n)[0]
@@ -41,12 +46,12 @@ def test_the_subset_traced_as_stored_is_the_stored_citys(city):
 
 def test_settings_that_mean_nothing_are_refused():
     with pytest.raises(ValueError, match="scattering_coefficient must be > 0 exactly when diffuse_reflection"):
-        city_sensitivity.SolverVariant(scattering_coefficient=0.3)
+        city_trace.CitySpec(diffuse_reflection=False)
     with pytest.raises(ValueError, match="scattering_coefficient must be > 0 exactly when diffuse_reflection"):
-        city_sensitivity.SolverVariant(diffuse_reflection=True)
+        city_trace.CitySpec(scattering_coefficient=0.0)
+    with pytest.raises(ValueError, match="scattering_coefficient"):
+        city_trace.CitySpec(scattering_coefficient=1.5)
     with pytest.raises(ValueError, match="max_depth"):
-        city_sensitivity.SolverVariant(max_depth=0)
+        city_trace.CitySpec(max_depth=-1)
     with pytest.raises(ValueError, match="variant must be one of"):
         city_sensitivity.variant_name("munich", "diffuse09")
-    assert city_sensitivity.batch_ues("diffuse03") == city_sensitivity.DIFFUSE_BATCH_UES
-    assert city_sensitivity.batch_ues("stored") == city_sensitivity.SUBSET_UES
