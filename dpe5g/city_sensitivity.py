@@ -248,7 +248,8 @@ def save_materials(city: city_paths.TracedCity) -> dict:
     """
     from . import city_trace
 
-    scene = city_trace.load_scene(city_trace.CitySpec(**city.spec))
+    as_loaded = replace(city_trace.CitySpec(**city.spec), diffuse_reflection=False, scattering_coefficient=0.0)
+    scene = city_trace.load_scene(as_loaded)  # S = 0 is what Sionna RT loads
     out = {name: {"itu_type": str(m.itu_type), "thickness_m": float(np.asarray(m.thickness).ravel()[0]),
                   "scattering_coefficient": float(np.asarray(m.scattering_coefficient).ravel()[0])}
            for name, m in scene.radio_materials.items()}

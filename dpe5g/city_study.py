@@ -462,7 +462,8 @@ def summary() -> dict:
         "best_otdoa_p90_m" its 90 % error, "diff_p90" the best DPE − best OTDoA at the 90 % point as (value, lo, hi) m,
         "verdicts" {σ of ``CITY_CLOCK_PRIORS_S`` (None: no prior): (verdict at 50 %, at 90 %)},
         "excess_trial_ns" the median first-path excess delay on the trials' NLoS links (the first path within
-        ``FIRST_PATH_THRESHOLD_DB`` of the strongest, ns), "umi_median_ns" TR 38.901's UMi median (ns).
+        ``FIRST_PATH_THRESHOLD_DB`` of the strongest, ns), "umi_median_ns" TR 38.901's UMi median (ns),
+        "scattering_coefficient" and "refraction", the tracer's settings (``city_trace.CitySpec``).
     """
     from . import city_draw, engine, intervals
 
@@ -484,4 +485,5 @@ def summary() -> dict:
             "diff_p90": (b.difference.value, b.difference.lo, b.difference.hi),
             "verdicts": {p: (best[(p, 0.5)].verdict(), best[(p, 0.9)].verdict()) for p in CITY_CLOCK_PRIORS_S},
             "excess_trial_ns": 1e9 * float(np.median(city.first_excess_s(FIRST_PATH_THRESHOLD_DB)[trial])),
-            "umi_median_ns": 1e9 * scenario.TR38901_EXCESS_DELAY[scenario.NLOS_EXCESS_ROW].median_s}
+            "umi_median_ns": 1e9 * scenario.TR38901_EXCESS_DELAY[scenario.NLOS_EXCESS_ROW].median_s,
+            "scattering_coefficient": float(city.spec["scattering_coefficient"]), "refraction": bool(city.spec["refraction"])}

@@ -301,8 +301,11 @@ def city_line(ref) -> str:
             same.setdefault(vs, []).append(name(p))
     told = "; ".join(f"told the clock {' or '.join(ps)}, {v50} at the median and {v90} at the 90 % point"
                      for (v50, v90), ps in same.items())
-    return (f"- **Ray-traced city** (Sionna RT's Munich, the paper's density, diffuse reflection and refraction not "
-            f"traced; {ref('chapter-city', 'Chapter %s')}): {c['hear4_pct']:.0f} % of outdoor UEs hear four BSs.  "
+    traced = (f"diffuse reflection traced with a scattering coefficient of {c['scattering_coefficient']:g}"
+              if c["scattering_coefficient"] > 0 else "diffuse reflection not traced")
+    traced += ", refraction traced" if c["refraction"] else ", refraction not"
+    return (f"- **Ray-traced city** (Sionna RT's Munich, the paper's density, {traced}; "
+            f"{ref('chapter-city', 'Chapter %s')}): {c['hear4_pct']:.0f} % of outdoor UEs hear four BSs.  "
             f"On {c['n_trials']} of them, with the UE clock known to 5 ns (the DPE's clock window "
             f"±{c['clock_half_m']:.1f} m), the honest DPE's 90 % error is {c['dpe_p90_m']:.1f} m against "
             f"{c['best_otdoa_p90_m']:.1f} m for the best OTDoA receiver given the same window ({c['best_otdoa']}; "

@@ -6,23 +6,31 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parent.parent
 SCRIPT = ROOT / "scripts" / "readme_tables.py"
 
 
-def test_readme_tables_match_the_committed_data():
-    r = subprocess.run([sys.executable, str(SCRIPT), "--check"], capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
-
-
-def test_readme_check_notices_a_stale_table(tmp_path, monkeypatch):
+@pytest.fixture(scope="module")
+def tables():
+    """scripts/readme_tables.py loaded as a module, each table generated once for the tests below (what the second
+    tests is the comparison and the rewrite)."""
     import importlib.util
 
     spec = importlib.util.spec_from_file_location("readme_tables", SCRIPT)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
-    # each table generated once for the four runs below (what is tested is the comparison and the rewrite)
-    monkeypatch.setattr(mod, "TABLES", {name: functools.cache(fn) for name, fn in mod.TABLES.items()})
+    mod.TABLES = {name: functools.cache(fn) for name, fn in mod.TABLES.items()}
+    return mod
+
+
+def test_readme_tables_match_the_committed_data(tables, capsys):
+    assert tables.main(["--check"]) == 0, capsys.readouterr().err
+
+
+def test_readme_check_notices_a_stale_table(tables, tmp_path, monkeypatch):
+    mod = tables
     for attr, name, block in (("README", "README.md", "found"), ("RUNNING", "running.md", "fig9")):
         real = getattr(mod, attr)
         stale = real.read_text().replace(f"<!-- begin:{block} -->\n", f"<!-- begin:{block} -->\n| 99 |\n", 1)
@@ -42,8 +50,6 @@ def test_readme_is_short_and_stays_in_the_repository():
 
 def test_fresh_check_log_parsing():
     import importlib.util
-
-    import pytest
 
     spec = importlib.util.spec_from_file_location("fresh_check_times", ROOT / "scripts" / "fresh_check_times.py")
     mod = importlib.util.module_from_spec(spec)
