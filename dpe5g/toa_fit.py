@@ -110,20 +110,59 @@ def _residuals(bs, rho, z, xy, half):
 
 
 def _grid_start(bs, rho, z, xy0, half_b, half_w):
-    """The point of lowest eq. (T1) cost on a ``GRID_STEP_M`` grid over each trial's window (xy0 among them), (T, 2)."""
+    """The point of lowest eq. (T1) cost on a ``GRID_STEP_M`` grid over each trial's window (xy0 first among them, so
+    that it wins a tie), (T, 2), a block of trials at a time (about 2 M residuals)."""
     g = np.arange(-half_w, half_w + 1e-9, min(GRID_STEP_M, half_w))
-    offsets = np.concatenate([[[0.0, 0.0]], np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)])
-    best = np.empty_like(xy0)
-    step = max(1, 2_000_000 // (len(offsets) * bs.shape[1]))  # trials per block: about 2 M residuals at once
-    for t0 in range(0, len(xy0), step):
-        sl = slice(t0, t0 + step)
-        pts = xy0[sl, None, :] + offsets  # (t, K, 2)
-        p = np.concatenate([pts, np.broadcast_to(z[sl, None, None], pts.shape[:2] + (1,))], axis=-1)
-        r = rho[sl, None, :] - np.linalg.norm(p[:, :, None, :] - bs[sl, None], axis=-1)  # (t, K, M)
-        beta = np.clip(r.mean(axis=-1, keepdims=True), -half_b, half_b)
-        k = np.argmin(np.sum((r - beta) ** 2, axis=-1), axis=1)
-        best[sl] = pts[np.arange(len(k)), k]
-    return best
+    step = max(1, 2_000_000 // ((len(g) ** 2 + 1) * bs.shape[1]))
+    return np.concatenate([_grid_block(bs[t:t + step], rho[t:t + step], z[t:t + step], xy0[t:t + step], half_b, g)
+                           for t in range(0, len(xy0), step)])
+
+
+def _grid_block(bs, rho, z, xy0, half_b, g):
+    """``_grid_start`` on one block of trials: each squared distance summed from its x, y and z parts, each part
+    computed once per grid line."""
+    k = len(g)
+    x = np.concatenate([xy0[:, :1], xy0[:, :1] + g], axis=1)  # (T, 1 + k): xy0's x, then the grid's
+    y = np.concatenate([xy0[:, 1:], xy0[:, 1:] + g], axis=1)
+    dx2 = (x[:, :, None] - bs[:, None, :, 0]) ** 2  # (T, 1 + k, M)
+    dy2 = (y[:, :, None] - bs[:, None, :, 1]) ** 2
+    dz2 = (z[:, None] - bs[..., 2]) ** 2  # (T, M)
+    d0 = np.sqrt(dx2[:, 0] + dy2[:, 0] + dz2)[:, None]  # at xy0
+    d = np.sqrt(dx2[:, 1:, None] + dy2[:, None, 1:] + dz2[:, None, None]).reshape(len(xy0), k * k, -1)
+    r = rho[:, None, :] - np.concatenate([d0, d], axis=1)  # (T, 1 + k², M)
+    beta = np.clip(r.mean(axis=-1, keepdims=True), -half_b, half_b)
+    best = np.argmin(np.sum((r - beta) ** 2, axis=-1), axis=1)
+    i, j = np.divmod(best - 1, k)
+    t = np.arange(len(xy0))
+    return np.where((best == 0)[:, None], xy0, np.stack([x[t, 1 + i], y[t, 1 + j]], -1))
+
+
+def _gn_step(bs, rho, z, xy, cost, lo, hi, half):
+    """One projected Gauss–Newton step of ``fit`` for each trial: the step halved until the cost falls.
+
+    Returns the new xy (T, 2) and cost (T,), whether each trial moved, and how far (m)."""
+    e, u, free, _ = _residuals(bs, rho, z, xy, half)
+    jac = -u + np.where(free[:, None, None], u.mean(axis=1, keepdims=True), 0.0)  # (T, M, 2)
+    jtj, jte = np.einsum("tmi,tmj->tij", jac, jac), np.einsum("tmi,tm->ti", jac, e)
+    step = -np.linalg.solve(jtj + 1e-12 * np.eye(2), jte[..., None])[..., 0]
+    # a coordinate on the window's edge whose step leaves the window stays there: the step in the others
+    free_xy = ~(((xy <= lo) & (step < 0)) | ((xy >= hi) & (step > 0)))
+    if not free_xy.all():
+        d = free_xy[:, :, None] & free_xy[:, None, :]
+        a = np.where(d, jtj, 0.0) + np.where(free_xy, 1e-12, 1.0)[:, :, None] * np.eye(2)
+        step = -np.linalg.solve(a, np.where(free_xy, jte, 0.0)[..., None])[..., 0]
+    moved, dist = np.zeros(len(xy), dtype=bool), np.zeros(len(xy))
+    for _ in range(MAX_HALVINGS):
+        trial = np.clip(xy + step, lo, hi)
+        new = np.sum(_residuals(bs, rho, z, trial, half)[0] ** 2, axis=-1)
+        take = ~moved & (new <= cost)
+        dist[take] = np.linalg.norm(trial[take] - xy[take], axis=-1)
+        xy[take], cost[take] = trial[take], new[take]
+        moved |= take
+        step = np.where(moved[:, None], step, step / 2)
+        if moved.all():
+            break
+    return xy, cost, moved, dist
 
 
 def fit(bs_xyz, toa_s, ue_z, xy0, bias_half_m: float = np.inf, half_width_m: float = np.inf) -> ToaFix:
@@ -172,36 +211,17 @@ def fit(bs_xyz, toa_s, ue_z, xy0, bias_half_m: float = np.inf, half_width_m: flo
     if not all(np.all(np.isfinite(a)) for a in (bs, toa, xy, z)):
         raise ValueError("fit needs finite BS positions, ToAs, starts and heights")
     rho, n = C * toa, bs.shape[0]
-    lo, hi, dist = xy - half_width_m, xy + half_width_m, np.zeros(n)
+    lo, hi = xy - half_width_m, xy + half_width_m
     if np.isfinite(half_width_m):  # the cost has local minima in the window: start at the best point of a grid
         xy = _grid_start(bs, rho, z, xy, bias_half_m, half_width_m)
-    e, u, free, beta = _residuals(bs, rho, z, xy, bias_half_m)
-    cost = np.sum(e**2, axis=-1)
+    cost = np.sum(_residuals(bs, rho, z, xy, bias_half_m)[0] ** 2, axis=-1)
     active, steps = np.ones(n, dtype=bool), np.zeros(n, dtype=int)
-    for _ in range(MAX_STEPS):
-        jac = -u + np.where(free[:, None, None], u.mean(axis=1, keepdims=True), 0.0)  # (T, M, 2)
-        jtj, jte = np.einsum("tmi,tmj->tij", jac, jac), np.einsum("tmi,tm->ti", jac, e)
-        step = -np.linalg.solve(jtj + 1e-12 * np.eye(2), jte[..., None])[..., 0]
-        # a coordinate on the window's edge whose step leaves the window stays there: the step in the others
-        free_xy = ~(((xy <= lo) & (step < 0)) | ((xy >= hi) & (step > 0)))
-        if not free_xy.all():
-            d = free_xy[:, :, None] & free_xy[:, None, :]
-            a = np.where(d, jtj, 0.0) + np.where(free_xy, 1e-12, 1.0)[:, :, None] * np.eye(2)
-            step = -np.linalg.solve(a, np.where(free_xy, jte, 0.0)[..., None])[..., 0]
-        moved = np.zeros(n, dtype=bool)
-        for _ in range(MAX_HALVINGS):
-            trial = np.clip(xy + step, lo, hi)
-            new = np.sum(_residuals(bs, rho, z, trial, bias_half_m)[0] ** 2, axis=-1)
-            take = active & ~moved & (new <= cost)
-            dist[take] = np.linalg.norm(trial[take] - xy[take], axis=-1)
-            xy[take], cost[take] = trial[take], new[take]
-            moved |= take
-            step = np.where(moved[:, None], step, step / 2)
-            if np.all(moved | ~active):
-                break
-        steps += moved
-        active &= moved & (dist >= STOP_STEP_M)
-        e, u, free, beta = _residuals(bs, rho, z, xy, bias_half_m)
-        if not active.any():
+    for _ in range(MAX_STEPS):  # each step on the trials still moving
+        i = np.nonzero(active)[0]
+        if not len(i):
             break
+        xy[i], cost[i], moved, dist = _gn_step(bs[i], rho[i], z[i], xy[i], cost[i], lo[i], hi[i], bias_half_m)
+        steps[i] += moved
+        active[i] = moved & (dist >= STOP_STEP_M)
+    _, _, free, beta = _residuals(bs, rho, z, xy, bias_half_m)
     return ToaFix(xy=xy, bias_m=beta, on_edge=~free, in_corner=np.any((xy <= lo) | (xy >= hi), axis=-1), steps=steps)
