@@ -226,7 +226,7 @@ def write_deployment(name: str, arrays: dict, spec: dict, checksum: str) -> Path
            "ue_height_m": float(spec["ue_height_m"]),
            "base_stations": [{"id": f"C{b + 1:02d}", "x_m": float(p[0]), "y_m": float(p[1]), "height_m": float(p[2]),
                               "power_dbm": float(spec["power_dbm"])} for b, p in enumerate(arrays["bs_xyz"])]}
-    path = deployment.BUILTIN[name]
+    path = deployment.BUILTIN.get(name, deployment.TRACED_DIR / f"{name}_deployment.json")
     atomic_write(path, (json.dumps(doc, indent=1) + "\n").encode())
     return path
 

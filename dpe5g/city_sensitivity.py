@@ -20,7 +20,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from . import _checks, city_paths
+from . import _checks, city_paths, deployment
 from ._io import atomic_write, jsonable
 from .chunk_cache import arrays_digest
 
@@ -168,6 +168,7 @@ def save_variant(city: city_paths.TracedCity, key: str, traced: dict, provenance
     path = city_paths.city_file(name)
     atomic_write(path, buf.getvalue())
     atomic_write(path.with_suffix(".json"), json.dumps(jsonable(meta), indent=1).encode())
+    city_paths.write_deployment(name, arrays, meta["spec"], meta["checksum"])  # its experiments' deployment
     return name
 
 
@@ -184,7 +185,7 @@ def is_current(city: city_paths.TracedCity, key: str) -> bool:
     Returns
     -------
     bool
-        Its files exist, and its record names this variant's settings (``variant_spec``) and the positions of today's
+        Its files (paths, record, deployment) exist, and its record names this variant's settings (``variant_spec``) and the positions of today's
         city (``positions_digest``): a city traced again with other solver settings at the same positions leaves them
         current.
     """
@@ -194,7 +195,7 @@ def is_current(city: city_paths.TracedCity, key: str) -> bool:
     except (OSError, ValueError):
         return False
     return (path.exists() and meta.get("spec") == variant_spec(city, key).to_dict()
-            and meta.get("positions") == positions_digest(city))
+            and meta.get("positions") == positions_digest(city) and deployment.builtin(path.stem) is not None)
 
 
 def load_variant(city: str, key: str) -> tuple[city_paths.TracedCity, dict]:
@@ -300,3 +301,61 @@ def trace_stale(city: city_paths.TracedCity, force: bool = False):
                                                 "libraries": ray_tracer.library_versions()})
         yield (f"{name} ({label}): {len(traced['link_ue'])} links of {SUBSET_UES} UEs traced in "
                f"{traced['seconds']:.0f} s")
+
+
+def settings_experiment(key: str, city: str = "munich"):
+    """The city's honest DPE and OTDoA (``city_study.city_fig10`` with ``city_study.CITY_M[0]`` links, the clock model's
+    prior) on ``city``'s subset traced under ``VARIANTS[key]``: every UE of the subset that hears that many BSs.
+
+    Parameters
+    ----------
+    key : str
+        A key of ``VARIANTS``.
+    city : str
+        The stored city's name.
+
+    Returns
+    -------
+    Experiment
+        "city-{subset}-m{M}-otdoa", its deployment the subset's (``deployment.builtin``).
+    """
+    from . import city_draw, city_study
+
+    name, m = variant_name(city, key), city_study.CITY_M[0]
+    e = city_study.city_fig10(m, "otdoa", n_trials=1).replace(deployment=name)
+    sub = city_paths.load_city(name)
+    n = len(city_draw.traced_links(sub, m, city_draw.heard_links(e, sub, e.load_deployment())).ue_index)
+    return e.replace(name=f"city-{name}-m{m}-otdoa", n_trials=n)
+
+
+def settings_families(key: str, city: str = "munich") -> tuple[dict, dict]:
+    """The DPE and OTDoA families of ``settings_experiment(key)`` on its trials, with the same clock knowledge.
+
+    Parameters
+    ----------
+    key : str
+        A key of ``VARIANTS``.
+    city : str
+        The stored city's name.
+
+    Returns
+    -------
+    dpe, otdoa : dict
+        {"naive DPE": errors (T,) m}; {"first-path OTDoA", "strongest-peak OTDoA", and the ToA fits of eq. (T1) in
+        the DPE's windows (``studies.toa_fit_errors``): errors (T,) m}.
+    """
+    from . import engine, studies
+
+    res = engine.run(settings_experiment(key, city), progress=False)
+    otdoa = {"first-path OTDoA": res.otdoa_error_m[:, 0, 0, 0], "strongest-peak OTDoA": res.otdoa_error_m[:, 0, 1, 0]}
+    return {"naive DPE": res.error_m[:, 0, 0]}, otdoa | {k: v[:, 0] for k, v in studies.toa_fit_errors(res).items()}
+
+
+def all_experiments(city: str = "munich") -> list:
+    """``settings_experiment`` of every variant: the store's entries of the tracer's settings.
+
+    Returns
+    -------
+    list of Experiment
+    """
+    return [settings_experiment(key, city) for key in VARIANTS]

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import city_study, code_key, engine, nlos_study, otdoa, paper, readings, store, trials
+from . import city_sensitivity, city_study, code_key, engine, nlos_study, otdoa, paper, readings, store, trials
 from .errors import DamagedEntry
 from .experiment import Experiment
 
@@ -71,6 +71,7 @@ def store_experiments() -> list[Experiment]:
         out += [flat, fpa]
     out += nlos_study.all_experiments()
     out += city_study.all_experiments()
+    out += city_sensitivity.all_experiments()
     longest, version = {}, code_key.code_version()
     for e in out:  # one entry per cached run (the name and config without the trial count), at its largest count
         k = (e.run.name, e.key(version))
