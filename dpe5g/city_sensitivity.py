@@ -26,18 +26,14 @@ from .chunk_cache import arrays_digest
 
 #: the UEs of the subset: the stored city's first SUBSET_UES, every BS
 SUBSET_UES = 200
-#: UEs per call of the solver where diffuse reflection is traced (its paths fill the memory: 200 UEs at S = 0.3 needed
-#: more than this machine's 23 GB); the others trace the subset in one call
-DIFFUSE_BATCH_UES = 50
-
 #: the solver's settings of the city as first traced (LoS, specular reflections, wedge diffraction, 3 interactions, 10⁵
 #: rays per BS): every variant is these with some changed (``city_trace.CitySpec``'s fields)
 SPECULAR = {"max_depth": 3, "samples_per_src": 100_000, "diffuse_reflection": False, "scattering_coefficient": 0.0,
-            "refraction": False, "edge_diffraction": False, "ues_per_call": SUBSET_UES}
+            "refraction": False, "edge_diffraction": False}
 
 
 def _diffuse(s: float) -> dict:
-    return {**SPECULAR, "diffuse_reflection": True, "scattering_coefficient": s, "ues_per_call": DIFFUSE_BATCH_UES}
+    return {**SPECULAR, "diffuse_reflection": True, "scattering_coefficient": s}
 
 
 #: the settings tried, by name (a file name in the store): their label and their solver settings
@@ -136,7 +132,8 @@ def trace_variant(city: city_paths.TracedCity, key: str, n_ue: int = SUBSET_UES)
     ues = np.asarray(city.ue_xyz[:_checks.integer("n_ue", n_ue, 1, city.n_ue)], float)
     t0 = time.perf_counter()
     links = city_trace.trace_links(city_trace.load_scene(spec), city.bs_xyz, ues, spec)
-    return {"region": city.region, "bs_xyz": city.bs_xyz, "ue_xyz": ues, **links, "seconds": time.perf_counter() - t0}
+    return {"region": city.region, "bs_xyz": city.bs_xyz, "ue_xyz": ues, **links, "seconds": time.perf_counter() - t0,
+            "ues_per_call": city_trace.ues_per_call(spec)}
 
 
 def save_variant(city: city_paths.TracedCity, key: str, traced: dict, provenance: dict) -> str:
@@ -164,7 +161,7 @@ def save_variant(city: city_paths.TracedCity, key: str, traced: dict, provenance
     np.savez_compressed(buf, **arrays)
     meta = {"name": name, "spec": variant_spec(city, key).to_dict(), "label": VARIANTS[key][0],
             "checksum": arrays_digest(arrays), "positions": positions_digest(city),
-            "provenance": {**provenance, "seconds": float(traced["seconds"])}}
+            "provenance": {**provenance, "seconds": float(traced["seconds"]), "ues_per_call": traced["ues_per_call"]}}
     path = city_paths.city_file(name)
     atomic_write(path, buf.getvalue())
     atomic_write(path.with_suffix(".json"), json.dumps(jsonable(meta), indent=1).encode())

@@ -57,8 +57,6 @@ class CitySpec:
         nothing); > 0 exactly when ``diffuse_reflection``.  No material of the scene comes with a measured S.
     refraction : bool
         Whether transmission through walls is traced.
-    ues_per_call : int
-        UEs per call of the solver (its diffuse paths fill the memory: 200 UEs at S = 0.3 needed more than 23 GB).
     n_paths : int
         Paths kept per link (``compact_links``): the first to arrive and the strongest others.
     clearance_m : float
@@ -83,7 +81,6 @@ class CitySpec:
     diffuse_reflection: bool = True
     scattering_coefficient: float = 0.3
     refraction: bool = False
-    ues_per_call: int = 50
     n_paths: int = 16
     clearance_m: float = 1.0
     seed: int = 20261205
@@ -98,7 +95,6 @@ class CitySpec:
         _checks.integer("max_depth", self.max_depth, 0, 6)
         _checks.integer("n_paths", self.n_paths, 1, 256)
         _checks.integer("samples_per_src", self.samples_per_src, 1000, 10_000_000)
-        _checks.integer("ues_per_call", self.ues_per_call, 1, 1000)
         _checks.in_range("scattering_coefficient", self.scattering_coefficient, 0.0, 1.0, "")
         if (self.scattering_coefficient > 0) != self.diffuse_reflection:
             raise ValueError("scattering_coefficient must be > 0 exactly when diffuse_reflection is on (with S = 0 "
@@ -324,10 +320,26 @@ def place_ues(scene, region, spec: CitySpec) -> np.ndarray:
     return np.column_stack([xy, np.full(spec.n_ue, spec.ue_height_m)])
 
 
+def ues_per_call(spec: CitySpec) -> int:
+    """UEs per call of the solver: 250, or 25 where diffuse reflection is traced (its paths fill the memory: 50 UEs at
+    S = 0.3 took 15 GB, 200 more than this machine's 23 GB).  A UE's paths do not depend on the UEs traced beside it
+    (``solve_paths``' table of chains is sized per UE; ``tests/test_city.py`` traces a few UEs alone and compares).
+
+    Parameters
+    ----------
+    spec : CitySpec
+
+    Returns
+    -------
+    int
+    """
+    return 25 if spec.diffuse_reflection else 250
+
+
 def trace_links(scene, bs_xyz, ue_xyz, spec: CitySpec, batch: int | None = None, progress=None) -> dict:
     """Trace every BS → UE link (``solve_paths``) and keep each link's ``spec.n_paths`` paths (``compact_links``).
 
-    UEs are traced ``batch`` at a time (``spec.ues_per_call`` when None).
+    UEs are traced ``batch`` at a time (``ues_per_call(spec)`` when None).
 
     Parameters
     ----------
@@ -349,7 +361,7 @@ def trace_links(scene, bs_xyz, ue_xyz, spec: CitySpec, batch: int | None = None,
     dict
         ``compact_links``'s arrays over the links that have a path, their UE and BS indices in "link_ue", "link_bs".
     """
-    parts, batch = [], batch or spec.ues_per_call
+    parts, batch = [], batch or ues_per_call(spec)
     for u0 in range(0, len(ue_xyz), batch):
         ues = np.asarray(ue_xyz[u0:u0 + batch], float)
         paths = solve_paths(scene, bs_xyz, ues, spec)

@@ -282,7 +282,8 @@ def _trace(args) -> int:
         start = time.perf_counter()
         traced = city_trace.trace_city(spec, progress=args.progress)
         provenance = {"commit": store.git_commit(), "code": city_trace.code_digest(),
-                      "seconds": round(time.perf_counter() - start, 1), "libraries": ray_tracer.library_versions()}
+                      "seconds": round(time.perf_counter() - start, 1), "ues_per_call": city_trace.ues_per_call(spec),
+                      "libraries": ray_tracer.library_versions()}
         path = city_paths.save_city(name, traced, spec.to_dict(), provenance)
         print(f"trace: {len(traced['link_ue'])} links of {spec.n_ue} UEs and {spec.n_bs} BSs traced, written to "
               f"{path} in {provenance['seconds']:.0f} s", flush=True)
