@@ -20,10 +20,10 @@ from .experiment import Experiment
 
 #: the traced city (its deployment's and its dataset's name): Sionna RT's "munich" scene (``city_trace.CitySpec``)
 CITY = "munich"
-#: the numbers M of links: Fig. 10's 4, and 6, the most that more than a hundred of the traced UEs hear
+#: the numbers M of links: Fig. 10's 4, and 6
 CITY_M = (4, 6)
-#: trials of the city experiments with M links: the first CITY_TRIALS[M] UEs that hear M BSs (of 1043 and 118)
-CITY_TRIALS = {4: 1000, 6: 110}
+#: trials of the city experiments with M links: the first CITY_TRIALS[M] UEs that hear M BSs (of 1808 and 307)
+CITY_TRIALS = {4: 1000, 6: 300}
 #: the centrings run: the honest DPE (on the OTDoA fix, with both OTDoA detectors) and the paper's, on the truth
 CITY_CENTRINGS = ("otdoa", "truth")
 #: the UE clock's σ the city's honest DPE is told (s), swept: the clock model's 5 ns (every other run's), 30 ns, 100 ns,
