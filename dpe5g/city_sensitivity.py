@@ -351,6 +351,11 @@ def settings_families(key: str, city: str = "munich") -> tuple[dict, dict]:
 def all_experiments(city: str = "munich") -> list:
     """``settings_experiment`` of every variant: the store's entries of the tracer's settings.
 
+    Parameters
+    ----------
+    city : str
+        The stored city's name.
+
     Returns
     -------
     list of Experiment
