@@ -1,6 +1,9 @@
 """Sionna RT as this package runs it: the LLVM its CPU backend needs, the versions of its stack, and its one call.
 
 Needs ``sionna-rt`` (pinned in environment.txt) and, for Dr.Jit's CPU backend, LLVM ≥ 16: Debian's ``libllvm19``.
+The call (``solve_paths``) builds Sionna RT's default ``PathSolver()``, which does not promise the same paths from the
+same seed (``PathSolver(deterministic=True)`` would, with more memory): ``city_paths.compare_links`` holds a re-trace
+of the stored city to tolerances.
 Units: metres, dBm.
 """
 
