@@ -22,7 +22,7 @@ $(STAMP): environment.txt pyproject.toml
 	$(BIN)/python -m pip install --quiet -r environment.txt
 	touch $@
 
-# Ray-trace the city chapter's city and its solver-settings subsets (Sionna RT, about 20 and 40 minutes on 2 cores from
+# Ray-trace the city chapter's city and its solver-settings subsets (Sionna RT, about 37 and 38 minutes on 2 cores from
 # scratch, skipped where current; needs Debian's libllvm19), recompute every
 # experiment of the results store (figures/trials) from its seeds, report every stored trial that
 # differs, rewrite the store; then the figure baselines (PNG + data JSON) and README's tables from it.  Run it after a
