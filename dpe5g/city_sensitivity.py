@@ -23,6 +23,7 @@ import numpy as np
 from . import _checks, city_paths, deployment
 from ._io import atomic_write, jsonable
 from .chunk_cache import arrays_digest
+from .experiment import OTDOA_DETECTORS
 
 #: the UEs of the subset: the stored city's first SUBSET_UES, every BS
 SUBSET_UES = 200
@@ -182,9 +183,9 @@ def is_current(city: city_paths.TracedCity, key: str) -> bool:
     Returns
     -------
     bool
-        Its files (paths, record, deployment) exist, and its record names this variant's settings (``variant_spec``) and the positions of today's
-        city (``positions_digest``): a city traced again with other solver settings at the same positions leaves them
-        current.
+        Its files (paths, record, deployment) exist, and its record names this variant's settings (``variant_spec``)
+        and the positions of today's city (``positions_digest``): a city traced again with other solver settings at the
+        same positions leaves them current.
     """
     path = city_paths.city_file(variant_name(city.name, key))
     try:
@@ -344,7 +345,8 @@ def settings_families(key: str, city: str = "munich") -> tuple[dict, dict]:
     from . import engine, studies
 
     res = engine.run(settings_experiment(key, city), progress=False)
-    otdoa = {"first-path OTDoA": res.otdoa_error_m[:, 0, 0, 0], "strongest-peak OTDoA": res.otdoa_error_m[:, 0, 1, 0]}
+    err = {det: res.otdoa_error_m[:, 0, k, 0] for k, det in enumerate(OTDOA_DETECTORS)}
+    otdoa = {"first-path OTDoA": err["first_path"], "strongest-peak OTDoA": err["peak"]}
     return {"naive DPE": res.error_m[:, 0, 0]}, otdoa | {k: v[:, 0] for k, v in studies.toa_fit_errors(res).items()}
 
 
