@@ -376,7 +376,7 @@ def ml_toa_errors_s(res) -> np.ndarray:
 def rmse_bound_m(e, n_trials: int, snrs_db=None) -> np.ndarray:
     """The DPE bound on the horizontal error of an urban experiment, as an RMSE over its trials.
 
-    √(mean_t (CRB_xx + CRB_yy)) per (SNR, M).  Each trial's links are the engine's (``trials.example``: positions,
+    √(mean_t (CRB_xx + CRB_yy)) per (SNR, M).  Each trial's links are the engine's (``draw.draw_links``: positions,
     channels with their tap delays known, per-link SNR); the pilots are the full band (the paper's, the engine's).  The
     Fisher information of a link scales with its linear SNR, so it is computed once per link and scaled.
 
@@ -437,7 +437,7 @@ def link_information(e, n_trials: int) -> dict:
         subcarrier on the full band with its channel's tap delays known; link_snr_db (T, I), its SNR at the
         experiment's first SNR index, dB.
     """
-    from . import chunk_cache, code_key, trials  # the engine's draws; they do not import this module
+    from . import chunk_cache, code_key, draw  # the engine's draws; they do not import this module
 
     n_trials = _checks.integer("n_trials", n_trials, 1, e.run.n_trials)
     path = chunk_cache.cache_dir(e) / f"link-information-{code_key.code_digest(Path(__file__)).hex()[:16]}.npz"
@@ -446,13 +446,9 @@ def link_information(e, n_trials: int) -> dict:
     if held is not None and held["info_0db"].shape[0] >= n_trials:
         return {k: v[:n_trials] for k, v in held.items()}
     f = subcarrier_frequencies_hz("full")
-    out = {"ue": [], "bs": [], "info_0db": [], "link_snr_db": []}
-    for t in range(n_trials):
-        ex = trials.example(e, t)
-        out["ue"].append(ex.ue_xyz)
-        out["bs"].append(ex.bs_xyz)
-        out["info_0db"].append([toa_fisher(f, 0.0, ex.gains[i], ex.delays_s[i]) for i in range(ex.bs_xyz.shape[0])])
-        out["link_snr_db"].append(np.asarray(ex.link_snr_db))
+    lk = draw.draw_links(e, n_trials)  # the engine's draws of every trial in one program
+    info = [[toa_fisher(f, 0.0, g, d) for g, d in zip(gt, dt)] for gt, dt in zip(lk["gains"], lk["delays_s"])]
+    out = {"ue": lk["ue_xyz"], "bs": lk["bs_xyz"], "info_0db": info, "link_snr_db": lk["link_snr_db"][:, 0]}
     out = {k: np.asarray(v, dtype=np.float64) for k, v in out.items()}
     chunk_cache.write_cached(path, out, origin)
     return out

@@ -258,15 +258,17 @@ def draw_links(e: Experiment, n_trials: int) -> dict:
     -------
     dict
         "los" (T, I) LoS flags, "link_snr_db" and "link_sinr_db" (T, S, I) per-sample link SNR and SINR in dB,
-        "d2d_m" (T, I) 2-D distances in metres.
+        "d2d_m" (T, I) 2-D distances in metres; "ue_xyz" (T, 3) and "bs_xyz" (T, I, 3), metres; "gains" (T, I, P)
+        complex and "delays_s" (T, I, P), seconds, each link's channel taps.
     """
     draw = draw_fn(e, e.load_deployment())
 
     @jax.jit
     def one(a):
         d = draw(*a)
-        return d.los, d.link_snr_db, d.link_sinr_db, jnp.linalg.norm(d.bs_xyz[:, :2] - d.ue_xyz[:2], axis=-1)
+        return {"los": d.los, "link_snr_db": d.link_snr_db, "link_sinr_db": d.link_sinr_db,
+                "d2d_m": jnp.linalg.norm(d.bs_xyz[:, :2] - d.ue_xyz[:2], axis=-1), "ue_xyz": d.ue_xyz,
+                "bs_xyz": d.bs_xyz, "gains": d.gains, "delays_s": d.delays_s}
 
-    los, snr, sinr, dist = jax.lax.map(one, (trial_keys(e.run.seed, 0, n_trials), jnp.arange(n_trials)), batch_size=64)
-    return {"los": np.asarray(los), "link_snr_db": np.asarray(snr), "link_sinr_db": np.asarray(sinr),
-            "d2d_m": np.asarray(dist)}
+    out = jax.lax.map(one, (trial_keys(e.run.seed, 0, n_trials), jnp.arange(n_trials)), batch_size=64)
+    return {k: np.asarray(v) for k, v in out.items()}

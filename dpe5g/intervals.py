@@ -12,6 +12,7 @@ A quantile difference's bootstrap p value comes from its interval's own draws (`
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -31,7 +32,7 @@ def bootstrap_draws(n_trials: int, n_boot: int = 2000, seed: int = 0) -> np.ndar
     Returns
     -------
     int (n_boot, n_trials)
-        The indices.
+        The indices, read-only: the same array for the same arguments (kept for the process's next intervals).
 
     Raises
     ------
@@ -40,8 +41,16 @@ def bootstrap_draws(n_trials: int, n_boot: int = 2000, seed: int = 0) -> np.ndar
     """
     _checks.integer("n_trials", n_trials, 1, 10**8)
     _checks.integer("n_boot", n_boot, 10, 10**6)
+    return _draws(int(n_trials), int(n_boot), int(seed))
+
+
+@lru_cache(maxsize=8)
+def _draws(n_trials: int, n_boot: int, seed: int) -> np.ndarray:
+    """``bootstrap_draws``'s indices, drawn once per arguments: a chapter draws them for hundreds of intervals."""
     rng = np.random.default_rng(seed)
-    return np.stack([rng.integers(0, n_trials, n_trials) for _ in range(n_boot)])
+    idx = np.stack([rng.integers(0, n_trials, n_trials) for _ in range(n_boot)])
+    idx.flags.writeable = False
+    return idx
 
 
 def bootstrap_interval(err, stat=lambda e: np.quantile(e, 0.9), n_boot: int = 2000, seed: int = 0,
@@ -224,7 +233,7 @@ def _paired_draws(stat, arrays, n_boot, seed, level):
     idx = bootstrap_draws(arrs[0].shape[0], n_boot, seed)
     per_draw = max(1, int(np.prod(arrs[0].shape)) * len(arrs))
     block = max(1, 4_000_000 // per_draw)  # draws per block: about 4 M resampled values in memory at once
-    draws = np.concatenate([np.asarray(stat(*(a[idx[i:i + block]] for a in arrs)), dtype=float)
+    draws = np.concatenate([np.asarray(stat(*(np.take(a, idx[i:i + block], axis=0) for a in arrs)), dtype=float)
                             for i in range(0, n_boot, block)])
     return value, draws, int(arrs[0].shape[0])
 

@@ -13,6 +13,7 @@ from ``figures/data/*.json`` (the figure baselines' data) or ``benchmarks/bench_
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import re
 import sys
@@ -287,11 +288,19 @@ def found_text(book: bool = False) -> str:
             "`book/_build/html/chapters/07_reproduction.html` after `make book`)."))])
 
 
+@functools.lru_cache(maxsize=1)
+def city_summary() -> dict:
+    """``city_study.summary()``, computed once per process: README and the landing page both show it (10 s each)."""
+    from dpe5g import city_study
+
+    return city_study.summary()
+
+
 def city_line(ref) -> str:
     """README's line on the ray-traced city (``city_study.summary``, from the results store)."""
     from dpe5g import city_study
 
-    c = city_study.summary()
+    c = city_summary()
     v, lo, hi = c["diff_p90"]
     verdict = "DPE better" if hi < 0 else "OTDoA better" if lo > 0 else "unresolved: it holds 0"
     name = lambda p: "not at all" if p is None else f"to {p * 1e9:.0f} ns"  # noqa: E731
