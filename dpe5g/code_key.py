@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import ast
 import hashlib
+import importlib.util
 import json
 from functools import lru_cache
 from pathlib import Path
@@ -57,8 +58,9 @@ def changed_since_import() -> tuple[str, ...]:
 def source_modules(package: Path | None = None) -> tuple[str, ...]:
     """The package's modules a Monte Carlo result depends on, found from the code instead of a list kept by hand.
 
-    ``__init__.py`` (it sets JAX's precision) and every module ``ENGINE_MODULE`` imports, directly or through others, at
-    the top or inside a function (``package_imports``).
+    Every package's ``__init__.py`` (the top one sets JAX's precision; importing a module runs the ``__init__`` of
+    each package above it) and every module ``ENGINE_MODULE`` imports, directly or through others, at the top or
+    inside a function, from any depth of the package's folders (``package_imports``).
 
     Parameters
     ----------
@@ -68,48 +70,68 @@ def source_modules(package: Path | None = None) -> tuple[str, ...]:
     Returns
     -------
     tuple of str
-        File names, sorted.
+        Paths inside the package's folder, "/"-separated ("engine.py", "sub/__init__.py"), sorted.
     """
     here = Path(__file__).resolve().parent if package is None else Path(package)
-    seen, todo = {"__init__.py"}, [ENGINE_MODULE]
+    seen = set()
+    todo = [p.relative_to(here).as_posix() for p in sorted(here.rglob("__init__.py"))] + [ENGINE_MODULE]
     while todo:
         name = todo.pop()
         if name not in seen:
             seen.add(name)
-            todo += package_imports(here / name)
+            todo += package_imports(here / name, here)
     return tuple(sorted(seen))
 
 
-def package_imports(path: Path) -> list[str]:
-    """The file names of the package's modules that a module imports, anywhere in it.
+def package_imports(path: Path, package: Path | None = None) -> list[str]:
+    """The package's modules that a module imports, anywhere in it.
 
     Parameters
     ----------
     path : Path
-        The module; its imports ``from . import a``, ``from .a import f``, ``from dpe5g.a import f``, ``import
-        dpe5g.a``.
+        The module, inside ``package``; its imports ``from . import a``, ``from .a import f``, ``from ..a.b import f``
+        (relative imports of any depth, resolved as Python resolves them), ``from dpe5g.a import f``, ``import
+        dpe5g.a.b``.
+    package : Path or None
+        The package's top folder; None: the module's own folder.
 
     Returns
     -------
     list of str
+        Paths inside ``package``, "/"-separated: a module ``a/b.py`` or a package's ``a/__init__.py``.
     """
-    st = Path(path).stat()
-    return list(_package_imports(str(Path(path).resolve()), st.st_mtime_ns, st.st_size))
+    path = Path(path).resolve()
+    root = path.parent if package is None else Path(package).resolve()
+    st = path.stat()
+    return list(_package_imports(str(path), str(root), st.st_mtime_ns, st.st_size))
 
 
-@lru_cache(maxsize=128)
-def _package_imports(path: str, mtime_ns: int, size: int) -> tuple[str, ...]:
-    here = Path(path).parent
-    found = []
+@lru_cache(maxsize=256)
+def _package_imports(path: str, root: str, mtime_ns: int, size: int) -> tuple[str, ...]:
+    top, rel = Path(root), Path(path).relative_to(root)
+    name = top.name
+    parts = rel.with_suffix("").parts
+    own_package = ".".join((name, *parts[:-1]))  # a module's __package__; an __init__'s is its own folder
+    names = []
     for node in ast.walk(ast.parse(Path(path).read_text(encoding="utf-8"))):
-        if isinstance(node, ast.ImportFrom) and node.level == 1:  # from . import a / from .a import f
-            found += [node.module.split(".")[0]] if node.module else [a.name for a in node.names]
-        elif isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] == "dpe5g":
-            parts = node.module.split(".")
-            found += parts[1:2] if len(parts) > 1 else [a.name for a in node.names]
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = importlib.util.resolve_name("." * node.level + (node.module or ""), own_package)
+            elif (node.module or "").split(".")[0] == name:
+                base = node.module
+            else:
+                continue
+            names += [base] + [f"{base}.{a.name}" for a in node.names]  # from .a import b: b a name or a module
         elif isinstance(node, ast.Import):
-            found += [a.name.split(".")[1] for a in node.names if a.name.startswith("dpe5g.")]
-    return tuple(sorted({f"{n}.py" for n in found if (here / f"{n}.py").is_file()}))
+            names += [a.name for a in node.names if a.name.split(".")[0] == name]
+    found = set()
+    for dotted in names:
+        inner = dotted.split(".")[1:]
+        for candidate in (top.joinpath(*inner).with_suffix(".py") if inner else None,
+                          top.joinpath(*inner, "__init__.py")):
+            if candidate is not None and candidate.is_file():
+                found.add(candidate.relative_to(top).as_posix())
+    return tuple(sorted(found))
 
 
 def code_digest(path: Path) -> bytes:

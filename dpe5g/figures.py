@@ -247,8 +247,8 @@ def payload_path(fig_id: str, trials: int | None = None, cache=None) -> Path:
     """
     here = Path(__file__).resolve().parent
     h = hashlib.sha256(json.dumps([fig_id, trials, code_key.numerics()], sort_keys=True).encode())
-    for path in sorted(here.glob("*.py")):
-        h.update(path.name.encode() + code_key.code_digest(path))
+    for path in sorted(here.rglob("*.py")):  # every module, in the subpackages too, by its path inside the package
+        h.update(path.relative_to(here).as_posix().encode() + code_key.code_digest(path))
     for path in sorted(p for p in (here / "data").rglob("*") if p.is_file()):
         h.update(path.name.encode() + path.read_bytes())
     h.update(store.store_digest().encode())

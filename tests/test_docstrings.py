@@ -19,7 +19,7 @@ import yaml
 from sphinx.ext.napoleon import Config, NumpyDocstring
 
 ROOT = Path(__file__).resolve().parent.parent
-API_MODULES = re.findall(r"automodule:: (dpe5g\.\w+)", (ROOT / "book" / "api.md").read_text())
+API_MODULES = re.findall(r"automodule:: (dpe5g\.[\w.]+)", (ROOT / "book" / "api.md").read_text())
 #: napoleon's settings as the book has them (book/_config.yml)
 NAPOLEON = Config(**{k: v for k, v in yaml.safe_load((ROOT / "book" / "_config.yml").read_text())["sphinx"]["config"]
                      .items() if k.startswith("napoleon_")})

@@ -53,7 +53,7 @@ def test_chapters_number_equations_as_the_compiled_paper():
     """Displayed equations carry the paper's number (``\\tag{N}``), never a Sphinx number (``:label:``), and prose and
     docstrings cite only equations the paper has."""
     texts = {p: p.read_text() for p in sorted((ROOT / "chapters").glob("*.md"))}
-    texts.update({p: p.read_text() for p in sorted((ROOT / "dpe5g").glob("*.py"))})
+    texts.update({p: p.read_text() for p in sorted((ROOT / "dpe5g").rglob("*.py"))})
     texts[ROOT / "README.md"] = (ROOT / "README.md").read_text()
     for path, text in texts.items():
         assert not re.search(r"```\{math\}\n(:\w+:.*\n)*:label:", text), f"{path.name}: a Sphinx-numbered equation"
@@ -65,6 +65,8 @@ def test_chapters_number_equations_as_the_compiled_paper():
 def test_the_api_reference_lists_every_public_module():
     """book/api.md documents (automodule) every module of dpe5g a user can import, except the command line's two."""
     root = Path(__file__).resolve().parent.parent
-    modules = {p.stem for p in (root / "dpe5g").glob("*.py") if not p.stem.startswith("_")} - {"cli", "cli_parser"}
-    listed = set(re.findall(r"^\.\. automodule:: dpe5g\.(\w+)$", (root / "book" / "api.md").read_text(), re.M))
+    pkg = root / "dpe5g"
+    modules = {".".join(p.relative_to(pkg).with_suffix("").parts) for p in pkg.rglob("*.py")
+               if not any(part.startswith("_") for part in p.relative_to(pkg).parts)} - {"cli", "cli_parser"}
+    listed = set(re.findall(r"^\.\. automodule:: dpe5g\.([\w.]+)$", (root / "book" / "api.md").read_text(), re.M))
     assert listed == modules, (sorted(modules - listed), sorted(listed - modules))

@@ -2,22 +2,49 @@
 benchmarks, the scripts and the chapters (their code cells and the code they show), checked on the AST."""
 
 import ast
+import importlib.util
 import re
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 PKG = ROOT / "dpe5g"
 CHAPTERS = ROOT / "chapters"
-MODULES = {p.stem for p in PKG.glob("*.py")}
+#: every module of the package, in its subpackages too
+SOURCES = sorted(PKG.rglob("*.py"))
 OUTSIDE = [p for d in ("tests", "benchmarks", "scripts") for p in sorted((ROOT / d).glob("*.py"))]
 
 
-def private_uses(source: str, own: str) -> list[str]:
+def module_of(path: Path) -> tuple[str, str]:
+    """A package file's module name inside ``dpe5g`` ("cost", "phy.channel"; a subpackage's ``__init__``: the
+    subpackage's, "phy"; the top one's: "__init__") and the package its relative imports resolve against."""
+    parts = path.relative_to(PKG).with_suffix("").parts
+    package = ".".join(("dpe5g", *parts[:-1]))
+    if parts[-1] == "__init__":
+        return ".".join(parts[:-1]) or "__init__", package
+    return ".".join(parts), package
+
+
+MODULES = {module_of(p)[0] for p in SOURCES}
+
+
+def imported_module(node: ast.ImportFrom, package: str) -> str | None:
+    """The module (inside ``dpe5g``, "" for the package itself) that ``from X import …`` imports from: relative
+    imports of any depth resolved against ``package``; None for a module outside ``dpe5g``."""
+    if node.level:
+        full = importlib.util.resolve_name("." * node.level + (node.module or ""), package)
+    elif node.module == "dpe5g" or (node.module or "").startswith("dpe5g."):
+        full = node.module
+    else:
+        return None
+    return full.removeprefix("dpe5g").lstrip(".")
+
+
+def private_uses(source: str, own: str, package: str = "dpe5g") -> list[str]:
     """``mod._name`` attribute uses and ``from .mod import _name`` / ``from dpe5g.mod import _name`` imports of
-    another package module's private names in ``source``; ``own`` is the module the source belongs to ("" outside
-    the package).  ``import dpe5g`` then ``dpe5g._name`` counts as the package's own ``__init__``'s private name.  A
-    module named with a leading underscore, like ``_checks``, is a shared helper module and its public names may be
-    used."""
+    another package module's private names in ``source``; ``own`` is the module the source belongs to (``module_of``;
+    "" outside the package) and ``package`` the package its relative imports resolve against.  ``import dpe5g`` then
+    ``dpe5g._name`` counts as the package's own ``__init__``'s private name.  A module named with a leading
+    underscore, like ``_checks``, is a shared helper module and its public names may be used."""
     tree = ast.parse(source)
     aliases = {}
     bad = []
@@ -26,11 +53,11 @@ def private_uses(source: str, own: str) -> list[str]:
             for a in node.names:
                 if a.name == "dpe5g" or a.name.startswith("dpe5g."):
                     aliases[a.asname or a.name.split(".")[0]] = "__init__" if a.asname is None else a.name[6:]
-        if isinstance(node, ast.ImportFrom) and (node.level == 1 or (node.module or "").startswith("dpe5g")):
-            mod = (node.module or "").removeprefix("dpe5g").lstrip(".")
+        if isinstance(node, ast.ImportFrom) and (mod := imported_module(node, package)) is not None:
             for a in node.names:
-                if not mod and a.name in MODULES:  # from . import dpe
-                    aliases[a.asname or a.name] = a.name
+                sub = f"{mod}.{a.name}" if mod else a.name
+                if sub in MODULES:  # from . import dpe, from .phy import channel
+                    aliases[a.asname or a.name] = sub
                 elif a.name.startswith("_") and not a.name.startswith("__") and (mod or "__init__") != own:
                     bad.append(f"from {mod or 'dpe5g'} import {a.name}")
     for node in ast.walk(tree):
@@ -49,7 +76,7 @@ def chapter_code(text: str) -> str:
 
 
 def test_private_names_stay_in_their_module():
-    bad = {p.name: found for p in PKG.glob("*.py") if (found := private_uses(p.read_text(), p.stem))}
+    bad = {str(p.relative_to(PKG)): found for p in SOURCES if (found := private_uses(p.read_text(), *module_of(p)))}
     assert not bad, bad
 
 
@@ -81,6 +108,10 @@ def test_the_lint_catches_a_private_use():
     assert private_uses("from dpe5g import cost as c\nx = c._lookup\n", "") == ["c._lookup (line 2)"]
     assert private_uses("from . import dpe\nx = dpe._lookup\n", "dpe") == []
     assert private_uses("from dpe5g import cost\nx = cost.lookup\n", "") == []
+    # a module of a subpackage: relative imports of depth 2 resolve against its package
+    assert private_uses("from ..cost import _lookup\n", "phy.channel", "dpe5g.phy") == ["from cost import _lookup"]
+    assert private_uses("from .. import dpe\nx = dpe._ml_cost(1)\n", "phy.channel", "dpe5g.phy") == [
+        "dpe._ml_cost (line 2)"]
     text = "```{code-cell} ipython3\n:tags: [hide-input]\nfrom dpe5g import cost\ncost._lookup(1)\n```\n"
     assert private_uses(chapter_code(text), "") == ["cost._lookup (line 2)"]
 
@@ -103,7 +134,7 @@ def too_long(source: str) -> list[str]:
 
 
 def test_functions_and_modules_fit_in_a_head():
-    bad = {p.name: found for p in sorted(PKG.glob("*.py")) if (found := too_long(p.read_text()))}
+    bad = {str(p.relative_to(PKG)): found for p in SOURCES if (found := too_long(p.read_text()))}
     assert not bad, bad
 
 
@@ -114,17 +145,19 @@ def test_the_size_check_counts_lines():
     assert too_long("x = 1\n" * (MAX_MODULE_LINES + 1)) == [f"module: {MAX_MODULE_LINES + 1} lines"]
 
 
-def missing_names(source: str, own: str) -> list[str]:
-    """``mod.name`` reads in ``source`` of a package module ``mod`` (imported as ``from dpe5g import mod`` or
-    ``from . import mod``) that the module does not define: a name that moved or went, which no test may run."""
+def missing_names(source: str, own: str, package: str = "dpe5g") -> list[str]:
+    """``mod.name`` reads in ``source`` of a package module ``mod`` (imported as ``from dpe5g import mod``, ``from .
+    import mod`` or from a subpackage, ``from ..phy import mod``) that the module does not define: a name that moved
+    or went, which no test may run.  ``own`` and ``package`` as for ``private_uses``."""
     import importlib
 
     tree = ast.parse(source)
     aliases = {}
     for node in ast.walk(tree):
-        if isinstance(node, ast.ImportFrom) and (node.level == 1 or node.module == "dpe5g"):
-            if node.module in (None, "dpe5g"):
-                aliases.update({a.asname or a.name: a.name for a in node.names if a.name in MODULES})
+        if isinstance(node, ast.ImportFrom) and (mod := imported_module(node, package)) is not None:
+            for a in node.names:
+                if (sub := f"{mod}.{a.name}" if mod else a.name) in MODULES:
+                    aliases[a.asname or a.name] = sub
     bad = []
     for node in ast.walk(tree):
         if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in aliases:
@@ -135,9 +168,9 @@ def missing_names(source: str, own: str) -> list[str]:
 
 
 def test_every_module_name_read_exists():
-    files = {p: p.stem for p in PKG.glob("*.py")} | {p: "" for p in OUTSIDE}
+    files = {p: module_of(p) for p in SOURCES} | {p: ("", "dpe5g") for p in OUTSIDE}
     bad = {str(p.relative_to(ROOT)): found for p, own in sorted(files.items())
-           if (found := missing_names(p.read_text(), own))}
+           if (found := missing_names(p.read_text(), *own))}
     bad |= {p.name: found for p in sorted(CHAPTERS.glob("*.md"))
             if (found := missing_names(chapter_code(p.read_text()), ""))}
     assert not bad, bad
@@ -151,7 +184,7 @@ def test_the_name_check_sees_a_moved_name():
 
 def book_sources() -> dict:
     """Every page of the book (chapters and book/*.md) and every module whose docstrings the book shows."""
-    pages = sorted(CHAPTERS.glob("*.md")) + sorted((ROOT / "book").glob("*.md")) + sorted(PKG.glob("*.py"))
+    pages = sorted(CHAPTERS.glob("*.md")) + sorted((ROOT / "book").glob("*.md")) + SOURCES
     return {str(p.relative_to(ROOT)): p.read_text() for p in pages}
 
 

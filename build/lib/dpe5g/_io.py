@@ -1,0 +1,203 @@
+"""Atomic file writes shared by the figure build, the Monte Carlo cache and the CLI, and the CLI's checks of an
+output file or folder before any work."""
+
+from __future__ import annotations
+
+import errno
+import os
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+
+def umask() -> int:
+    """The process's file mode creation mask (read without changing it where Linux shows it)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    old = os.umask(0o022)
+    os.umask(old)
+    return old
+
+
+#: the longest output file name, in bytes: 255 (Linux's NAME_MAX) less what the temporary file it is first
+#: written to adds (``atomic_target``: a dot, the pid, a random part and ".tmp")
+MAX_NAME_BYTES = 200
+
+
+def writable_dir(option: str, folder: Path, given=None) -> None:
+    """Create ``folder`` if needed and check that a file can be written in it; a ValueError names ``option`` and
+    the value ``given`` (default: the folder)."""
+    given = folder if given is None else given
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"{option} {given}: {folder} exists and is not a folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as e:
+        raise ValueError(f"{option} {given}: cannot write in {folder} ({e.strerror or e})") from None
+
+
+def output_file(option: str, path: str, suffixes: tuple[str, ...], force: bool | None = None) -> Path:
+    """Check an output file before any work: its suffix (one of ``suffixes``), that it is not a folder, that it does
+    not exist unless ``force`` (None: overwriting is allowed), and that its folder is writable."""
+    p = Path(path)
+    if p.suffix.lower() not in suffixes:
+        raise ValueError(f"{option} {path}: must end in {' or '.join(suffixes)}")
+    if len(p.name.encode()) > MAX_NAME_BYTES:
+        raise ValueError(f"{option}: the file name is {len(p.name.encode())} bytes long; at most {MAX_NAME_BYTES} "
+                         f"(the filesystem's 255, less the temporary file's additions)")
+    if p.is_dir():
+        raise ValueError(f"{option} {path}: is a folder; give a file name ending in {' or '.join(suffixes)}")
+    if force is False and p.exists():
+        raise ValueError(f"{option} {path}: exists; pass --force to overwrite it")
+    writable_dir(option, p.parent, path)
+    return p
+
+
+#: the temporary files ``atomic_target`` is writing in this process, which ``remove_in_flight`` deletes when the
+#: command line is interrupted (it then ends at once, without unwinding)
+_IN_FLIGHT: set[str] = set()
+
+
+def remove_in_flight() -> None:
+    """Delete this process's temporary files that are still being written (``atomic_target``), so an interrupted
+    command leaves no partial file; the finished files are whole (each was moved into place in one step)."""
+    for tmp in list(_IN_FLIGHT):
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+
+
+@contextmanager
+def atomic_target(path, exclusive: bool = False):
+    """Yield a temporary path beside ``path`` (``.<name>.<pid>.…tmp``, pid the writing process) to write to; on
+    success give it the mode a new file gets (0666 less the umask; ``mkstemp`` makes it 0600) and move it to
+    ``path``, so a reader never sees a partial file and an existing file is never left half-overwritten; the file is
+    flushed to disk (``fsync``) before the move and the folder after it, so a power loss leaves the old file or the
+    whole new one; on failure (an interrupt included) remove it.
+
+    exclusive : fail with ``FileExistsError`` if ``path`` exists when the file is moved there (a hard link, which
+    the filesystem creates only where no file is: of two writers started at once, the second fails and the first's
+    file stays); otherwise an existing file is replaced."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp")
+    os.close(fd)
+    _IN_FLIGHT.add(tmp)
+    try:
+        yield Path(tmp)
+        os.chmod(tmp, 0o666 & ~umask())
+        fsync(tmp)  # the bytes on disk before the name that publishes them
+        if exclusive:
+            _link_new(tmp, path)
+            os.unlink(tmp)
+        else:
+            os.replace(tmp, path)
+        fsync(path.parent)  # and the rename itself
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    finally:
+        _IN_FLIGHT.discard(tmp)
+
+
+def fsync(path) -> None:
+    """Flush the file or folder ``path`` to disk.  A file's error (EIO: the disk fault this guards against) is
+    raised; a folder that cannot be opened or flushed (some filesystems refuse) is left as it is."""
+    folder = os.path.isdir(path)
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        if folder:
+            return
+        raise
+    try:
+        os.fsync(fd)
+    except OSError as err:
+        if not (folder and err.errno in (errno.EINVAL, errno.EBADF, errno.ENOTSUP, errno.EACCES)):
+            raise
+    finally:
+        os.close(fd)
+
+
+def _link_new(tmp, path: Path) -> None:
+    """Put ``tmp`` at ``path`` only if nothing is there (``FileExistsError`` otherwise): a hard link, or where the
+    filesystem has none, an exclusive create of ``path`` and a copy."""
+    try:
+        os.link(tmp, path)
+    except FileExistsError:
+        raise
+    except OSError:  # no hard links here (some network and FAT filesystems)
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        with os.fdopen(fd, "wb") as f, open(tmp, "rb") as src:
+            f.write(src.read())
+            f.flush()
+            os.fsync(f.fileno())
+
+
+def atomic_write(path, data: bytes, exclusive: bool = False) -> None:
+    """Write ``data`` to ``path`` atomically (``atomic_target``)."""
+    with atomic_target(path, exclusive) as tmp:
+        tmp.write_bytes(data)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's live process
+        return True
+    return True
+
+
+def remove_stale_temporaries(directory) -> list[Path]:
+    """Remove the temporary files (``atomic_target``'s ``*.tmp``) in ``directory`` that a killed writer left: those
+    whose writing process is gone.  Another live process's file (two processes filling one cache) is left alone.
+    Returns the paths removed."""
+    gone = []
+    for tmp in Path(directory).glob("*.tmp"):
+        parts = tmp.name.split(".")
+        pid = parts[-3] if len(parts) >= 4 else ""
+        if pid.isdigit() and _alive(int(pid)):  # (a reused pid only leaves a stray file, never read)
+            continue
+        tmp.unlink(missing_ok=True)
+        gone.append(tmp)
+    return gone
+
+
+def jsonable(x):
+    """``x`` with NumPy and JAX arrays and scalars turned into lists and Python numbers, recursively.
+
+    Parameters
+    ----------
+    x : object
+        Dicts (keys made str), lists and tuples are walked; other objects are kept as they are.
+
+    Returns
+    -------
+    object
+        The JSON-able copy.
+    """
+    if isinstance(x, dict):
+        return {str(k): jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [jsonable(v) for v in x]
+    if hasattr(x, "shape") and hasattr(x, "dtype") and hasattr(x, "tolist"):  # NumPy and JAX arrays
+        return jsonable(np.asarray(x).tolist())
+    if isinstance(x, (np.bool_, bool)):
+        return bool(x)
+    if isinstance(x, (np.integer, int)):
+        return int(x)
+    if isinstance(x, (np.floating, float)):
+        return float(x)
+    return x
