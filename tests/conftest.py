@@ -27,3 +27,12 @@ def pytest_configure(config):
 def pytest_report_header(config):
     seed = os.environ["DPE5G_VERIFY_SEED"]
     return f"results store verification seed: {seed} (DPE5G_VERIFY_SEED={seed} repeats this run's sample)"
+
+
+def pytest_terminal_summary(terminalreporter):
+    """The modules long enough for a reviewer's look (``test_lint.long_modules``), listed after every run."""
+    from test_lint import REVIEW_MODULE_LINES, long_modules
+
+    if listed := long_modules():
+        terminalreporter.write_line(f"modules over {REVIEW_MODULE_LINES} lines, for review (one concept each?): "
+                                    + ", ".join(listed))
