@@ -6,7 +6,7 @@ prints a table and writes JSON, so that a reader can size a cluster.
 
 For each set-up (this process; a ``LocalCluster`` of N single-threaded worker processes for each N of --workers),
 in a fresh process with an empty Monte Carlo cache and an empty JAX compilation cache: the stored experiments
-(``verify.store_experiments``; ``--only`` names some: by default one of each kind of engine, the honest and the
+(``catalog.store_experiments``; ``--only`` names some: by default one of each kind of engine, the honest and the
 truth-centred Fig. 9, Fig. 10 centred on OTDoA, Fig. 9 with PRS reuse) at ``--fraction`` of their trial counts
 (at least one chunk each), computed with ``engine.run`` as ``dpe5g reproduce`` does.  Reports the wall time, each experiment's time per trial, the peak
 resident memory of the process and of each worker, and XLA's threads (``XLA_FLAGS``, the CPUs each process sees).
@@ -30,11 +30,11 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 RUN = """
 import json, os, resource, sys, time
 import numpy as np
-from dpe5g import cluster, engine, store, verify
+from dpe5g import catalog, cluster, engine, store, verify
 fraction, workers, only = float(sys.argv[1]), int(sys.argv[2]), sys.argv[3:]
 client = cluster.connect(workers=workers) if workers else None
 rows, t_all, n_diff = [], time.perf_counter(), 0
-for e in [e for e in verify.store_experiments() if not only or e.run.name in only]:
+for e in [e for e in catalog.store_experiments() if not only or e.run.name in only]:
     n = max(e.run.chunk_trials, int(round(e.run.n_trials * fraction)))
     e = e.replace(n_trials=min(n, e.run.n_trials))
     t0 = time.perf_counter()

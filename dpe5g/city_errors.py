@@ -182,7 +182,7 @@ class GenieSplit:
         The same for eq. (T1)'s first-path ToA fit in the DPE's windows.
     refix_gap_m : float
         The largest distance between the OTDoA fixes recomputed here from the stored ToAs and the stored ones
-        (``verify.OTDOA_POSITION_ATOL_M`` is what the store allows between CPUs), metres.
+        (``otdoa.POSITION_ATOL_M`` is what the store allows between CPUs), metres.
     """
 
     threshold_db: float | None

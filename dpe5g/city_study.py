@@ -15,7 +15,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy import stats
 
-from . import city_paths, paper, scenario, trials
+from . import city_paths, paper, scenario, studies, trials
 from .experiment import Experiment
 
 #: the traced city (its deployment's and its dataset's name): Sionna RT's "munich" scene (``city_trace.CitySpec``)
@@ -93,8 +93,6 @@ def city_families(m: int, n_trials: int | None = None) -> tuple[dict, dict]:
     dpe, otdoa : dict
         {receiver: errors (T,) m}.
     """
-    from . import studies
-
     return studies.receiver_families({"naive": city_fig10(m, "otdoa", n_trials), **city_nlos(m, n_trials)})
 
 
@@ -147,8 +145,6 @@ def clock_families(m: int, prior_s: float | None, n_trials: int | None = None) -
     dpe, otdoa : dict
         {receiver: errors (T,) m}.
     """
-    from . import studies
-
     if prior_s == CITY_CLOCK_PRIORS_S[0]:
         return city_families(m, n_trials)
     return studies.receiver_families({"naive": city_clock(m, prior_s, n_trials), "ot": city_nlos(m, n_trials)["ot"]})

@@ -232,9 +232,9 @@ def _figures(args) -> int:
 # ---- dpe5g warm ------------------------------------------------------------------------------------------------------
 
 def _warm(args) -> int:
-    from . import engine, verify
+    from . import catalog, engine
 
-    exps = verify.store_experiments()
+    exps = catalog.store_experiments()
     order = exps if args.forward else exps[::-1]
     t0 = time.perf_counter()
     with _cluster(args) as client:
@@ -250,7 +250,7 @@ def _warm(args) -> int:
 # ---- dpe5g reproduce, verify -----------------------------------------------------------------------------------------
 
 def _reproduce(args) -> int:
-    from . import store, verify
+    from . import catalog, store, verify
 
     if store.store_root() is None:
         raise ValueError("DPE5G_STORE is 'off': reproduce rewrites the results store; unset it or name a folder")
@@ -262,7 +262,7 @@ def _reproduce(args) -> int:
                          f"entry records the commit that computed it, or pass --allow-dirty (make reproduce "
                          f"ALLOW_DIRTY=1): the entries then record the commit and a digest of the changes")
     with _cluster(args) as client:
-        found = verify.reproduce(progress=args.progress, client=client)
+        found = verify.reproduce(catalog.store_experiments(), progress=args.progress, client=client)
     print(f"reproduce: {len(found)} stored (trial, field) values differed from today's code and were rewritten"
           if found else "reproduce: the store held what today's code computes", flush=True)
     return 0
@@ -309,13 +309,14 @@ def _city_view(spec, name: str) -> dict:
 def _verify(args) -> int:
     import random
 
-    from . import _checks, store, verify
+    from . import _checks, catalog, store, verify
 
     seed = args.seed if args.seed is not None else random.SystemRandom().randrange(2**31)
     _checks.integer("--seed", seed, 0, 2**31 - 1)
     families = verify.SAMPLE_FAMILIES if args.families is None else args.families
     n_trials = _checks.integer("--trials", verify.SAMPLE_TRIALS if args.trials is None else args.trials, 1, 10_000)
-    n = len(verify.store_experiments()) if args.all else _checks.integer("--families", families, 1, 10_000)
+    exps = catalog.store_experiments()
+    n = len(exps) if args.all else _checks.integer("--families", families, 1, 10_000)
     damaged = store.check_store()  # every entry's checksum and row count: cheap, unlike recomputing its trials
     for err in damaged:
         print(err, file=sys.stderr)
@@ -325,7 +326,7 @@ def _verify(args) -> int:
         if m.field != "entry" or m.stored != "damaged":
             print(m, file=sys.stderr, flush=True)
 
-    found, done = verify.verify_sample(seed, n, n_trials, report=report)
+    found, done = verify.verify_sample(seed, exps, n, n_trials, report=report)
     total = sum(len(t) for _, t in done)
     print(f"verify: {total} trials of {len(done)} experiments recomputed, {len(found)} mismatches", flush=True)
     return 1 if found or damaged else 0

@@ -153,7 +153,7 @@ def add_other_commands(sub) -> None:
     f
 
     w = sub.add_parser("warm", help="fill the Monte Carlo cache with every experiment the book runs",
-                       description="Run (or load) every experiment of dpe5g.verify.store_experiments into the cache, "
+                       description="Run (or load) every experiment of dpe5g.catalog.store_experiments into the cache, "
                                    "last first, so that a book build running at the same time meets it in the middle. "
                                    "The results are the book's own to the bit (trial t depends on the seed and t).")
     w.add_argument("--forward", action="store_true", help="run in the book's order instead")

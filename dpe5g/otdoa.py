@@ -40,6 +40,12 @@ MAX_POLISH_MOVE_M = 100.0
 #: the Gauss-Newton polish stops once its step is shorter than this (m): the fix then depends on where the convex
 #: solve left it by up to about this much, and the convex solver's last digits differ between CPUs
 POLISH_STOP_STEP_M = 1e-6
+#: two computations of one OTDoA fix (and of a DPE fix centred on it) agree within this (m) on any two CPUs: the
+#: polish's end follows where the convex solve left it, whose last digits differ between CPUs (measured: 3e-8 m in
+#: fig10-pr-los-otdoa's trial 1188 between the machine that computed the results store and another, the DPE fix
+#: centred on it moving with it).  Moving the polish's start by 3e-8 m moved its end by up to 2.7 µm over 1000
+#: simulated 4-BS fixes (median 4e-14 m), hence 10 µm: still 1000 times below the book's centimetres
+POSITION_ATOL_M = 10 * POLISH_STOP_STEP_M
 
 
 # ---- ToA ------------------------------------------------------------------------------------------------------------

@@ -9,9 +9,10 @@ from __future__ import annotations
 import jax
 import numpy as np
 
-from . import channel, correlogram, engine, intervals, nr, results, signal, toa_fit
+from . import channel, correlogram, engine, intervals, nlos_study, nr, paper, results, signal, toa_fit
 from .experiment import OTDOA_DETECTORS
 from .nr import C
+from .otdoa import POSITION_ATOL_M as OTDOA_POSITION_ATOL_M  # (a function here names its result otdoa)
 
 
 def ring_window_table(experiments: dict, progress: bool = False) -> list[dict]:
@@ -347,8 +348,6 @@ def umi_families(case: str | None, n_trials: int | None = None, snr_db: float = 
         ``case`` or ``snr_db`` not one of the above; or first-path OTDoA fixes that differ between the experiments
         (not the same trials).
     """
-    from . import nlos_study, paper
-
     aware, aware_ot = nlos_study.nlos_dpe(), nlos_study.nlos_otdoa()
     if case is None:
         if snr_db not in nlos_study.NLOS_DPE_FIG9_SNRS_DB:
@@ -392,14 +391,12 @@ def receiver_families(exps: dict, snr_db: float | None = None) -> tuple[dict, di
     ValueError
         First-path OTDoA fixes that differ between the experiments (not the same trials).
     """
-    from . import verify
-
     res = {k: engine.run(e, progress=False) for k, e in exps.items()}
     snr = {k: 0 if snr_db is None else list(e.to_dict()["snrs_db"]).index(snr_db) for k, e in exps.items()}
     cols = lambda a, k: a[:, snr[k], 0] if snr_db is None else a[:, snr[k]]  # noqa: E731
     first_path = {k: cols(r.otdoa_error_m[:, :, 0], k) for k, r in res.items()}
     for k, v in first_path.items():
-        if not np.allclose(v, first_path["naive"], rtol=0, atol=verify.OTDOA_POSITION_ATOL_M):
+        if not np.allclose(v, first_path["naive"], rtol=0, atol=OTDOA_POSITION_ATOL_M):
             raise ValueError(f"the first-path OTDoA fixes of {exps[k].run.name} and {exps['naive'].run.name} differ: "
                              "not the same trials")
     names = {"naive": "naive DPE", "wide": "naive DPE, wide clock window", "aware": "NLoS-aware DPE"}

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import city_sensitivity, city_study, code_key, engine, nlos_study, otdoa, paper, readings, store, trials
+from . import engine, otdoa, store, trials
 from .errors import DamagedEntry
 from .experiment import Experiment
 
@@ -33,56 +33,11 @@ VERIFY_RTOL = 1e-9
 #: within VERIFY_RTOL absolute (a gap of 1e-7 recomputed on an AVX-512 CPU differs from the store by 1.4e-16)
 ABSOLUTE_FIELDS = ("gap",)
 #: a position or distance (fields ending in _m or _xyz) of an experiment that computes OTDoA fixes may differ by
-#: ``OTDOA_POSITION_ATOL_M`` absolutely: the OTDoA fix's Gauss-Newton polish stops at a step of
-#: ``otdoa.POLISH_STOP_STEP_M`` (1 µm), so its end follows where the convex solve left it, whose last digits differ
-#: between CPUs (measured: 3e-8 m in fig10-pr-los-otdoa's trial 1188 between the machine that computed the store and
-#: another, the DPE fix centred on it moving with it).  Moving the polish's start by 3e-8 m moved its end by up to
-#: 2.7 µm over 1000 simulated 4-BS fixes (median 4e-14 m), hence 10 µm: still 1000 times below the book's centimetres
+#: ``otdoa.POSITION_ATOL_M`` absolutely (the OTDoA fix's last digits differ between CPUs)
 OTDOA_POSITION_FIELDS = ("_m", "_xyz")
-OTDOA_POSITION_ATOL_M = 10 * otdoa.POLISH_STOP_STEP_M
 #: the sample ``make test`` recomputes (``tests/test_store.py``, ``dpe5g verify``): two trials of every experiment in
 #: three random families; the compiles of a family are its cost (book/running.md, "The results store")
 SAMPLE_FAMILIES, SAMPLE_TRIALS = 3, 2
-
-
-def store_experiments() -> list[Experiment]:
-    """Every Monte Carlo experiment the book's chapters and figures run, which the results store holds.
-
-    They come at the trial counts the chapters read, in the order they first need them (the DPE chapter and the
-    Fig. 9 to NLoS chapters); ``run`` reuses a longer run's first trials, so an experiment whose first trials a chapter
-    reads at a smaller count appears once, at its largest.  ``dpe5g warm`` and ``dpe5g reproduce`` run them;
-    ``tests/test_warm.py`` checks the list against the runs a book build recorded.
-
-    Returns
-    -------
-    list of Experiment
-        One per stored entry.
-    """
-    out = [*paper.ring_window_experiments().values(), *paper.ring_centring_experiments().values(),
-           paper.fig9_honest(), paper.fig9_truth(), *paper.urban_window_experiments().values(),
-           paper.fig9_low_snr(), paper.fig9_link_budget(), paper.fig9_power(paper.REUSE_COMPARE_TRIALS),
-           paper.fig9_power(paper.REUSE_COMPARE_TRIALS, paper.REUSE, co_channel=False),
-           paper.fig9_power(reuse=paper.REUSE), *paper.fig10().values(), paper.fig10_reuse()["two_of_four"]]
-    for name in readings.READINGS:
-        out += [v for k, v in readings.experiments(name).items() if k != "otdoa_detector"]
-    out += [paper.fig9_all_los(*c) for c in paper.ALL_LOS_CASES]
-    out.append(paper.ml_toa_experiment())
-    for flat, fpa in paper.first_path_comparison().values():
-        out += [flat, fpa]
-    out += nlos_study.all_experiments()
-    out += city_study.all_experiments()
-    out += city_sensitivity.all_experiments()
-    longest, version = {}, code_key.code_version()
-    for e in out:  # one entry per cached run (the name and config without the trial count), at its largest count
-        k = (e.run.name, e.key(version))
-        longest[k] = e if k not in longest or e.run.n_trials > longest[k].run.n_trials else longest[k]
-    seen, order = set(), []
-    for e in out:
-        k = (e.run.name, e.key(version))
-        if k not in seen:
-            seen.add(k)
-            order.append(longest[k])
-    return order
 
 
 @dataclass(frozen=True)
@@ -169,10 +124,10 @@ def position_atol(e: Experiment) -> float:
     Returns
     -------
     float
-        ``OTDOA_POSITION_ATOL_M`` (metres) where it computes OTDoA fixes or centres its window on them, else 0
+        ``otdoa.POSITION_ATOL_M`` (metres) where it computes OTDoA fixes or centres its window on them, else 0
         (relative ``VERIFY_RTOL`` only).
     """
-    return OTDOA_POSITION_ATOL_M if e.receiver.otdoa or e.receiver.centring == "otdoa" else 0.0
+    return otdoa.POSITION_ATOL_M if e.receiver.otdoa or e.receiver.centring == "otdoa" else 0.0
 
 
 def recompute(e: Experiment, picked) -> dict:
@@ -236,7 +191,7 @@ def families(experiments) -> list[list[Experiment]]:
     return list(groups.values())
 
 
-def sample(seed: int, n_families: int, n_trials: int, experiments=None) -> list[tuple[Experiment, list[int]]]:
+def sample(seed: int, n_families: int, n_trials: int, experiments) -> list[tuple[Experiment, list[int]]]:
     """The sample ``verify_sample`` recomputes, all drawn from ``random.Random(seed)``.
 
     Parameters
@@ -247,8 +202,8 @@ def sample(seed: int, n_families: int, n_trials: int, experiments=None) -> list[
         Families (``families``) of the stored experiments, drawn without replacement.
     n_trials : int
         Trials of every experiment in them.
-    experiments : list of Experiment or None
-        The experiments; None: ``store_experiments()``.
+    experiments : list of Experiment
+        The experiments to draw from (``catalog.store_experiments()``: every stored one).
 
     Returns
     -------
@@ -256,13 +211,13 @@ def sample(seed: int, n_families: int, n_trials: int, experiments=None) -> list[
         Each experiment with its trials.
     """
     rng = random.Random(seed)
-    groups = families(store_experiments() if experiments is None else experiments)
+    groups = families(experiments)
     picks = rng.sample(range(len(groups)), min(n_families, len(groups)))
     return [(e, sorted(rng.sample(range(e.run.n_trials), min(n_trials, e.run.n_trials))))
             for i in picks for e in groups[i]]
 
 
-def verify_sample(seed: int, n_families: int = SAMPLE_FAMILIES, n_trials: int = SAMPLE_TRIALS, experiments=None,
+def verify_sample(seed: int, experiments, n_families: int = SAMPLE_FAMILIES, n_trials: int = SAMPLE_TRIALS,
                   log=sys.stderr, report=None) -> tuple[list[Mismatch], list[tuple[str, list[int]]]]:
     """Recompute ``sample(seed, n_families, n_trials, experiments)`` and compare it with the store.
 
@@ -271,7 +226,7 @@ def verify_sample(seed: int, n_families: int = SAMPLE_FAMILIES, n_trials: int = 
 
     Parameters
     ----------
-    seed, n_families, n_trials, experiments
+    seed, experiments, n_families, n_trials
         As in ``sample``.
     log : file or None
         Where to print each experiment's time; None: nowhere.
@@ -351,17 +306,17 @@ def coverage_runs(n_stored: int, n_per_run: int, quantile: float = 0.95) -> tupl
     return mean, q_point
 
 
-def reproduce(experiments=None, progress: bool = True, client=None, log=sys.stdout) -> list[Mismatch]:
-    """Recompute every stored experiment from its seeds, report the trials that differ from the store, then rewrite it.
+def reproduce(experiments, progress: bool = True, client=None, log=sys.stdout) -> list[Mismatch]:
+    """Recompute stored experiments from their seeds, report the trials that differ from the store, then rewrite it.
 
     The cache's chunks of today's code are reused: they are what this code computes.  A damaged entry is replaced
-    without being read, and a damaged file that is no stored experiment's entry (a stray or stale file, which would stop
-    every later read of the store) is removed.
+    without being read, and a damaged file that is none of the experiments' entries (a stray or stale file, which would
+    stop every later read of the store) is removed.
 
     Parameters
     ----------
-    experiments : iterable of Experiment or None
-        The experiments; None: ``store_experiments()``.
+    experiments : iterable of Experiment
+        The experiments (``catalog.store_experiments()``: every stored one, what ``dpe5g reproduce`` passes).
     progress : bool
         Show each run's progress bar.
     client : distributed.Client or None
@@ -374,7 +329,7 @@ def reproduce(experiments=None, progress: bool = True, client=None, log=sys.stdo
     list of Mismatch
         The mismatches found (before rewriting).
     """
-    exps = store_experiments() if experiments is None else list(experiments)
+    exps = list(experiments)
     found = []
     t_all = time.perf_counter()
     for i, e in enumerate(exps, 1):
@@ -395,7 +350,7 @@ def reproduce(experiments=None, progress: bool = True, client=None, log=sys.stdo
               f"({time.perf_counter() - t0:.1f} s)", file=log, flush=True)
         for d in diffs[:5]:
             print(f"    {d.experiment} trial {d.trial} {d.field}: stored {d.stored}, computed {d.computed}", file=log)
-    known = {f"{e.run.name}-{e.config_key()}" for e in [*store_experiments(), *exps]}
+    known = {f"{e.run.name}-{e.config_key()}" for e in exps}
     for err in store.check_store():  # damaged files of no experiment (a stray or stale entry): nothing could read them
         path = Path(err.path)
         if path.name[: -len(path.suffix)] in known:
@@ -462,7 +417,7 @@ def provenance(experiments, seed: int | None = None, n_families: int = 1, n_tria
     if seed is None:
         seed = int(os.environ.get("DPE5G_VERIFY_SEED") or random.SystemRandom().randrange(2**31))
     exps = [e for e in experiments if store.stored(e) is not None]
-    found, done = verify_sample(seed, n_families, n_trials, experiments=exps, log=None)
+    found, done = verify_sample(seed, exps, n_families, n_trials, log=None)
     if found:
         raise AssertionError("\n".join(map(str, found)))
     return Provenance(seed, dict(done), report.provenance_markdown(experiments, dict(done)))

@@ -360,11 +360,11 @@ def store_text() -> str:
 
 
 def coverage_text() -> str:
-    from dpe5g import verify
+    from dpe5g import catalog, verify
 
-    n = len(verify.families(verify.store_experiments()))
+    n = len(verify.families(catalog.store_experiments()))
     mean, q95 = verify.coverage_runs(n, verify.SAMPLE_FAMILIES)
-    return (f"The {len(verify.store_experiments())} stored experiments fall into {n} families.  With "
+    return (f"The {len(catalog.store_experiments())} stored experiments fall into {n} families.  With "
             f"{verify.SAMPLE_FAMILIES} of them drawn per `make test`, every stored experiment has been verified at "
             f"least once after {mean:.1f} runs on average, and after {q95} runs with probability 95 % "
             f"(`verify.coverage_runs`; the chapters' own draws, one family each, only shorten this).")

@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from dpe5g import channel, city_channel, city_errors, city_paths, city_study, engine, verify
+from dpe5g import channel, city_channel, city_errors, city_paths, city_study, engine, otdoa
 from dpe5g.nr import C
 
 #: a LoS link of two paths: the direct one (power 1, at d/c) and one 40 ns later a quarter as strong, padded to K = 3
@@ -103,8 +103,8 @@ def test_the_genie_on_the_stored_trials(stored):
     changes nothing; with the detector's threshold it lowers the median error."""
     city, e, res = stored
     g = city_errors.genie_split(city, e, res, city_study.FIRST_PATH_THRESHOLD_DB)
-    assert g.refix_gap_m <= verify.OTDOA_POSITION_ATOL_M
-    assert np.allclose(g.otdoa_m, res.otdoa_error_m[:, 0, 0, 0], rtol=0, atol=verify.OTDOA_POSITION_ATOL_M)
+    assert g.refix_gap_m <= otdoa.POSITION_ATOL_M
+    assert np.allclose(g.otdoa_m, res.otdoa_error_m[:, 0, 0, 0], rtol=0, atol=otdoa.POSITION_ATOL_M)
     los = g.n_nlos == 0
     assert los.any() and np.allclose(g.genie_otdoa_m[los], g.otdoa_m[los], rtol=0, atol=1e-3)
     assert np.all(g.excess_s[res.los] < 1e-12) and np.all(g.excess_s[~res.los] > 0)

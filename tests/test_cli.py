@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from dpe5g import chunk_cache, cli, experiment, paper, search_config, verify
+from dpe5g import catalog, chunk_cache, cli, experiment, paper, search_config
 
 ROOT = cli.BASELINE_DIR.parent
 
@@ -404,7 +404,7 @@ def test_figures_with_a_trial_count(tmp_path):
 def test_warm_fills_the_cache_with_the_books_runs(workdir, monkeypatch, capsys):
     tiny = [experiment.Experiment.build(name=f"warm{i}", n_trials=4, chunk_trials=2, seed=i, snrs_db=(20.0,), m_values=(4,),
                                   search=search_config.SearchConfig(half_width_m=2.0, bias_half_width_m=2.0)) for i in (1, 2)]
-    monkeypatch.setattr(verify, "store_experiments", lambda: tiny)
+    monkeypatch.setattr(catalog, "store_experiments", lambda: tiny)
     assert cli.main(["warm"]) == 0
     out = capsys.readouterr().out
     assert out.index("warm2") < out.index("warm1") and "warm: 2 experiments" in out  # the last one first

@@ -1,10 +1,10 @@
 """The paper's experiments (``dpe5g.paper``), its readings and the claims' tests (``dpe5g.readings``), and the list of
-every experiment the store holds (``dpe5g.verify.store_experiments``)."""
+every experiment the store holds (``dpe5g.catalog.store_experiments``)."""
 
 import numpy as np
 import pytest
 
-from dpe5g import channel, chunk_cache, nlos_study, paper, readings, scenario, signal, verify
+from dpe5g import catalog, channel, chunk_cache, nlos_study, paper, readings, scenario, signal
 
 
 def test_claim_intervals_give_each_claim_its_verdict_from_its_interval():
@@ -116,7 +116,7 @@ def test_the_nlos_chapters_readings_change_what_they_name():
 
 
 def test_store_experiments_one_entry_per_run_at_its_largest_count():
-    exps = verify.store_experiments()
+    exps = catalog.store_experiments()
     dirs = [chunk_cache.cache_dir(e).name for e in exps]
     assert len(dirs) == len(set(dirs))
     by_dir = dict(zip(dirs, exps))

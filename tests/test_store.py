@@ -8,7 +8,7 @@ import os
 import numpy as np
 import pytest
 
-from dpe5g import engine, figures, paper, store, verify
+from dpe5g import catalog, engine, figures, otdoa, paper, store, verify
 
 #: the store's size budget: 25 MB in all (issue 31), 30 MB since the UMi excess-delay runs (issue 41), 50 MB with the
 #: ray-traced city (issue 45)
@@ -16,20 +16,20 @@ STORE_BUDGET_BYTES = 50_000_000
 
 
 def test_store_holds_every_experiment_the_book_and_figures_read():
-    missing = [e.run.name for e in verify.store_experiments() if store.stored(e) is None]
+    missing = [e.run.name for e in catalog.store_experiments() if store.stored(e) is None]
     assert not missing, f"the results store lacks {missing}; run `make reproduce`"
     entries = sorted(p for p in store.STORE_DIR.rglob("*") if p.is_file())  # the traced cities' folder too
     size = sum(p.stat().st_size for p in entries)
     assert size <= STORE_BUDGET_BYTES, \
         f"results store is {size / 1e6:.1f} MB, over its {STORE_BUDGET_BYTES / 1e6:g} MB budget"
-    for e in verify.store_experiments():
+    for e in catalog.store_experiments():
         meta = store.stored(e).meta
         assert meta["config_key"] == e.config_key() and meta["code_version"] and meta["commit"]
 
 
 def test_stored_trials_are_what_the_code_computes():
     seed = int(os.environ["DPE5G_VERIFY_SEED"])  # set once per session by conftest.py, printed in the header
-    found, done = verify.verify_sample(seed)  # SAMPLE_TRIALS trials of each experiment of SAMPLE_FAMILIES families
+    found, done = verify.verify_sample(seed, catalog.store_experiments())  # SAMPLE_TRIALS trials of each experiment of SAMPLE_FAMILIES families
     assert len(done) >= verify.SAMPLE_FAMILIES
     assert not found, "\n".join(map(str, found[:20]))
 
@@ -70,7 +70,7 @@ def test_a_changed_stored_value_is_named_with_the_remedy(small):
     arrays["los"] = arrays["los"].copy()
     arrays["los"][1, 0] = ~arrays["los"][1, 0]
     restore(e, entry, arrays)
-    found, done = verify.verify_sample(0, 1, 6, experiments=[e])
+    found, done = verify.verify_sample(0, [e], 1, 6)
     assert done == [("small", [0, 1, 2, 3, 4, 5])]
     assert [(m.trial, m.field) for m in found] == [(4, "error_m"), (1, "los")]
     assert "results store: small, trial 4, field error_m" in str(found[0]) and "make reproduce" in str(found[0])
@@ -89,11 +89,11 @@ def test_a_gap_is_compared_absolutely_other_floats_relatively():
 
 def test_an_otdoa_experiments_positions_may_differ_by_the_polishs_precision():
     """Where the OTDoA fix enters (``verify.position_atol``), positions and distances may differ by
-    ``verify.OTDOA_POSITION_ATOL_M`` absolutely (the convex solver's last digits differ between CPUs, and the
+    ``otdoa.POSITION_ATOL_M`` absolutely (the convex solver's last digits differ between CPUs, and the
     Gauss-Newton polish stops at 1 µm steps); elsewhere they may not, and no other field gets that tolerance."""
     from dpe5g import paper
 
-    step = verify.OTDOA_POSITION_ATOL_M
+    step = otdoa.POSITION_ATOL_M
     assert verify.position_atol(paper.fig10()[("pr_los", "otdoa")]) == step
     assert verify.position_atol(paper.fig10()[("pr_los", "truth")]) == 0.0  # grid on the truth, no OTDoA
     stored = {"otdoa_xyz": np.array([23.9385039, 23.9385039]), "error_m": np.array([0.55, 0.55]),
@@ -140,7 +140,7 @@ def test_verify_command_prints_its_seed_and_names_mismatches(small, monkeypatch,
     from dpe5g import cli
 
     e, _, entry = small
-    monkeypatch.setattr(verify, "store_experiments", lambda: [e])
+    monkeypatch.setattr(catalog, "store_experiments", lambda: [e])
     assert cli.main(["verify", "--seed", "5", "--families", "1", "--trials", "2"]) == 0
     assert "verify: seed 5 (dpe5g verify --seed 5 repeats this sample)" in capsys.readouterr().out
     arrays = dict(np.load(entry.npz))
@@ -163,7 +163,7 @@ def test_verify_reports_each_mismatch_as_it_finds_it(small, monkeypatch, capsys)
 
     e, _, entry = small
     other = e.replace(name=e.run.name + "-next")
-    monkeypatch.setattr(verify, "store_experiments", lambda: [e, other])
+    monkeypatch.setattr(catalog, "store_experiments", lambda: [e, other])
     monkeypatch.setattr(verify, "families", lambda exps: [list(exps)])  # one family: e first, then the next
     arrays = dict(np.load(entry.npz))
     arrays["edge"] = ~arrays["edge"]
@@ -316,7 +316,7 @@ def test_reproduce_refuses_changed_code_unless_told(tmp_path, monkeypatch, capsy
     monkeypatch.setenv("DPE5G_STORE", str(tmp_path / "store"))
     monkeypatch.setattr(store, "code_changes", lambda root=None: ["dpe5g/cost.py"])
     ran = []
-    monkeypatch.setattr(verify, "reproduce", lambda **kw: ran.append(kw) or [])
+    monkeypatch.setattr(verify, "reproduce", lambda exps, **kw: ran.append(kw) or [])
     assert cli.main(["reproduce"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "the code differs from its commit (dpe5g/cost.py)" in err and not ran
