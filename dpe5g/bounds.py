@@ -38,7 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import _checks, nr, signal
+from . import _checks, chunk_cache, code_key, draw, nr, signal
+from .experiment import OTDOA_DETECTORS
 from .nr import C, PAPER, Numerology
 
 #: the pilot subcarrier sets ``subcarrier_frequencies_hz`` knows: every FFT bin (the paper's full-band PRS), the
@@ -361,7 +362,6 @@ def ml_toa_errors_s(res) -> np.ndarray:
     ValueError
         When ``res`` is not of a "free_space" experiment with ``otdoa=True``.
     """
-    from .experiment import OTDOA_DETECTORS  # the engine's modules do not import this one
 
     e = res.experiment
     if e.scenario.los_mode != "free_space" or res.otdoa_toa_s is None:
@@ -437,7 +437,6 @@ def link_information(e, n_trials: int) -> dict:
         subcarrier on the full band with its channel's tap delays known; link_snr_db (T, I), its SNR at the
         experiment's first SNR index, dB.
     """
-    from . import chunk_cache, code_key, draw  # the engine's draws; they do not import this module
 
     n_trials = _checks.integer("n_trials", n_trials, 1, e.run.n_trials)
     path = chunk_cache.cache_dir(e) / f"link-information-{code_key.code_digest(Path(__file__)).hex()[:16]}.npz"

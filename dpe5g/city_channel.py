@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import _checks, city_paths
+from . import _checks, city_draw, city_paths, city_study, scenario, signal
 
 #: TR 38.901 Table 7.5-6 Part-1, UMi-Street Canyon: lg DS = a lg(1 + fc) + b (fc in GHz), LoS and NLoS
 UMI_LGDS_LOS = (-0.24, -7.14)
@@ -255,7 +255,6 @@ def lsp_summary(city: city_paths.TracedCity, links=None) -> LspSummary:
     ValueError
         When ``links`` is not a mask or indices of the city's links.
     """
-    from . import city_study
 
     m = city_study.link_mask(city, links)
     ds = delay_spread_s(city.excess_s[m], city.gains[m])
@@ -288,7 +287,6 @@ def population_lsps(city: city_paths.TracedCity, e, res) -> dict:
     ValueError
         When ``res`` is not a run of ``e`` on the city (``city_study.link_populations``).
     """
-    from . import city_study
 
     return {name: lsp_summary(city, mask) for name, mask in city_study.link_populations(city, e, res).items()}
 
@@ -348,7 +346,6 @@ def hearability(city: city_paths.TracedCity, e, dep, edges_m) -> Hearability:
     """
     from scipy import stats
 
-    from . import city_draw, scenario, signal
 
     edges = np.asarray(edges_m, dtype=float)
     if edges.ndim != 1 or edges.size < 2 or np.any(np.diff(edges) <= 0):

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import _checks, city_channel, city_paths, otdoa, toa_fit
+from . import _checks, city_channel, city_draw, city_paths, city_study, otdoa, toa_fit
 from .experiment import OTDOA_DETECTORS, Experiment
 from .nr import C, PAPER
 
@@ -58,7 +58,6 @@ def trial_links(city: city_paths.TracedCity, e: Experiment, res) -> np.ndarray:
     ValueError
         When ``res``'s trials are not the population's (another city or experiment).
     """
-    from . import city_draw, city_study
 
     heard = city_study.link_populations(city, e, res)["heard"]
     bs = np.asarray(res.bs_index)

@@ -21,10 +21,11 @@ from pathlib import Path
 
 import numpy as np
 
-from . import _checks, deployment, store
+from . import _checks, city_trace, deployment, store
 from ._io import atomic_write, jsonable
 from .chunk_cache import arrays_digest, read_npz
 from .errors import DamagedEntry
+from .nr import C
 
 #: the store's subfolder of traced cities
 CITY_FOLDER = "cities"
@@ -376,7 +377,6 @@ def retrace_links(city: TracedCity, ues) -> dict:
     dict
         ``city_trace.compact_links``'s arrays, "link_ue" indexing into ``ues``.
     """
-    from . import city_trace
 
     spec = city_trace.CitySpec(**city.spec)
     scene = city_trace.load_scene(spec)
@@ -456,7 +456,6 @@ def path_gain_check(city: TracedCity) -> float:
         The largest absolute difference, over the LoS links, between the first path's power (dB) and the free-space
         gain 20 lg(λ/4πd) (dB).
     """
-    from .nr import C
 
     lam = C / float(city.spec["fc_hz"])
     los = np.nonzero(city.los)[0]

@@ -20,7 +20,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from . import _checks, city_paths, deployment
+from . import _checks, city_draw, city_paths, city_study, city_trace, deployment, engine, ray_tracer, store, studies
 from ._io import atomic_write, jsonable
 from .chunk_cache import arrays_digest
 from .experiment import OTDOA_DETECTORS
@@ -89,7 +89,6 @@ def variant_spec(city: city_paths.TracedCity, key: str):
     -------
     city_trace.CitySpec
     """
-    from . import city_trace
 
     variant_name(city.name, key)
     return replace(city_trace.CitySpec(**city.spec), **VARIANTS[key][1])
@@ -127,7 +126,6 @@ def trace_variant(city: city_paths.TracedCity, key: str, n_ue: int = SUBSET_UES)
         ``city_trace.trace_city``'s arrays for the subset (its region, BSs, the n_ue UEs and their links), and
         "seconds", the solver's time.
     """
-    from . import city_trace
 
     spec = variant_spec(city, key)
     ues = np.asarray(city.ue_xyz[:_checks.integer("n_ue", n_ue, 1, city.n_ue)], float)
@@ -245,7 +243,6 @@ def save_materials(city: city_paths.TracedCity) -> dict:
     dict
         {material: {"itu_type", "thickness_m", "scattering_coefficient"}}, also written to ``materials_file``.
     """
-    from . import city_trace
 
     as_loaded = replace(city_trace.CitySpec(**city.spec), diffuse_reflection=False, scattering_coefficient=0.0)
     scene = city_trace.load_scene(as_loaded)  # S = 0 is what Sionna RT loads
@@ -286,7 +283,6 @@ def trace_stale(city: city_paths.TracedCity, force: bool = False):
     str
         One line per variant: traced (links, seconds) or current.
     """
-    from . import ray_tracer, store
 
     if force or not materials_file(city.name).exists():
         yield f"{materials_file(city.name).name}: {len(save_materials(city))} materials recorded"
@@ -317,7 +313,6 @@ def settings_experiment(key: str, city: str = "munich"):
     Experiment
         "city-{subset}-m{M}-otdoa", its deployment the subset's (``deployment.builtin``).
     """
-    from . import city_draw, city_study
 
     name, m = variant_name(city, key), city_study.CITY_M[0]
     e = city_study.city_fig10(m, "otdoa", n_trials=1).replace(deployment=name)
@@ -342,7 +337,6 @@ def settings_families(key: str, city: str = "munich") -> tuple[dict, dict]:
         {"naive DPE": errors (T,) m}; {"first-path OTDoA", "strongest-peak OTDoA", and the ToA fits of eq. (T1) in
         the DPE's windows (``studies.toa_fit_errors``): errors (T,) m}.
     """
-    from . import engine, studies
 
     res = engine.run(settings_experiment(key, city), progress=False)
     err = {det: res.otdoa_error_m[:, 0, k, 0] for k, det in enumerate(OTDOA_DETECTORS)}

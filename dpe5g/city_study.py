@@ -15,7 +15,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy import stats
 
-from . import city_paths, paper, scenario, studies, trials
+from . import city_draw, city_paths, engine, intervals, paper, scenario, studies, trials
 from .experiment import Experiment
 
 #: the traced city (its deployment's and its dataset's name): Sionna RT's "munich" scene (``city_trace.CitySpec``)
@@ -376,7 +376,6 @@ def link_populations(city: city_paths.TracedCity, e: Experiment, res) -> dict:
     ValueError
         When ``res``'s trials are not the population's first T UEs with their links (another city or experiment).
     """
-    from . import city_draw
 
     heard = city_draw.heard_links(e, city, e.load_deployment())
     bs = np.asarray(res.bs_index)
@@ -461,7 +460,6 @@ def summary() -> dict:
         ``FIRST_PATH_THRESHOLD_DB`` of the strongest, ns), "umi_median_ns" TR 38.901's UMi median (ns),
         "scattering_coefficient" and "refraction", the tracer's settings (``city_trace.CitySpec``).
     """
-    from . import city_draw, engine, intervals
 
     m = CITY_M[0]
     e = city_fig10(m, "otdoa")

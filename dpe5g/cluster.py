@@ -26,6 +26,7 @@ from __future__ import annotations
 import os
 import re
 
+from . import _checks
 from .errors import ClusterFailed
 
 
@@ -58,7 +59,6 @@ def connect(scheduler: str | None = None, workers: int | None = None, timeout_s:
         When both are given, ``workers`` is not in [1, 256], the address is not ``tcp://host:port`` or no Dask
         scheduler answers there in time.
     """
-    from . import _checks
 
     source = "--scheduler"
     if not scheduler and os.environ.get("DPE5G_SCHEDULER"):

@@ -9,6 +9,7 @@ import ast
 import hashlib
 import importlib.util
 import json
+import sys
 from functools import lru_cache
 from pathlib import Path
 
@@ -49,10 +50,10 @@ def changed_since_import() -> tuple[str, ...]:
     -------
     tuple of str
     """
-    from . import IMPORTED_AT_NS
 
+    imported_at = sys.modules[__package__].IMPORTED_AT_NS  # the package's, read now (a test may set it)
     here = Path(__file__).resolve().parent
-    return tuple(n for n in source_modules() if (here / n).stat().st_mtime_ns > IMPORTED_AT_NS)
+    return tuple(n for n in source_modules() if (here / n).stat().st_mtime_ns > imported_at)
 
 
 def source_modules(package: Path | None = None) -> tuple[str, ...]:

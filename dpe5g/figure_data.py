@@ -12,7 +12,8 @@ from dataclasses import astuple
 import jax
 import numpy as np
 
-from . import bounds, channel, correlogram, cost, dpe, engine, experiment, intervals, paper, readings, results, search_config, trials
+from . import (bounds, channel, correlogram, cost, dpe, engine, experiment, intervals, nr, paper, readings, results,
+               search_config, signal, trials)
 from .deployment import named as named_deployment
 from .nr import C, PAPER
 
@@ -141,7 +142,6 @@ def cost_surface_payload(n_taps: int | None = None) -> dict:
     dict
         The payload (``"seed"``, ``"config"``, ``"data"``).
     """
-    from . import nr, signal
 
     n_taps = search_config.DEFAULT_TAPS if n_taps is None else n_taps
     m = 8

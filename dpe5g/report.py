@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from . import readings, result_plots
 from .results import Results
+from .store import stored
 
 
 def run_summary(res: Results) -> str:
@@ -151,7 +152,6 @@ def provenance_markdown(experiments, recomputed: dict | None = None) -> str:
     str
         The Markdown table.
     """
-    from .store import stored
 
     recomputed = recomputed or {}
     lines = ["| experiment | trials read (stored) | entry key | code version | commit | recomputed in this build |",

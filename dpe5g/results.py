@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from . import __version__
+from .code_key import numerics
 from .experiment import OTDOA_DETECTORS, Experiment
 
 @dataclass(frozen=True)
@@ -207,8 +209,6 @@ class Results:
         commit : str or None
             The commit of the code that computed the results (``store.git_commit``); None outside git.
         """
-        from . import __version__
-        from .code_key import numerics
 
         columns = list(self.table()[0])
         doc = {"experiment": self.config(),

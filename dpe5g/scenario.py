@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _checks
+from . import _checks, nr
 from .nr import C, PAPER, Numerology
 
 #: TR 38.901 Table 7.4.1-1 shadow-fading standard deviations, UMi street canyon, dB
@@ -350,7 +350,6 @@ def prs_plan(bs_xyz, reuse: int) -> tuple[np.ndarray, np.ndarray]:
     ValueError
         ``reuse`` not a comb size, or more BSs than reuse × ``N_PRS_IDS``.
     """
-    from . import nr
 
     _checks.one_of("reuse", reuse, nr.PRS_COMB_SIZES)
     xy = np.asarray(bs_xyz, dtype=np.float64)[:, :2]

@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ._io import atomic_write
+
 #: scene colours (0xRRGGBB)
 COLOURS = {"building": 0x9aa4b1, "mast": 0x444444, "bs": 0xd62728, "ue": 0x1f77b4, "los": 0x2ca02c,
            "nlos": 0xff7f0e, "ground": 0xe8e8e0}
@@ -264,7 +266,6 @@ def export(payload7: dict, payload8: dict, path, exclusive: bool = False) -> Pat
     pathlib.Path
         ``path``.
     """
-    from ._io import atomic_write
 
     path = Path(path)
     atomic_write(path, html(build(payload7, payload8)).encode(), exclusive)

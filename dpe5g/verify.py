@@ -412,7 +412,7 @@ def provenance(experiments, seed: int | None = None, n_families: int = 1, n_tria
     AssertionError
         Naming every mismatch (and ``make reproduce``).
     """
-    from . import report
+    from . import report  # (tables for the chapters: plots and the paper's readings, above the store's checks)
 
     if seed is None:
         seed = int(os.environ.get("DPE5G_VERIFY_SEED") or random.SystemRandom().randrange(2**31))
