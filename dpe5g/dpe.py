@@ -18,7 +18,7 @@ import numpy as np
 
 from . import _checks, correlogram, cost, receiver, signal
 from .nr import C, PAPER, Numerology
-from .search_config import SearchConfig
+from .search_config import SearchConfig, honest_search  # honest_search: fix's default, public here
 
 
 @partial(jax.jit, static_argnames=("cfg", "num"))
@@ -55,25 +55,6 @@ class Fix:
     gap: np.ndarray
     certified: np.ndarray
     edge: np.ndarray
-
-
-def honest_search() -> SearchConfig:
-    """The search ``fix`` runs when given none: the book's honest receiver, the one Figs. 9 and 10 score.
-
-    The certified branch and bound over ±30 m in x and y around the window's centre (``paper.honest_search``) and,
-    in c δt, over the paper's clock prior (± 3 σ, σ = 5 ns: ± 4.5 m), as ``experiment.Experiment.receiver_search``
-    sets it for a receiver centred on a prior.  The paper's own search, ``search_config.PAPER_GRID`` (±10 m,
-    nothing certified), is a labelled comparison only.
-
-    Returns
-    -------
-    SearchConfig
-        The honest receiver's search.
-    """
-    from . import paper
-    from .experiment import Experiment
-
-    return Experiment.build(centring="prior", search=paper.honest_search()).receiver_search()
 
 
 def fix(y, prs, bs_xyz, center_m, cfg: SearchConfig | None = None, num: Numerology = PAPER,

@@ -35,9 +35,8 @@ PAPER_LOS_SHARE = 0.17  # "The LoS propagation cases account for only 17% of the
 #: conducted with 5000 trials")
 URBAN_SEED = 9
 URBAN_TRIALS = 5000
-#: the honest receiver: window centred on truth + a Gaussian error of σ = 5 m per axis, ±30 m (6 σ), the clock-bias
-#: window from the clock model, certified branch-and-bound search
-HONEST_SEARCH_HALF_WIDTH_M = 30.0
+#: the honest receiver: window centred on truth + a Gaussian error of σ = 5 m per axis, ±30 m (6 σ,
+#: ``search_config.HONEST_HALF_WIDTH_M``), the clock-bias window from the clock model, certified branch-and-bound search
 PRIOR_SIGMA_M = 5.0
 #: trial counts of the committed Fig. 9: the honest receiver's are set by what the 2-core CI machine can afford (each
 #: of its fixes is a certified global search; 1000 took a fresh `make test` to 1231 s, over its 20-minute budget);
@@ -104,9 +103,9 @@ def honest_search() -> search_config.SearchConfig:
     Returns
     -------
     SearchConfig
-        ``HONEST_SEARCH_HALF_WIDTH_M`` in x and y, method "bnb".
+        ``search_config.HONEST_HALF_WIDTH_M`` in x and y, method "bnb".
     """
-    return search_config.SearchConfig(method="bnb", half_width_m=HONEST_SEARCH_HALF_WIDTH_M)
+    return search_config.SearchConfig(method="bnb", half_width_m=search_config.HONEST_HALF_WIDTH_M)
 
 
 def fig9_truth(n_trials: int = FIG9_TRUTH_TRIALS) -> Experiment:

@@ -13,7 +13,7 @@ import jax
 import numpy as np
 
 from . import _checks, correlogram
-from .nr import PAPER, Numerology
+from .nr import C, PAPER, Numerology
 
 #: Default receiver window L (taps).  First chosen in the DPE chapter on 8 NLoS (TDL-C) links on a 150 m ring with the
 #: grid on the truth, where L = 12 gave the smallest RMSE; chosen again on the urban scenario (mixed LoS/NLoS, Figs. 9
@@ -174,8 +174,27 @@ class SearchConfig:
 
 
 #: the paper's search, a labelled comparison only: its divide-and-conquer grid, ±10 m around the window's centre,
-#: nothing certified (``SearchConfig()``).  The book's receiver, ``dpe.fix``'s default, is ``dpe.honest_search()``.
+#: nothing certified (``SearchConfig()``).  The book's receiver, ``dpe.fix``'s default, is ``honest_search()``.
 PAPER_GRID = SearchConfig()
+#: the honest receiver's window in x and y (Figs. 9 and 10): ±30 m around a prior (6 σ of the paper's 5 m) or the
+#: OTDoA fix
+HONEST_HALF_WIDTH_M = 30.0
+#: the UE clock a receiver assumes when told nothing else: σ = 5 ns, searched over ± 3 σ (the paper's clock model,
+#: ``experiment.Scenario``'s default; an experiment's receiver takes its window from its own scenario)
+CLOCK_SIGMA_S, CLOCK_BOUND_SIGMAS = 5e-9, 3.0
+
+
+def honest_search() -> SearchConfig:
+    """The book's honest receiver's search, ``dpe.fix``'s default: the certified branch and bound over
+    ± ``HONEST_HALF_WIDTH_M`` in x and y and, in c δt, over the assumed clock's ± ``CLOCK_BOUND_SIGMAS`` σ (± 4.5 m).
+
+    Returns
+    -------
+    SearchConfig
+        Method "bnb"; the rest of its settings the defaults.
+    """
+    return SearchConfig(method="bnb", half_width_m=HONEST_HALF_WIDTH_M,
+                        bias_half_width_m=CLOCK_BOUND_SIGMAS * CLOCK_SIGMA_S * C)
 
 
 @jax.tree_util.register_dataclass
