@@ -37,7 +37,7 @@ def main() -> None:
     windows = {"naive (eq. (10))": jax.jit(lambda c, b, x: spline_bounds.spline_window(c, b, x, cfg)),
                "NLoS-aware (eq. (D1))": jax.jit(lambda c, b, x: dpe_nlos.marginal_window(
                    c, b, x, cfg, window, sc.nlos_excess_median_s, sc.nlos_excess_sigma_lg,
-                   experiment.CLOCK_NLOS_QUANTILE))}
+                   dpe_nlos.CLOCK_NLOS_QUANTILE))}
     search = jax.jit(lambda sl, st, b, x: certified_search.certified_search((sl, st), b, x, cfg)[0])
     times = {k: {"window_ms": [], "search_ms": []} for k in windows}
     for t in range(args.trials):

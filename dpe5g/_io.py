@@ -1,9 +1,11 @@
-"""Atomic file writes shared by the figure build, the Monte Carlo cache and the CLI, and the CLI's checks of an
-output file or folder before any work."""
+"""Files on disk: atomic writes shared by the figure build, the Monte Carlo cache and the CLI, checked reads of the
+stores' arrays (``read_npz``, ``arrays_digest``), and the CLI's checks of an output file or folder before any work."""
 
 from __future__ import annotations
 
 import errno
+import hashlib
+import json
 import os
 import tempfile
 from contextlib import contextmanager
@@ -201,3 +203,50 @@ def jsonable(x):
     if isinstance(x, (np.floating, float)):
         return float(x)
     return x
+
+
+def arrays_digest(arrays: dict) -> str:
+    """SHA-256 of named arrays: each name, dtype, shape and bytes, in name order.
+
+    Parameters
+    ----------
+    arrays : dict
+        The arrays by name.
+
+    Returns
+    -------
+    str
+        The hex digest; it depends on the values only, not on how a file compresses them.
+    """
+    h = hashlib.sha256()
+    for k in sorted(arrays):
+        a = np.ascontiguousarray(arrays[k])
+        h.update(json.dumps([k, a.dtype.str, list(a.shape)]).encode() + a.tobytes())
+    return h.hexdigest()
+
+
+def read_npz(path) -> dict:
+    """Every array of an ``.npz``, read whole (so the zip's CRC-32 of each is checked).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+
+    Returns
+    -------
+    dict
+        Its arrays by name.
+
+    Raises
+    ------
+    ValueError
+        Saying why, when the file is missing, truncated, corrupt or holds objects.
+    """
+    try:
+        with open(path, "rb") as f, np.load(f, allow_pickle=False) as z:  # (our handle: closed even when np.load fails)
+            return {k: z[k] for k in z.files}
+    except FileNotFoundError:
+        raise ValueError("the file is missing") from None
+    except Exception as err:  # noqa: BLE001  (a damaged header raises anything, SyntaxError included: all damage)
+        raise ValueError(f"unreadable: {type(err).__name__}: {' '.join(str(err).split()) or 'no detail'}") from None

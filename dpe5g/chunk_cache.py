@@ -19,14 +19,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ._io import atomic_write, remove_stale_temporaries
+from ._io import arrays_digest, atomic_write, read_npz, remove_stale_temporaries
 from .errors import Failure
 from .code_key import code_version
 from .experiment import Experiment
+from .locations import DEFAULT_CACHE
 
 #: default cache directory: ``.cache/montecarlo`` next to the package (the repository root for an editable install);
 #: the environment variable DPE5G_CACHE overrides it.
-DEFAULT_CACHE = Path(__file__).resolve().parent.parent / ".cache" / "montecarlo"
 
 def cache_root(cache: str | os.PathLike | None = None) -> Path:
     """The cache's root directory.
@@ -210,53 +210,6 @@ class ChunkCache:
 
 #: the ``.npz`` member of a cache file that records where its arrays come from (``write_cached``)
 CACHE_META = "dpe5g_origin"
-
-
-def arrays_digest(arrays: dict) -> str:
-    """SHA-256 of named arrays: each name, dtype, shape and bytes, in name order.
-
-    Parameters
-    ----------
-    arrays : dict
-        The arrays by name.
-
-    Returns
-    -------
-    str
-        The hex digest; it depends on the values only, not on how a file compresses them.
-    """
-    h = hashlib.sha256()
-    for k in sorted(arrays):
-        a = np.ascontiguousarray(arrays[k])
-        h.update(json.dumps([k, a.dtype.str, list(a.shape)]).encode() + a.tobytes())
-    return h.hexdigest()
-
-
-def read_npz(path) -> dict:
-    """Every array of an ``.npz``, read whole (so the zip's CRC-32 of each is checked).
-
-    Parameters
-    ----------
-    path : str or os.PathLike
-        The file.
-
-    Returns
-    -------
-    dict
-        Its arrays by name.
-
-    Raises
-    ------
-    ValueError
-        Saying why, when the file is missing, truncated, corrupt or holds objects.
-    """
-    try:
-        with open(path, "rb") as f, np.load(f, allow_pickle=False) as z:  # (our handle: closed even when np.load fails)
-            return {k: z[k] for k in z.files}
-    except FileNotFoundError:
-        raise ValueError("the file is missing") from None
-    except Exception as err:  # noqa: BLE001  (a damaged header raises anything, SyntaxError included: all damage)
-        raise ValueError(f"unreadable: {type(err).__name__}: {' '.join(str(err).split()) or 'no detail'}") from None
 
 
 def write_cached(path: Path, arrays: dict, origin: dict) -> None:

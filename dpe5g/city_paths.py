@@ -21,10 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
-from . import _checks, city_trace, deployment, store
-from ._io import atomic_write, jsonable
-from .chunk_cache import arrays_digest, read_npz
+from . import _checks, city_trace, deployment
+from ._io import arrays_digest, atomic_write, jsonable, read_npz
 from .errors import DamagedEntry
+from .locations import STORE_DIR
 from .nr import C
 
 #: the store's subfolder of traced cities
@@ -157,13 +157,13 @@ def city_file(name: str, root: Path | None = None) -> Path:
     name : str
         The city's name.
     root : Path or None
-        The store's folder; None: ``store.STORE_DIR``.
+        The store's folder; None: ``STORE_DIR``.
 
     Returns
     -------
     Path
     """
-    return (store.STORE_DIR if root is None else root) / CITY_FOLDER / f"{name}.npz"
+    return (STORE_DIR if root is None else root) / CITY_FOLDER / f"{name}.npz"
 
 
 def save_city(name: str, traced: dict, spec: dict, provenance: dict, root: Path | None = None) -> Path:
@@ -180,7 +180,7 @@ def save_city(name: str, traced: dict, spec: dict, provenance: dict, root: Path 
     provenance : dict
         What traced it: commit, library versions, seconds.
     root : Path or None
-        The store's folder; None: ``store.STORE_DIR``.
+        The store's folder; None: ``STORE_DIR``.
 
     Returns
     -------
@@ -212,7 +212,7 @@ def write_deployment(name: str, arrays: dict, spec: dict, checksum: str) -> Path
     spec : dict
         Its ``CitySpec`` (power, UE height, scene).
     checksum : str
-        The dataset's checksum (``chunk_cache.arrays_digest``).
+        The dataset's checksum (``_io.arrays_digest``).
 
     Returns
     -------
@@ -240,7 +240,7 @@ def view_file(name: str, root: Path | None = None) -> Path:
     name : str
         The city's name.
     root : Path or None
-        The store's folder; None: ``store.STORE_DIR``.
+        The store's folder; None: ``STORE_DIR``.
 
     Returns
     -------
@@ -260,7 +260,7 @@ def save_view(name: str, view: dict, root: Path | None = None) -> Path:
     view : dict
         "triangles", "ue" (the UE's index), "ue_bs" (its BSs) and ``city_view.example_paths``'s arrays.
     root : Path or None
-        The store's folder; None: ``store.STORE_DIR``.
+        The store's folder; None: ``STORE_DIR``.
 
     Returns
     -------
@@ -283,7 +283,7 @@ def load_view(name: str, root: Path | None = None) -> dict:
     name : str
         The city's name.
     root : Path or None
-        The store's folder; None: ``store.STORE_DIR``.
+        The store's folder; None: ``STORE_DIR``.
 
     Returns
     -------
@@ -317,7 +317,7 @@ def is_current(name: str, spec: dict, code_digest: str, root: Path | None = None
     code_digest : str
         ``city_trace.code_digest()`` of today's tracing code.
     root : Path or None
-        The store's folder; None: ``store.STORE_DIR``.
+        The store's folder; None: ``STORE_DIR``.
 
     Returns
     -------
@@ -338,7 +338,7 @@ def load_city(name: str, root: Path | None = None) -> TracedCity:
     name : str
         The city's name.
     root : Path or None
-        The store's folder; None: ``store.STORE_DIR``.
+        The store's folder; None: ``STORE_DIR``.
 
     Returns
     -------

@@ -21,8 +21,7 @@ from dataclasses import replace
 import numpy as np
 
 from . import _checks, city_draw, city_paths, city_study, city_trace, deployment, engine, ray_tracer, store, studies
-from ._io import atomic_write, jsonable
-from .chunk_cache import arrays_digest
+from ._io import arrays_digest, atomic_write, jsonable
 from .experiment import OTDOA_DETECTORS
 
 #: the UEs of the subset: the stored city's first SUBSET_UES, every BS

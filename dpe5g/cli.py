@@ -23,7 +23,8 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from ._io import output_file, writable_dir
-from .cli_parser import BASELINE_DIR, UsageError, build_parser, numbers_as_values
+from .locations import BASELINE_DIR, STORE_DIR, store_root
+from .cli_parser import UsageError, build_parser, numbers_as_values
 
 
 #: library parameter → the ``dpe5g run`` option that sets it, so an error raised by the library names the option
@@ -252,9 +253,9 @@ def _warm(args) -> int:
 def _reproduce(args) -> int:
     from . import catalog, store, verify
 
-    if store.store_root() is None:
+    if store_root() is None:
         raise ValueError("DPE5G_STORE is 'off': reproduce rewrites the results store; unset it or name a folder")
-    writable_dir("DPE5G_STORE", store.store_root())
+    writable_dir("DPE5G_STORE", store_root())
     changed = store.code_changes()
     if changed and not args.allow_dirty:
         shown = ", ".join(changed[:3]) + (f" and {len(changed) - 3} more" if len(changed) > 3 else "")
@@ -273,7 +274,7 @@ def _trace(args) -> int:
 
     from . import city_paths, city_sensitivity, city_study, city_trace, ray_tracer, store
 
-    writable_dir("DPE5G_STORE", store.STORE_DIR)
+    writable_dir("DPE5G_STORE", STORE_DIR)
     spec, name = city_trace.CitySpec(), city_study.CITY
     if not args.force and city_paths.is_current(name, spec.to_dict(), city_trace.code_digest()):
         print(f"trace: {city_paths.city_file(name)} was traced with today's settings and code "

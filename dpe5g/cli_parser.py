@@ -7,6 +7,8 @@ import argparse
 import re
 from pathlib import Path
 
+from .locations import BASELINE_DIR  # noqa: F401  (cli reads it from here too)
+
 #: what ``dpe5g --help`` says first
 DESCRIPTION = (
     "The command line of dpe5g, the companion of the paper '5G Direct Position Estimation for Precise Localization "
@@ -18,9 +20,6 @@ DESCRIPTION = (
     "input's (a damaged results store, a Dask cluster that lost work or runs other code) with one line and exit "
     "code 1; Ctrl-C and SIGTERM with one line and exit codes 130 and 143.")
 
-#: the committed figure baselines (``figures/`` of the repository); ``dpe5g figures`` writes here only with
-#: ``--update-baselines``
-BASELINE_DIR = Path(__file__).resolve().parent.parent / "figures"
 
 
 class UsageError(Exception):

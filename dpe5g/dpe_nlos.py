@@ -13,7 +13,7 @@ spline correlogram (eq. (D1) of the NLoS chapter)::
 
 where π_{m,j} is the prior probability that β_m rounds to jΔ (eq. (D2): π_{m,0} = P_m + (1 − P_m) F(Δ/2),
 π_{m,j} = (1 − P_m)(F((j + ½)Δ) − F((j − ½)Δ)), F the log-normal's CDF, J − 1 the lags up to its
-``experiment.CLOCK_NLOS_QUANTILE`` point, the tail beyond dropped), and σ̂_m² the noise power estimated from the
+``CLOCK_NLOS_QUANTILE`` point, the tail beyond dropped), and σ̂_m² the noise power estimated from the
 link's own correlogram (its floor, ``otdoa_nlos.noise_floor``, over the window's weight Σ_l w_l, the floor of an
 L-tap window of noise).  The ratio to π_{m,0} subtracts a constant per link: ℓ_m ≥ c_m, and where P_m = 1, ℓ_m = c_m
 (eq. (10)).  Each ℓ_m is computed on the knots that the certified search reads and put back into cubic-spline form
@@ -35,10 +35,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _checks, otdoa_nlos, scenario
-from .experiment import CLOCK_NLOS_QUANTILE, Experiment
 from .nr import PAPER, Numerology
 from .search_config import SearchConfig
 from .spline_bounds import slice_cells, spline_window
+
+#: the percentile of c·Δτ that the "clock_nlos" window adds to the clock model's support (``Experiment.receiver_search``)
+CLOCK_NLOS_QUANTILE = 0.99
 
 #: knots either side of the searched cells whose values are profiled too, so that the local spline prefilter's edge
 #: error (it decays by 2 − √3 ≈ 0.27 per knot) is below 1e-13 of the values where the search reads them
@@ -181,26 +183,3 @@ def marginal_window(coef, bs_xyz, center, cfg: SearchConfig, window, median_s: f
                   values.shape[-1])
     ell = marginal_terms(jnp.take_along_axis(values, idx, axis=1), log_masses, noise)
     return spline_prefilter(ell)[:, PREFILTER_MARGIN:PREFILTER_MARGIN + n_out], start
-
-
-
-def receiver_window(e: Experiment, coef, bs_xyz, center, cfg: SearchConfig, window):
-    """The window of the spline correlograms that experiment e's certified search reads: ``marginal_window`` for the
-    NLoS-aware DPE (``Receiver.dpe_nlos``, the excess-delay law it assumes, ``Experiment.excess_law``, to
-    ``CLOCK_NLOS_QUANTILE``, as the clock window), else ``spline_bounds.spline_window``.  Traceable.
-
-    Parameters
-    ----------
-    e : Experiment
-        The experiment.
-    coef, bs_xyz, center, cfg, window
-        As ``marginal_window``'s.
-
-    Returns
-    -------
-    coefficients : float (M, cells + 3)
-    start : int (M,)
-    """
-    if not e.receiver.dpe_nlos:
-        return spline_window(coef, bs_xyz, center, cfg, PAPER)
-    return marginal_window(coef, bs_xyz, center, cfg, window, *e.excess_law(), CLOCK_NLOS_QUANTILE, PAPER)

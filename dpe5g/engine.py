@@ -372,7 +372,7 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
     e : Experiment
         The experiment.
     cache : str or os.PathLike or None
-        The Monte Carlo cache's root folder; None: DPE5G_CACHE, else ``chunk_cache.DEFAULT_CACHE``
+        The Monte Carlo cache's root folder; None: DPE5G_CACHE, else ``locations.DEFAULT_CACHE``
         (``chunk_cache.cache_root``).
     progress : bool
         Show a tqdm bar with ETA on stderr.

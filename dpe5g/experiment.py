@@ -19,6 +19,7 @@ import numpy as np
 
 from . import _checks, channel, deployment, nr, otdoa, scenario, search_config, signal
 from .code_key import code_version
+from .dpe_nlos import CLOCK_NLOS_QUANTILE
 from .nr import C
 
 #: settings added after the results store was first filled, with their defaults: at its default such a setting is
@@ -37,8 +38,6 @@ PRIOR_KINDS = ("gaussian", "disc")
 #: the clock-bias window of a receiver not centred on the truth (``Experiment.receiver_search``): "clock" — the support
 #: of the clock prior; "clock_nlos" — widened by the 99th percentile of the NLoS excess delay; "free" — no clock prior
 CLOCK_WINDOWS = ("clock", "clock_nlos", "free")
-#: the percentile of c·Δτ that the "clock_nlos" window adds to the clock model's support
-CLOCK_NLOS_QUANTILE = 0.99
 #: the excess-delay law the NLoS-aware receivers assume (the "clock_nlos" window and ``dpe_nlos``): "scenario" — the
 #: law that drew the scenario's delays; "umi" — TR 38.901's UMi row, for a channel with no law of its own (traced)
 NLOS_PRIORS = ("scenario", "umi")

@@ -1,4 +1,4 @@
-"""Tables of results for people: claim tables, the readings' verdict counts and a run's summary.
+"""Tables of results for people: claim tables, the readings' verdict counts, a run's summary and a chapter's provenance.
 
 The claim tables give each claim's interval and verdict (Markdown, for the book), the verdict counts serve the book
 and README, the run summary is text for ``dpe5g run``.  The numbers come from ``results``, ``readings`` and the
@@ -7,7 +7,11 @@ figures' payloads.
 
 from __future__ import annotations
 
-from . import readings, result_plots
+import os
+import random
+from dataclasses import dataclass
+
+from . import readings, result_plots, verify
 from .results import Results
 from .store import stored
 
@@ -190,3 +194,60 @@ def markdown_table(header, rows) -> str:
     """
     lines = ["| " + " | ".join(map(str, header)) + " |", "|" + "---|" * len(header)]
     return "\n".join(lines + ["| " + " | ".join(map(str, r)) + " |" for r in rows])
+
+
+@dataclass(frozen=True)
+class Provenance:
+    """Where a chapter's Monte Carlo numbers come from (``provenance``).
+
+    Attributes
+    ----------
+    seed : int
+        The sample's seed.
+    recomputed : dict
+        {experiment name: trials recomputed}.
+    table_md : str
+        The table of entries, Markdown (``provenance_markdown``).
+    """
+
+    seed: int
+    recomputed: dict
+    table_md: str
+
+    @property
+    def n_recomputed(self) -> int:
+        """The number of trials recomputed, over every experiment."""
+        return sum(len(v) for v in self.recomputed.values())
+
+
+def provenance(experiments, seed: int | None = None, n_families: int = 1, n_trials: int = 1) -> Provenance:
+    """Check a chapter's experiments against the store on a random sample and describe where their numbers come from.
+
+    The sample is ``verify.verify_sample``'s: ``n_trials`` trials of every experiment in ``n_families`` of their families.
+
+    Parameters
+    ----------
+    experiments : iterable of Experiment
+        The chapter's experiments (those the store lacks are left out).
+    seed : int or None
+        The sample's seed; None: DPE5G_VERIFY_SEED if set, else a new one.
+    n_families, n_trials : int
+        Families sampled, and trials of each of their experiments.
+
+    Returns
+    -------
+    Provenance
+        The seed, the trials recomputed and the table.
+
+    Raises
+    ------
+    AssertionError
+        Naming every mismatch (and ``make reproduce``).
+    """
+    if seed is None:
+        seed = int(os.environ.get("DPE5G_VERIFY_SEED") or random.SystemRandom().randrange(2**31))
+    exps = [e for e in experiments if stored(e) is not None]
+    found, done = verify.verify_sample(seed, exps, n_families, n_trials, log=None)
+    if found:
+        raise AssertionError("\n".join(map(str, found)))
+    return Provenance(seed, dict(done), provenance_markdown(experiments, dict(done)))

@@ -3,7 +3,7 @@
 Per-trial results of every experiment the book and the figures read, keyed by the config
 (``Experiment.config_key``), each entry recording the code that computed it; ``verify`` recomputes a sample of its
 trials against today's code, ``dpe5g reproduce`` rewrites it.  Every entry records a checksum of its arrays
-(``chunk_cache.arrays_digest``), checked whenever it is read: a damaged entry is an ``errors.DamagedEntry`` naming
+(``_io.arrays_digest``), checked whenever it is read: a damaged entry is an ``errors.DamagedEntry`` naming
 the file and ``make reproduce``.
 """
 
@@ -19,35 +19,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ._io import atomic_write, jsonable
-from .chunk_cache import arrays_digest, read_npz
+from ._io import arrays_digest, atomic_write, jsonable, read_npz
 from .errors import DamagedEntry
 from .code_key import code_version, numerics
 from .experiment import Experiment
+from .locations import REPOSITORY, store_root
 from .results import Results
-
-#: the committed results store; DPE5G_STORE names another folder, or "off" to compute everything (tier 2 only)
-STORE_DIR = Path(__file__).resolve().parent.parent / "figures" / "trials"
-def store_root() -> Path | None:
-    """The results store's folder.
-
-    Returns
-    -------
-    Path or None
-        DPE5G_STORE if set ("off": None, no store), else ``STORE_DIR``.
-
-    Raises
-    ------
-    ValueError
-        When DPE5G_STORE names something that is not a folder.
-    """
-    env = os.environ.get("DPE5G_STORE")
-    if env == "off":
-        return None
-    if env and Path(env).exists() and not Path(env).is_dir():
-        raise ValueError(f"DPE5G_STORE={env}: is not a folder (name a results store's folder, or 'off')")
-    return Path(env) if env else STORE_DIR
-
 
 def store_digest() -> str:
     """SHA-256 of the results store's files (names and bytes): what the payloads of ``payload_path`` read besides
@@ -335,7 +312,7 @@ def code_changes(root: Path | None = None) -> list[str]:
     list of str
         Their paths in the repository, sorted; empty where the code is the commit's, or outside git.
     """
-    root = Path(__file__).resolve().parent.parent if root is None else root
+    root = REPOSITORY if root is None else root
     try:
         out = _git("status", "--porcelain", "--untracked-files=all", "--", *CODE_PATHS, root=root)
     except (OSError, subprocess.CalledProcessError):
@@ -359,7 +336,7 @@ def git_commit(root: Path | None = None) -> str | None:
         SHA-256 of ``git diff HEAD`` over them and of every untracked file's name and bytes, ``code_changes``), so
         two results computed from the same changes say so; None outside git.
     """
-    root = Path(__file__).resolve().parent.parent if root is None else root
+    root = REPOSITORY if root is None else root
     try:
         head = _git("rev-parse", "HEAD", root=root).strip()
         changed = code_changes(root)

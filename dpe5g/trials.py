@@ -24,6 +24,7 @@ from .trial_draw import CoChannelDraw, ReuseDraw, TrialDraw, trial_key
 from .experiment import OTDOA_DETECTORS, Experiment, Receiver
 from .nr import C, PAPER
 from .search_config import SearchConfig, WindowFix
+from .spline_bounds import spline_window
 
 #: OTDoA ToA detector settings used by the engine (``dpe5g.otdoa.toa``'s defaults)
 OTDOA_UPSAMPLE = 8
@@ -203,7 +204,7 @@ def bnb_prep_fn(e: Experiment, dep: deployment.Deployment):
     callable
         (trial key, trial index, window, window centres ext (S, J, 4) m of the non-truth centrings) → (the trial's draw fields
         (``trial_fields``), BS positions (I, 3) m, the window centres (S, J, 4) m, the part of each BS's spline
-        correlogram each window reaches (``dpe_nlos.receiver_window``: coefficients (S, J, I, cells + 3) and their first knots
+        correlogram each window reaches (``certified_window``: coefficients (S, J, I, cells + 3) and their first knots
         (S, J, I))).
     """
     draw = draw_fn(e, dep)
@@ -217,7 +218,7 @@ def bnb_prep_fn(e: Experiment, dep: deployment.Deployment):
         def per_snr(a):
             s, cen = a
             coef = correlograms(s)
-            return jax.vmap(lambda c: dpe_nlos.receiver_window(e, coef, d.bs_xyz, c, cfg, window))(cen)
+            return jax.vmap(lambda c: certified_window(e, coef, d.bs_xyz, c, cfg, window))(cen)
 
         sls, starts = jax.lax.map(per_snr, (jnp.arange(d.n_snr), centers))  # (S, J, I, ...)
         return trial_fields(d), d.bs_xyz, centers, sls, starts
@@ -498,3 +499,26 @@ def example(e: Experiment, trial: int, snr_index: int = 0) -> TrialExample:
                         y=a(signal.ofdm_symbol(receiver.spectrum_at(d, snr_index))), y0=a(signal.ofdm_symbol(d.y0)),
                         link_snr_db=a(d.link_snr_db)[snr_index], link_sinr_db=a(d.link_sinr_db)[snr_index],
                         reuse=reuse)
+
+
+def certified_window(e: Experiment, coef, bs_xyz, center, cfg: SearchConfig, window):
+    """The window of the spline correlograms that experiment e's certified search reads: ``marginal_window`` for the
+    NLoS-aware DPE (``dpe_nlos.marginal_window``; ``Receiver.dpe_nlos``, the excess-delay law it assumes, ``Experiment.excess_law``, to
+    ``dpe_nlos.CLOCK_NLOS_QUANTILE``, as the clock window), else ``spline_bounds.spline_window``.  Traceable.
+
+    Parameters
+    ----------
+    e : Experiment
+        The experiment.
+    coef, bs_xyz, center, cfg, window
+        As ``dpe_nlos.marginal_window``'s.
+
+    Returns
+    -------
+    coefficients : float (M, cells + 3)
+    start : int (M,)
+    """
+    if not e.receiver.dpe_nlos:
+        return spline_window(coef, bs_xyz, center, cfg, PAPER)
+    return dpe_nlos.marginal_window(coef, bs_xyz, center, cfg, window, *e.excess_law(), dpe_nlos.CLOCK_NLOS_QUANTILE,
+                                    PAPER)

@@ -12,7 +12,6 @@ must be equal.
 
 from __future__ import annotations
 
-import os
 import random
 import sys
 import time
@@ -362,62 +361,3 @@ def reproduce(experiments, progress: bool = True, client=None, log=sys.stdout) -
     print(f"reproduce: {len(exps)} experiments recomputed and stored, {len(found)} (trial, field) differences "
           f"({time.perf_counter() - t_all:.1f} s)", file=log, flush=True)
     return found
-
-
-@dataclass(frozen=True)
-class Provenance:
-    """Where a chapter's Monte Carlo numbers come from (``provenance``).
-
-    Attributes
-    ----------
-    seed : int
-        The sample's seed.
-    recomputed : dict
-        {experiment name: trials recomputed}.
-    table_md : str
-        The table of entries, Markdown (``report.provenance_markdown``).
-    """
-
-    seed: int
-    recomputed: dict
-    table_md: str
-
-    @property
-    def n_recomputed(self) -> int:
-        """The number of trials recomputed, over every experiment."""
-        return sum(len(v) for v in self.recomputed.values())
-
-
-def provenance(experiments, seed: int | None = None, n_families: int = 1, n_trials: int = 1) -> Provenance:
-    """Check a chapter's experiments against the store on a random sample and describe where their numbers come from.
-
-    The sample is ``verify_sample``'s: ``n_trials`` trials of every experiment in ``n_families`` of their families.
-
-    Parameters
-    ----------
-    experiments : iterable of Experiment
-        The chapter's experiments (those the store lacks are left out).
-    seed : int or None
-        The sample's seed; None: DPE5G_VERIFY_SEED if set, else a new one.
-    n_families, n_trials : int
-        Families sampled, and trials of each of their experiments.
-
-    Returns
-    -------
-    Provenance
-        The seed, the trials recomputed and the table.
-
-    Raises
-    ------
-    AssertionError
-        Naming every mismatch (and ``make reproduce``).
-    """
-    from . import report  # (tables for the chapters: plots and the paper's readings, above the store's checks)
-
-    if seed is None:
-        seed = int(os.environ.get("DPE5G_VERIFY_SEED") or random.SystemRandom().randrange(2**31))
-    exps = [e for e in experiments if store.stored(e) is not None]
-    found, done = verify_sample(seed, exps, n_families, n_trials, log=None)
-    if found:
-        raise AssertionError("\n".join(map(str, found)))
-    return Provenance(seed, dict(done), report.provenance_markdown(experiments, dict(done)))

@@ -212,7 +212,7 @@ def test_certified_search_finds_the_exhaustive_maximum_of_the_nlos_aware_cost(ur
     umi = scenario.TR38901_EXCESS_DELAY["UMi"]
     window = jnp.asarray(correlogram.window_spectrum(CFG.n_taps, PAPER.n_fft))
     aware = jax.jit(lambda coef, bs, c: dpe_nlos.marginal_window(coef, bs, c, CFG, window, umi.median_s, umi.sigma_lg,
-                                                                 experiment.CLOCK_NLOS_QUANTILE))
+                                                                 dpe_nlos.CLOCK_NLOS_QUANTILE))
     search = jax.jit(lambda sl, st, bs, c: certified_search.certified_search((sl, st), bs, c, CFG))
     for ex, center in items[:3]:
         coef = correlogram.spline_correlogram(ex.y, ex.prs, CFG.n_taps, CFG.spline_upsample)

@@ -74,7 +74,7 @@ def test_marginal_window_is_eq_d1_on_the_knots_the_search_reads():
     coef = correlogram.spline_correlogram(y, nr.prs_matrix(range(4)), cfg.n_taps, cfg.spline_upsample)
     center = jnp.asarray([ue[0] + 6.0, ue[1] + 6.0, ue[2], 0.0])
     got, start = (np.asarray(a) for a in dpe_nlos.marginal_window(
-        coef, bs, center, cfg, window, UMI.median_s, UMI.sigma_lg, experiment.CLOCK_NLOS_QUANTILE))
+        coef, bs, center, cfg, window, UMI.median_s, UMI.sigma_lg, dpe_nlos.CLOCK_NLOS_QUANTILE))
     c = np.asarray(coef)
     k = c.shape[1]
     v = (np.roll(c, 1, 1) + 4 * c + np.roll(c, -1, 1)) / 6

@@ -8,7 +8,7 @@ import os
 import numpy as np
 import pytest
 
-from dpe5g import catalog, engine, figures, otdoa, paper, store, verify
+from dpe5g import catalog, engine, figures, locations, otdoa, paper, store, verify
 
 #: the store's size budget: 25 MB in all (issue 31), 30 MB since the UMi excess-delay runs (issue 41), 50 MB with the
 #: ray-traced city (issue 45)
@@ -18,7 +18,7 @@ STORE_BUDGET_BYTES = 50_000_000
 def test_store_holds_every_experiment_the_book_and_figures_read():
     missing = [e.run.name for e in catalog.store_experiments() if store.stored(e) is None]
     assert not missing, f"the results store lacks {missing}; run `make reproduce`"
-    entries = sorted(p for p in store.STORE_DIR.rglob("*") if p.is_file())  # the traced cities' folder too
+    entries = sorted(p for p in locations.STORE_DIR.rglob("*") if p.is_file())  # the traced cities' folder too
     size = sum(p.stat().st_size for p in entries)
     assert size <= STORE_BUDGET_BYTES, \
         f"results store is {size / 1e6:.1f} MB, over its {STORE_BUDGET_BYTES / 1e6:g} MB budget"
@@ -247,8 +247,8 @@ def test_a_damaged_entry_is_named_and_make_reproduce_repairs_it(small, tmp_path,
 
 
 def test_every_committed_entry_matches_its_checksum():
-    assert [str(d) for d in store.check_store(store.STORE_DIR)] == []
-    for meta in store.STORE_DIR.glob("*.json"):
+    assert [str(d) for d in store.check_store(locations.STORE_DIR)] == []
+    for meta in locations.STORE_DIR.glob("*.json"):
         assert len(json.loads(meta.read_text())["arrays_sha256"]) == 64, meta
 
 
