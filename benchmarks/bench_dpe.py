@@ -21,8 +21,9 @@ import numpy as np
 
 from benchutil import median_time, write
 
-from dpe5g import certified_search, correlogram, cost, dpe, nr, search_config, signal
-from dpe5g.nr import PAPER
+from dpe5g.phy import nr, signal
+from dpe5g.receivers import certified_search, correlogram, cost, dpe, search_config
+from dpe5g.phy.nr import PAPER
 
 #: rounds of the honest-fix timing (median of 20 runs each)
 ROUNDS = 5

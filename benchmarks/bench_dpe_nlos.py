@@ -20,7 +20,9 @@ import numpy as np
 
 from benchutil import median_time, write
 
-from dpe5g import certified_search, correlogram, dpe_nlos, experiment, nlos_study, receiver, spline_bounds, trials
+from dpe5g.receivers import certified_search, correlogram, dpe_nlos, receiver, spline_boxes
+from dpe5g.simulation import experiment, trials
+from dpe5g.studies import nlos as nlos_study
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
@@ -34,7 +36,7 @@ def main() -> None:
     e = nlos_study.fig10_clock_nlos()["two_of_four"]
     cfg, sc = e.receiver_search(), e.scenario
     window = jnp.asarray(receiver.receiver_window(cfg, sc.prs_reuse))
-    windows = {"naive (eq. (10))": jax.jit(lambda c, b, x: spline_bounds.spline_window(c, b, x, cfg)),
+    windows = {"naive (eq. (10))": jax.jit(lambda c, b, x: spline_boxes.spline_window(c, b, x, cfg)),
                "NLoS-aware (eq. (D1))": jax.jit(lambda c, b, x: dpe_nlos.marginal_window(
                    c, b, x, cfg, window, sc.nlos_excess_median_s, sc.nlos_excess_sigma_lg,
                    dpe_nlos.CLOCK_NLOS_QUANTILE))}

@@ -39,15 +39,19 @@ import numpy as np
 
 from benchutil import median_time, write
 
-from dpe5g import correlogram, deployment, draw, engine, grid_search, otdoa, paper, receiver, trial_draw, trials
-from dpe5g.nr import C, PAPER
+from dpe5g.phy import deployment
+from dpe5g.receivers import correlogram, grid_search, otdoa, receiver
+from dpe5g.simulation import draw, engine, trial_draw, trials
+from dpe5g.studies import paper
+from dpe5g.phy.nr import C, PAPER
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
 
 RUN_FIG9 = """
 import json, sys, time
-from dpe5g import engine, paper
+from dpe5g import engine
+from dpe5g.studies import paper
 n, cache = int(sys.argv[1]), sys.argv[2]
 t0 = time.perf_counter()
 engine.run(paper.fig9_truth(100), cache=cache, progress=False)
@@ -59,7 +63,8 @@ print(json.dumps({"first_chunk_s": t1 - t0, "total_s": time.perf_counter() - t0}
 
 RUN_HONEST = """
 import json, sys, time
-from dpe5g import engine, paper
+from dpe5g import engine
+from dpe5g.studies import paper
 n, cache, workers = int(sys.argv[1]), sys.argv[2], int(sys.argv[3])
 engine.run(paper.fig9_honest(1), cache=cache, progress=False, workers=workers)  # compile
 t0 = time.perf_counter()

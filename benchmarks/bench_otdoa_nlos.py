@@ -20,8 +20,9 @@ import numpy as np
 
 from benchutil import median_time, write
 
-from dpe5g import cost, nr, otdoa, otdoa_nlos, signal
-from dpe5g.nr import C
+from dpe5g.phy import nr, signal
+from dpe5g.receivers import cost, otdoa, otdoa_nlos
+from dpe5g.phy.nr import C
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 

@@ -30,7 +30,8 @@ ROOT = os.path.dirname(HERE)
 
 SCRIPT = textwrap.dedent("""
     import sys, numpy as np
-    from dpe5g import engine, experiment, results, search_config
+    from dpe5g import engine, experiment, results
+    from dpe5g.receivers import search_config
     SMALL = dict(n_trials=4, seed=3, snrs_db=(15.0, 30.0), m_values=(4, 6))
     EXPERIMENTS = {
         "grid": dict(name="xla-grid", search=dict(half_width_m=3.0, bias_half_width_m=3.0)),

@@ -1,11 +1,12 @@
 """dpe5g: reproducible companion to "5G Direct Position Estimation for Precise Localization in Dense Urban Area".
 
-Modules are named after the paper's objects: ``nr`` (numerology, PRS), ``channel`` (TR 38.901 TDL, eqs. (1)–(2)),
-``signal`` (eqs. (3)–(6)), ``correlogram`` (the LS CIR estimate both receivers share), ``cost`` (eqs. (7)–(10)),
-``search_config``, ``grid_search`` and ``certified_search`` (the two searches), ``receiver`` (correlograms → fix),
-``dpe`` (the public fix), ``otdoa``, ``deployment`` and ``scenario`` (Section III); the Monte Carlo of Section IV as a
-pipeline: ``experiment`` → ``draw`` → ``trials`` → ``engine`` → ``store`` → ``results``; ``paper`` (the paper's
-experiments), ``figures`` (one registered producer per figure) and ``plots`` (their drawing).
+Subpackages follow the data flow, each module named after the paper's object it holds: ``phy`` (numerology and PRS,
+the TDL channel, the signal model, propagation, deployments) → ``receivers`` (correlograms, the ML cost, DPE and its
+searches, OTDoA, the NLoS-aware receivers) and ``city`` (the ray-traced city) → ``simulation`` (the Monte Carlo:
+experiment, draws, trials, engine, cache, store, results) → ``bounds`` → ``studies`` (the book's experiments and their
+statistics) → ``figures`` (the paper's figures and the book's tables) → ``cli``; ``common`` holds what all share.
+The modules a user calls are importable from the top, ``from dpe5g import dpe, otdoa, cost, nr, signal, channel,
+deployment, experiment, engine, results`` (``PUBLIC``, loaded on first use).
 
 Importing the package turns on JAX float64: ToAs are ~1e-6 s and must be resolved to ~1e-10 s, and the phases
 k Δf τ reach hundreds of cycles, which float32 cannot carry to the precision the estimators need.
@@ -91,3 +92,45 @@ if _jax_cache != "off" and not jax.config.jax_compilation_cache_dir:
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 __version__ = "0.1.0"
+
+#: the modules a user calls, by their top-level name: ``from dpe5g import dpe`` loads ``dpe5g.receivers.dpe``
+PUBLIC = {"nr": "phy.nr", "channel": "phy.channel", "signal": "phy.signal", "deployment": "phy.deployment",
+          "cost": "receivers.cost", "dpe": "receivers.dpe", "otdoa": "receivers.otdoa",
+          "experiment": "simulation.experiment", "engine": "simulation.engine", "results": "simulation.results"}
+
+#: where the other modules of the flat layout (0.1.0 until the subpackages) went: still importable from the top, with a
+#: DeprecationWarning naming the new place (``figures``, ``bounds``, ``studies`` and ``cli`` are the subpackages now)
+MOVED = {"correlogram": "receivers.correlogram", "search_config": "receivers.search_config",
+         "grid_search": "receivers.grid_search", "certified_search": "receivers.certified_search",
+         "spline_bounds": "receivers.spline_boxes", "receiver": "receivers.receiver", "dpe_nlos": "receivers.dpe_nlos",
+         "otdoa_nlos": "receivers.otdoa_nlos", "toa_fit": "receivers.toa_fit", "scenario": "phy.propagation",
+         "ray_tracer": "city.ray_tracer", "city_trace": "city.trace", "city_paths": "city.dataset",
+         "city_view": "city.view", "trial_draw": "simulation.trial_draw", "draw": "simulation.draw",
+         "city_draw": "simulation.traced_draw", "trials": "simulation.trials", "cluster": "simulation.cluster",
+         "code_key": "simulation.code_key", "chunk_cache": "simulation.chunk_cache", "store": "simulation.store",
+         "verify": "simulation.verify", "nlos_bounds": "bounds.misspecified", "paper": "studies.paper",
+         "readings": "studies.readings", "nlos_study": "studies.nlos", "city_study": "studies.city",
+         "city_channel": "studies.city_channel", "city_errors": "studies.city_errors",
+         "city_sensitivity": "studies.city_sensitivity", "intervals": "studies.intervals",
+         "significance": "studies.significance", "catalog": "studies.catalog", "figure_data": "figures.data",
+         "plots": "figures.plots", "result_plots": "figures.result_plots", "reuse_plots": "figures.reuse_plots",
+         "city_plots": "figures.city_plots", "report": "figures.tables", "scene3d": "figures.scene3d",
+         "errors": "common.errors", "locations": "common.locations"}
+
+
+def __getattr__(name: str):
+    """``PUBLIC``'s modules and the flat layout's ``MOVED`` ones, loaded on first use (PEP 562)."""
+    import importlib
+    import warnings
+
+    if name in PUBLIC:
+        return importlib.import_module(f"{__name__}.{PUBLIC[name]}")
+    if name in MOVED:
+        warnings.warn(f"dpe5g.{name} moved to dpe5g.{MOVED[name]}; import it from there", DeprecationWarning,
+                      stacklevel=2)
+        return importlib.import_module(f"{__name__}.{MOVED[name]}")
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *PUBLIC})

@@ -1,5 +1,5 @@
 """``python -m dpe5g``: the command line (``cli``)."""
 
-from .cli import entry
+from .cli.main import entry
 
 entry()

@@ -26,7 +26,7 @@ RINGS = (("ring_deployment.json", "ring", 5.0), ("ring_wide_deployment.json", "r
 
 
 def ring(name: str, ue_half_m: float) -> dict:
-    """The deployment document of one ring, in ``dpe5g.deployment.load_deployment``'s JSON schema."""
+    """The deployment document of one ring, in ``dpe5g.phy.deployment.load_deployment``'s JSON schema."""
     square = lambda h: {"x_min_m": -h, "y_min_m": -h, "x_max_m": h, "y_max_m": h}
     bss = []
     for i in range(N_BS):

@@ -240,7 +240,7 @@ def found_text(book: bool = False) -> str:
     files = {m.group(1): f"`chapters/{p.name}`" for p in sorted((ROOT / "chapters").glob("*.md"))
              for m in [re.search(r"^\((chapter-[\w-]+)\)=$", p.read_text(), re.M)] if m}
     ref = lambda label, text: f"{{numref}}`{text} <{label}>`" if book else files[label]
-    from dpe5g import report
+    from dpe5g.figures import tables as report
 
     p9, p10 = _load("figures/data/fig09_rmse_vs_snr.json"), _load("figures/data/fig10_cdf_dpe_vs_otdoa.json")
     c, d = p9["config"], p9["data"]
@@ -291,14 +291,14 @@ def found_text(book: bool = False) -> str:
 @functools.lru_cache(maxsize=1)
 def city_summary() -> dict:
     """``city_study.summary()``, computed once per process: README and the landing page both show it (10 s each)."""
-    from dpe5g import city_study
+    from dpe5g.studies import city as city_study
 
     return city_study.summary()
 
 
 def city_line(ref) -> str:
     """README's line on the ray-traced city (``city_study.summary``, from the results store)."""
-    from dpe5g import city_study
+    from dpe5g.studies import city as city_study
 
     c = city_summary()
     v, lo, hi = c["diff_p90"]
@@ -325,7 +325,7 @@ def city_line(ref) -> str:
 
 
 def readings_table() -> str:
-    from dpe5g import report
+    from dpe5g.figures import tables as report
 
     p = _load("figures/data/readings_table.json")
     data, s = p["data"], report.readings_summary(p)
@@ -360,7 +360,8 @@ def store_text() -> str:
 
 
 def coverage_text() -> str:
-    from dpe5g import catalog, verify
+    from dpe5g.simulation import verify
+    from dpe5g.studies import catalog
 
     n = len(verify.families(catalog.store_experiments()))
     mean, q95 = verify.coverage_runs(n, verify.SAMPLE_FAMILIES)

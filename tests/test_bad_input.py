@@ -13,27 +13,29 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dpe5g import channel, deployment, experiment, scenario, search_config, signal
+from dpe5g.phy import channel, deployment, propagation, signal
+from dpe5g.receivers import search_config
+from dpe5g.simulation import experiment
 
 KEY = jax.random.PRNGKey(0)
 TST = deployment.tst()
 
 #: (name of the row, f(value), parameter named in the error, lo, hi)
 ENTRY_POINTS = [
-    ("los_probability", lambda v: scenario.los_probability(v), "d2d_m", 0.0, scenario.MAX_D2D_M),
-    ("path_loss d2d", lambda v: scenario.path_loss_umi_db(v, 10.0, 1.5, 3e9, True), "d2d_m", 0.0, scenario.MAX_D2D_M),
-    ("path_loss h_bs", lambda v: scenario.path_loss_umi_db(50.0, v, 1.5, 3e9, True), "h_bs_m", 1.5, 150.0),
-    ("path_loss h_ut", lambda v: scenario.path_loss_umi_db(50.0, 10.0, v, 3e9, False), "h_ut_m", 1.0, 22.5),
-    ("path_loss fc", lambda v: scenario.path_loss_umi_db(50.0, 10.0, 1.5, v, True), "fc_hz", 0.5e9, 100e9),
-    ("clock_bias sigma", lambda v: scenario.clock_bias(KEY, v, 3.0, (4,)), "sigma_s", 0.0, 1e-6),
-    ("clock_bias bound", lambda v: scenario.clock_bias(KEY, 5e-9, v, (4,)), "bound_sigmas", 0.1, 10.0),
+    ("los_probability", lambda v: propagation.los_probability(v), "d2d_m", 0.0, propagation.MAX_D2D_M),
+    ("path_loss d2d", lambda v: propagation.path_loss_umi_db(v, 10.0, 1.5, 3e9, True), "d2d_m", 0.0, propagation.MAX_D2D_M),
+    ("path_loss h_bs", lambda v: propagation.path_loss_umi_db(50.0, v, 1.5, 3e9, True), "h_bs_m", 1.5, 150.0),
+    ("path_loss h_ut", lambda v: propagation.path_loss_umi_db(50.0, 10.0, v, 3e9, False), "h_ut_m", 1.0, 22.5),
+    ("path_loss fc", lambda v: propagation.path_loss_umi_db(50.0, 10.0, 1.5, v, True), "fc_hz", 0.5e9, 100e9),
+    ("clock_bias sigma", lambda v: propagation.clock_bias(KEY, v, 3.0, (4,)), "sigma_s", 0.0, 1e-6),
+    ("clock_bias bound", lambda v: propagation.clock_bias(KEY, 5e-9, v, (4,)), "bound_sigmas", 0.1, 10.0),
     ("tdl_profile delay spread", lambda v: channel.tdl_profile("C", v).delays_s, "delay_spread_s",
      channel.MIN_DELAY_SPREAD_S, channel.MAX_DELAY_SPREAD_S),
     ("rms_delay_spread delays", lambda v: channel.rms_delay_spread([0.0, v], [1.0, 0.5]), "delays_s", 0.0, 1e6),
     ("rms_delay_spread powers", lambda v: channel.rms_delay_spread([0.0, 1e-7], [1.0, v]), "powers", 0.0, math.inf),
     ("snr", lambda v: signal.check_snr_db(v), "snr_db", -50.0, 100.0),
     ("nearest", lambda v: TST.nearest([v, 100.0], 3), "ue_xy", -1e6, 1e6),
-    ("link budget fc", lambda v: scenario.LinkBudget(fc_hz=v).noise_dbm, "fc_hz", 0.5e9, 100e9),
+    ("link budget fc", lambda v: propagation.LinkBudget(fc_hz=v).noise_dbm, "fc_hz", 0.5e9, 100e9),
     ("search half width", lambda v: search_config.SearchConfig(half_width_m=v).half_width_m, "half_width_m", 0.1,
      1000.0),
     ("experiment clock", lambda v: experiment.Scenario(clock_sigma_s=v).clock_sigma_s, "clock_sigma_s", 0.0, 1e-6),
@@ -84,13 +86,14 @@ def test_a_traced_call_is_not_checked_but_its_inputs_were():
     """Inside jit the values are not known: the check passes the tracer through (the engine validated its inputs
     before tracing), and the numbers are the untraced call's."""
     d = np.array([5.0, 30.0, 300.0])
-    np.testing.assert_array_equal(jax.jit(scenario.los_probability)(d), scenario.los_probability(d))
+    np.testing.assert_array_equal(jax.jit(propagation.los_probability)(d), propagation.los_probability(d))
 
 
 def test_dpe_fix_refuses_nan_samples_and_empty_pilots():
     """The public fix (``dpe.fix``) on a user's signals: a NaN sample or a link whose pilots are all zero is a
     ValueError, not a NaN fix."""
-    from dpe5g import dpe, nr
+    from dpe5g.phy import nr
+    from dpe5g.receivers import dpe
 
     prs = np.asarray(nr.prs_matrix(range(3)))
     y = np.array(prs)

@@ -1,4 +1,4 @@
-"""Cramér–Rao bounds (``dpe5g.bounds``) against independent NumPy evaluations, the closed forms, and a Monte Carlo of
+"""Cramér–Rao bounds (``dpe5g.bounds.crb``) against independent NumPy evaluations, the closed forms, and a Monte Carlo of
 the ML ToA."""
 
 import jax
@@ -7,8 +7,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dpe5g import bounds, channel, engine, experiment, paper, trials
-from dpe5g.nr import C, PAPER
+from dpe5g.phy import channel
+from dpe5g.simulation import engine, experiment, trials
+from dpe5g.bounds import crb as bounds
+from dpe5g.studies import paper
+from dpe5g.phy.nr import C, PAPER
 
 
 def _fisher_by_jacobian(freqs, gains, delays, noise_var):

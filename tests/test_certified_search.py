@@ -8,9 +8,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from dpe5g import (certified_search, correlogram, cost, dpe_nlos, experiment, scenario, search_config, spline_bounds,
-                   trials)
-from dpe5g.nr import C, PAPER
+from dpe5g.phy import propagation
+from dpe5g.receivers import certified_search, correlogram, cost, dpe_nlos, search_config, spline_boxes
+from dpe5g.simulation import experiment, trials
+from dpe5g.phy.nr import C, PAPER
 
 N_TRIALS = 16  # each costs an exhaustive evaluation of its window (about 2.5 s)
 CFG = search_config.SearchConfig(method="bnb", half_width_m=8.0, bias_half_width_m=3 * 5e-9 * C)
@@ -35,7 +36,7 @@ def _exhaustive_fn(cfg, step):
             xy = jnp.stack([jnp.full(ax.shape, center[0] + x), center[1] + ax], -1)
             d = jnp.sqrt(jnp.sum((xy[:, None, :] - bs[None, :, :2]) ** 2, -1) + (center[2] - bs[None, :, 2]) ** 2)
             pos = (d[:, None, :] + center[3] + ab[None, :, None]) / cell_m  # (XY, B, M)
-            return jnp.max(spline_bounds.spline_values(coef, pos))
+            return jnp.max(spline_boxes.spline_values(coef, pos))
 
         return jnp.max(jax.lax.map(row, jnp.asarray(ax)))
 
@@ -66,7 +67,7 @@ def test_certified_search_finds_the_exhaustive_maximum(urban_trials):
         # the returned cost is the spline at the returned point, and no grid point beats it by more than 1e-4
         q = np.asarray(r.q)
         pos = (np.linalg.norm(q[:3] - ex.bs_xyz, axis=1) + q[3]) / (C * PAPER.sample_period_s / CFG.spline_upsample)
-        assert float(spline_bounds.spline_values(coef, jnp.asarray(pos))) == pytest.approx(float(r_cost), rel=1e-12)
+        assert float(spline_boxes.spline_values(coef, jnp.asarray(pos))) == pytest.approx(float(r_cost), rel=1e-12)
         worst = min(worst, float(r_cost) / best)
         n_cert += bool(r.certified)
         if bool(r.certified):  # a certified fix bounds the maximum of the whole window, grid or not
@@ -133,7 +134,7 @@ def test_spline_correlogram_is_exact_at_the_knots():
     assert np.max(np.abs(vals - ref)) <= 1e-10 * ref.max()
     tau = np.asarray(cost.toa(ex.ue_xyz, ex.bs_xyz, float(ex.clock_bias_s)))[None] + np.linspace(-30e-9, 30e-9, 41)[:, None]
     exact = np.asarray(cost.ml_cost(ex.y, ex.prs, tau, 12, PAPER.scs_hz))
-    spl = np.asarray(spline_bounds.spline_values(coef, jnp.asarray(tau / PAPER.sample_period_s * 8)))
+    spl = np.asarray(spline_boxes.spline_values(coef, jnp.asarray(tau / PAPER.sample_period_s * 8)))
     assert np.max(np.abs(spl - exact)) <= 1e-4 * exact.max()
 
 
@@ -168,7 +169,7 @@ def test_first_path_window_is_the_weighted_cost():
                   for l in range(12))
     np.testing.assert_allclose(exact, one_tap, rtol=1e-9)
     coef = correlogram.spline_correlogram(ex.y, ex.prs, 12, 8, weights=w)
-    spl = np.asarray(spline_bounds.spline_values(coef, jnp.asarray(tau / PAPER.sample_period_s * 8)))
+    spl = np.asarray(spline_boxes.spline_values(coef, jnp.asarray(tau / PAPER.sample_period_s * 8)))
     assert np.max(np.abs(spl - exact)) <= 1e-4 * exact.max()
 
 
@@ -209,7 +210,7 @@ def test_certified_search_finds_the_exhaustive_maximum_of_the_nlos_aware_cost(ur
     windows: the certified search reads only the window's coefficients, and the brute force reads them too (put
     back at their knots of the period, zeros elsewhere, where no ToA of the window reaches)."""
     e, items = urban_trials
-    umi = scenario.TR38901_EXCESS_DELAY["UMi"]
+    umi = propagation.TR38901_EXCESS_DELAY["UMi"]
     window = jnp.asarray(correlogram.window_spectrum(CFG.n_taps, PAPER.n_fft))
     aware = jax.jit(lambda coef, bs, c: dpe_nlos.marginal_window(coef, bs, c, CFG, window, umi.median_s, umi.sigma_lg,
                                                                  dpe_nlos.CLOCK_NLOS_QUANTILE))

@@ -4,8 +4,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from dpe5g import channel
-from dpe5g.nr import PAPER
+from dpe5g.phy import channel
+from dpe5g.phy.nr import PAPER
 
 NAMES = list("ABCDE")
 

@@ -9,9 +9,13 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from dpe5g import city_draw, city_paths, city_study, city_trace, otdoa, ray_tracer, signal, trial_draw
-from dpe5g.experiment import Experiment
-from dpe5g.nr import C
+from dpe5g.phy import signal
+from dpe5g.receivers import otdoa
+from dpe5g.city import dataset as city_paths, ray_tracer, trace as city_trace
+from dpe5g.simulation import traced_draw, trial_draw
+from dpe5g.studies import city as city_study
+from dpe5g.simulation.experiment import Experiment
+from dpe5g.phy.nr import C
 
 #: UEs re-traced per run (each against every BS), drawn from the run's verification seed
 RETRACE_UES = 3
@@ -71,9 +75,9 @@ def test_the_traced_source_runs_the_one_signal_model(city):
     synthesis of eqs. (3)–(5)), and its links are the strongest the UE hears, at the detection SNR or above."""
     e = city_study.city_fig10(4, "truth", n_trials=5)
     dep = e.load_deployment()
-    draw = city_draw.draw_fn(e, dep)
-    _, links = city_draw.population(e)
-    heard = city_draw.heard_links(e, city, dep)
+    draw = traced_draw.draw_fn(e, dep)
+    _, links = traced_draw.population(e)
+    heard = traced_draw.heard_links(e, city, dep)
     table = np.where(heard[city.link_table()] & (city.link_table() >= 0), city.link_table(), -1)
     toa = lambda d: np.linalg.norm(np.asarray(d.bs_xyz) - np.asarray(d.ue_xyz), axis=1) / C
     for t in (0, 4):
@@ -87,7 +91,7 @@ def test_the_traced_source_runs_the_one_signal_model(city):
         row = table[links.ue_index[t]]
         assert np.all(row[np.asarray(d.bs_index)] >= 0)
         assert np.isclose(links.power_db[t, 0], city.power_db[row[row >= 0]].max())
-        assert np.all(np.asarray(d.link_snr_db) >= city_draw.DETECTION_SNR_DB)
+        assert np.all(np.asarray(d.link_snr_db) >= traced_draw.DETECTION_SNR_DB)
     assert np.all((table[links.ue_index] >= 0).sum(axis=1) >= 4)
     assert not np.any(((table >= 0).sum(axis=1) >= 4)[np.setdiff1d(np.arange(city.n_ue), links.ue_index)])
 
@@ -99,7 +103,7 @@ def test_traced_channel_bad_input():
         Experiment.build(name="x", channel="traced", deployment=city_study.CITY, prs_reuse=6, snr_mode="link_budget")
     e = city_study.city_fig10(8, "truth", n_trials=100_000)
     with pytest.raises(ValueError, match="n_trials must be at most"):
-        city_draw.population(e)
+        traced_draw.population(e)
 
 
 def test_a_missing_llvm_is_one_line_naming_the_package(monkeypatch):
@@ -123,7 +127,7 @@ def test_the_stored_city_is_current_so_make_reproduce_does_not_trace_it_again(ci
 
 def test_the_3d_view_is_of_the_first_trial(city):
     view = city_paths.load_view(city.name)
-    _, links = city_draw.population(city_study.city_fig10(city_study.CITY_M[0], "otdoa", n_trials=1))
+    _, links = traced_draw.population(city_study.city_fig10(city_study.CITY_M[0], "otdoa", n_trials=1))
     assert int(view["ue"]) == links.ue_index[0] and np.array_equal(view["ue_bs"], links.bs_index[0])
     lines = np.split(view["points"], view["start"][1:-1])
     assert all(np.allclose(line[0], city.bs_xyz[links.bs_index[0][b]]) and np.allclose(line[-1], city.ue_xyz[
@@ -212,7 +216,7 @@ def test_the_trials_links_are_heard_links_are_traced_links(city):
     """``link_populations``: the trial links (each trial's UE with its four strongest heard links) within the heard
     links within the traced links, their LoS states the trials'; another experiment's run is refused."""
     e = city_study.city_fig10(city_study.CITY_M[0], "otdoa")
-    _, links = city_draw.population(e)
+    _, links = traced_draw.population(e)
     t = e.run.n_trials
     res = SimpleNamespace(ue_xyz=city.ue_xyz[links.ue_index[:t]], bs_index=links.bs_index[:t], los=links.los[:t])
     pops = city_study.link_populations(city, e, res)

@@ -8,8 +8,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from dpe5g import channel, city_channel, city_errors, city_paths, city_study, engine, otdoa
-from dpe5g.nr import C
+from dpe5g.phy import channel
+from dpe5g.receivers import otdoa
+from dpe5g.city import dataset as city_paths
+from dpe5g.simulation import engine
+from dpe5g.studies import city as city_study, city_channel, city_errors
+from dpe5g.phy.nr import C
 
 #: a LoS link of two paths: the direct one (power 1, at d/c) and one 40 ns later a quarter as strong, padded to K = 3
 TWO_PATHS = (np.array([[0.0, 40e-9, 0.0]]), np.array([[1.0, 0.5j, 0.0]]))
@@ -143,7 +147,7 @@ def test_hearability_counts_the_heard_pairs_and_the_standards_probability():
     """The traced share of a bin is ``city_draw.heard_links``' share of its pairs; under the standard's model a pair
     whose median received power is the least heard is heard with probability 1/2, and the probability falls with
     distance; every pair is counted once."""
-    from dpe5g import city_draw
+    from dpe5g.simulation import traced_draw
 
     city = city_paths.load_city(city_study.CITY)
     e = city_study.city_fig10(4, "otdoa", n_trials=1)
@@ -152,7 +156,7 @@ def test_hearability_counts_the_heard_pairs_and_the_standards_probability():
     h = city_channel.hearability(city, e, dep, edges)
     assert h.n_pairs.sum() == city.n_ue * city.n_bs
     d = np.linalg.norm(city.ue_xyz[city.link_ue, :2] - city.bs_xyz[city.link_bs, :2], axis=-1)
-    heard = city_draw.heard_links(e, city, dep)
+    heard = traced_draw.heard_links(e, city, dep)
     sel = city.los & (d >= 50.0) & (d < 100.0)
     assert h.traced[0, 1] == pytest.approx(heard[sel].sum() / h.n_pairs[0, 1], abs=1e-12)
     assert np.all(np.diff(h.umi[1]) < 0)

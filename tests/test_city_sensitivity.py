@@ -4,7 +4,8 @@ traced with the city's settings is the stored city's, and settings that cannot m
 import numpy as np
 import pytest
 
-from dpe5g import city_paths, city_sensitivity, city_study, city_trace
+from dpe5g.city import dataset as city_paths, trace as city_trace
+from dpe5g.studies import city as city_study, city_sensitivity
 
 
 @pytest.fixture(scope="module")
@@ -60,14 +61,15 @@ def test_settings_that_mean_nothing_are_refused():
 def test_each_subset_runs_as_a_deployment_of_its_own(city):
     """Its deployment is the city's BSs, found by name in the store (``deployment.builtin``); its experiment runs
     every UE of the subset that hears M BSs, and no more (``city_draw.population`` refuses one trial more)."""
-    from dpe5g import city_draw, deployment
+    from dpe5g.phy import deployment
+    from dpe5g.simulation import traced_draw
 
     assert deployment.builtin("munich-settings-nothing") is None and deployment.builtin("../munich") is None
     for key in city_sensitivity.VARIANTS:
         e = city_sensitivity.settings_experiment(key)
         assert deployment.builtin(e.scenario.deployment) is not None
         np.testing.assert_allclose(e.load_deployment().bs_xyz, city.bs_xyz)
-        sub, links = city_draw.population(e)
+        sub, links = traced_draw.population(e)
         assert sub.name == city_sensitivity.variant_name(city.name, key) and len(links.ue_index) == e.run.n_trials
         with pytest.raises(ValueError, match="n_trials must be at most"):
-            city_draw.population(e.replace(n_trials=e.run.n_trials + 1))
+            traced_draw.population(e.replace(n_trials=e.run.n_trials + 1))

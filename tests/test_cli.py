@@ -10,7 +10,10 @@ from pathlib import Path
 
 import pytest
 
-from dpe5g import catalog, chunk_cache, cli, experiment, paper, search_config
+from dpe5g.receivers import search_config
+from dpe5g.simulation import chunk_cache, experiment
+from dpe5g.studies import catalog, paper
+from dpe5g.cli import main as cli
 
 ROOT = cli.BASELINE_DIR.parent
 
@@ -319,7 +322,7 @@ def test_run_otdoa_centring_on_a_users_deployment(workdir, capsys):
 def test_scene_of_a_users_deployment(workdir, monkeypatch, capsys):
     """``dpe5g scene --deployment FILE``: the 3-D scene of the user's 4-BS deployment (its BSs, the example UE's
     links to all 4, the correlogram of its fix), not ours."""
-    from dpe5g import scene3d
+    from dpe5g.figures import scene3d
 
     real, drawn = scene3d.export, []
     monkeypatch.setattr(scene3d, "export", lambda p7, p8, *a, **kw: drawn.append((p7, p8)) or real(p7, p8, *a, **kw))
@@ -390,7 +393,7 @@ def test_the_real_baselines_are_not_touched_by_a_refusal(capsys):
 
 @pytest.mark.book
 def test_figures_with_a_trial_count(tmp_path):
-    """``dpe5g figures --trials N`` runs the paper's experiment (``dpe5g.paper``) with N trials.  Marked "book": it
+    """``dpe5g figures --trials N`` runs the paper's experiment (``dpe5g.studies.paper``) with N trials.  Marked "book": it
     compiles Fig. 9's three programs, which the book has put in JAX's compilation cache by then (beside the book's own
     compiles, at low priority, it took 536-600+ s of the 2-core machine; after it, about 20 s)."""
     env = {**os.environ, "DPE5G_CACHE": str(tmp_path / "cache")}
@@ -415,7 +418,7 @@ def test_warm_fills_the_cache_with_the_books_runs(workdir, monkeypatch, capsys):
 def test_a_concurrent_writer_of_the_same_out_is_refused_never_replaced(workdir, monkeypatch, capsys):
     """Two runs with one --out: both pass the "exists" check before computing; the one that finishes second fails
     with one line (exit 2) and the first one's file stays, byte for byte, with no temporary file left."""
-    from dpe5g import engine
+    from dpe5g.simulation import engine
 
     real = engine.run
 

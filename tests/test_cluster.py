@@ -4,7 +4,8 @@ clear errors for bad cluster options."""
 import numpy as np
 import pytest
 
-from dpe5g import chunk_cache, cluster, code_key, engine, experiment, search_config, store
+from dpe5g.receivers import search_config
+from dpe5g.simulation import chunk_cache, cluster, code_key, engine, experiment, store
 
 #: the truth-centred grid search: the quickest engine to compile, in each worker as in this process
 SMALL = dict(n_trials=6, chunk_trials=2, snrs_db=(10.0, 30.0), m_values=(4, 6),
@@ -74,7 +75,7 @@ def test_a_worker_running_other_code_is_refused(tmp_path):
     import subprocess
     import sys
 
-    from dpe5g.errors import ClusterFailed
+    from dpe5g.common.errors import ClusterFailed
 
     other = tmp_path / "other"
     shutil.copytree(os.path.dirname(experiment.__file__), other / "dpe5g",
@@ -106,7 +107,7 @@ def test_a_worker_killed_repeatedly_is_one_line(tmp_path):
     import dask
     from distributed import Client
 
-    from dpe5g.errors import ClusterFailed
+    from dpe5g.common.errors import ClusterFailed
 
     chunks = chunk_cache.ChunkCache(experiment.Experiment.build(name="dask", **SMALL), tmp_path).open()
     with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
@@ -138,7 +139,7 @@ def test_a_lost_scheduler_is_one_line_from_the_command_line(tmp_path, monkeypatc
     import threading
     import time
 
-    from dpe5g import cli
+    from dpe5g.cli import main as cli
 
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("DPE5G_CACHE", str(tmp_path / "cache"))

@@ -4,8 +4,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dpe5g import correlogram, cost, dpe, grid_search, nr, search_config, signal, spline_bounds
-from dpe5g.nr import C, PAPER, Numerology
+from dpe5g.phy import nr, signal
+from dpe5g.receivers import correlogram, cost, dpe, grid_search, search_config, spline_boxes
+from dpe5g.phy.nr import C, PAPER, Numerology
 
 
 def random_case(seed, n_fft, m, n_tau):
@@ -140,7 +141,7 @@ def test_fix_batched_equals_single():
 def test_the_default_fix_is_the_honest_certified_receiver():
     """With no search given, ``fix`` runs the book's honest receiver: the certified branch and bound in a window
     that covers the clock prior (± 3 σ of the paper's 5 ns), the search Fig. 9's honest experiment runs."""
-    from dpe5g import paper
+    from dpe5g.studies import paper
 
     assert dpe.honest_search() == paper.fig9_honest().receiver_search()
     assert dpe.honest_search().method == "bnb" and dpe.honest_search().bias_half_width_m >= 3 * 5e-9 * C - 1e-9
@@ -213,8 +214,8 @@ def test_window_taps_on_the_band_spacing_keep_the_first_path(spacing):
     window = jnp.asarray(correlogram.window_spectrum(taps, n, None, s))
     coef = correlogram.spline_coefficients(jnp.asarray(g)[None], window, u)
     t = tau0 + np.arange(-20.0, 3.0, 1 / 64)
-    values = np.asarray(spline_bounds.spline_values(coef, jnp.asarray(t * u)[:, None]))
-    at_path = float(spline_bounds.spline_values(coef, jnp.asarray([[tau0 * u]]))[0])
+    values = np.asarray(spline_boxes.spline_values(coef, jnp.asarray(t * u)[:, None]))
+    at_path = float(spline_boxes.spline_values(coef, jnp.asarray([[tau0 * u]]))[0])
     if spacing == "band":
         assert at_path >= values.max() * (1 - 5e-5)  # the spline's own error is ≤ 2e-5 of the peak (Chapter 3)
     else:

@@ -1,4 +1,4 @@
-"""The NLoS-aware DPE (``dpe5g.dpe_nlos``): its prior against the simulator's draws, eq. (D1) against a direct
+"""The NLoS-aware DPE (``dpe5g.receivers.dpe_nlos``): its prior against the simulator's draws, eq. (D1) against a direct
 log-sum-exp, the spline round trip, and the window the certified search reads against an independent computation."""
 
 import jax
@@ -8,8 +8,11 @@ import pytest
 from scipy.linalg import solve_banded
 from scipy.special import logsumexp
 
-from dpe5g import correlogram, cost, dpe_nlos, experiment, nlos_study, nr, scenario, signal
-from dpe5g.nr import PAPER
+from dpe5g.phy import nr, propagation, signal
+from dpe5g.receivers import correlogram, cost, dpe_nlos
+from dpe5g.simulation import experiment
+from dpe5g.studies import nlos as nlos_study
+from dpe5g.phy.nr import PAPER
 
 UMI = nlos_study.UMI
 KNOT_S = PAPER.sample_period_s / 8
@@ -23,7 +26,7 @@ def test_prior_masses_are_the_simulators_excess_delays():
     ratio = np.exp(np.asarray(dpe_nlos.excess_log_masses(p_los, UMI.median_s, UMI.sigma_lg, 0.99, KNOT_S)))
     k1, k2 = jax.random.split(jax.random.PRNGKey(0))
     los = jax.random.uniform(k1, (n,)) < p_los
-    lag = np.rint(np.asarray(scenario.nlos_excess_delay(k2, los, UMI.median_s, UMI.sigma_lg)) / KNOT_S)
+    lag = np.rint(np.asarray(propagation.nlos_excess_delay(k2, los, UMI.median_s, UMI.sigma_lg)) / KNOT_S)
     kept = lag < len(ratio)
     counts = np.bincount(lag[kept].astype(int), minlength=len(ratio))
     assert np.max(np.abs(np.cumsum(ratio) / ratio.sum() - np.cumsum(counts) / counts.sum())) < 0.005
@@ -81,7 +84,7 @@ def test_marginal_window_is_eq_d1_on_the_knots_the_search_reads():
     far = [np.mod(np.argmax(r) + k // 4 + np.arange(k // 2), k) for r in v]
     noise = np.array([r[f].mean() for r, f in zip(v, far)]) / cfg.n_taps
     d2d = np.linalg.norm(np.asarray(center[:2]) - bs[:, :2], axis=1)
-    p = np.asarray(scenario.los_probability(d2d))
+    p = np.asarray(propagation.los_probability(d2d))
     ratio = np.asarray(dpe_nlos.excess_log_masses(p, UMI.median_s, UMI.sigma_lg, 0.99, KNOT_S))
     pad = 200
     for m in range(c.shape[0]):

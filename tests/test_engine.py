@@ -13,8 +13,9 @@ import time
 import numpy as np
 import pytest
 
-from dpe5g import (chunk_cache, code_key, correlogram, cost, deployment, dpe, engine, experiment, receiver, results,
-                   search_config, signal, store, trials)
+from dpe5g.phy import deployment, signal
+from dpe5g.receivers import correlogram, cost, dpe, receiver, search_config
+from dpe5g.simulation import chunk_cache, code_key, engine, experiment, results, store, trials
 
 SMALL = dict(name="test", n_trials=6, seed=1, snrs_db=(15.0, 30.0), m_values=(4, 6),
              search=search_config.SearchConfig(half_width_m=3.0, bias_half_width_m=3.0))
@@ -99,7 +100,7 @@ def test_reverse_order_and_chunks_written_meanwhile(tmp_path, monkeypatch):
 
 
 def test_stale_temporaries_only_of_dead_writers_are_removed(tmp_path):
-    from dpe5g import _io
+    from dpe5g.common import _io
 
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
@@ -129,7 +130,8 @@ def test_interrupted_run_resumes_to_identical_results(tmp_path):
     cfg = dict(SMALL, n_trials=10)
     plain = {k: v for k, v in cfg.items() if k != "search"}
     script = textwrap.dedent(f"""
-        from dpe5g import engine, experiment, search_config
+        from dpe5g import engine, experiment
+        from dpe5g.receivers import search_config
         e = experiment.Experiment.build(chunk_trials=1, search=search_config.SearchConfig(half_width_m=3.0, bias_half_width_m=3.0),
                                   **{plain!r})
         engine.run(e, cache={str(cache)!r}, progress=False, batch_size=1)
@@ -381,7 +383,7 @@ def test_code_version_does_not_depend_on_the_locale():
     another 8-bit one would have given another code version, so workers of one checkout would have disagreed)."""
     env = {**os.environ, "LC_ALL": "C", "LANG": "C", "PYTHONUTF8": "0", "PYTHONCOERCECLOCALE": "0",
            "PYTHONIOENCODING": "ascii"}
-    r = subprocess.run([sys.executable, "-c", "import locale; from dpe5g import code_key; "
+    r = subprocess.run([sys.executable, "-c", "import locale; from dpe5g.simulation import code_key; "
                         "print(locale.getpreferredencoding(), code_key.code_version())"],
                        env=env, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
@@ -426,7 +428,7 @@ def test_a_damaged_file_another_process_set_aside_or_rewrote_is_left_alone(tmp_p
 def test_a_damaged_chunk_that_cannot_be_set_aside_says_so(tmp_path, monkeypatch):
     """A read-only cache: the damaged chunk cannot be moved, and the run says that, not only "Read-only file
     system"."""
-    from dpe5g.errors import Failure
+    from dpe5g.common.errors import Failure
 
     e = experiment.Experiment.build(**{**SMALL, "chunk_trials": 2})
     engine.run(e, cache=tmp_path, progress=False)

@@ -5,8 +5,9 @@ correlogram.  (The engine's runs, caches and keys: ``test_engine.py``.)"""
 import numpy as np
 import pytest
 
-from dpe5g import (correlogram, cost, deployment, dpe, draw, engine, experiment, grid_search, receiver, results,
-                   search_config, signal, trial_draw, trials)
+from dpe5g.phy import deployment, signal
+from dpe5g.receivers import correlogram, cost, dpe, grid_search, receiver, search_config
+from dpe5g.simulation import draw, engine, experiment, results, trial_draw, trials
 
 
 def test_nested_grid_fixes_equal_one_fix_per_m():
@@ -37,11 +38,11 @@ def test_nested_grid_fixes_equal_one_fix_per_m():
 def test_range_offsets_and_error_summary(tmp_path):
     """``studies.range_offsets_m`` reads each fix's ToA of each used link (NaN beyond M) against ``cost.toa`` at the
     truth; ``results.error_summary`` against NumPy."""
-    from dpe5g import studies
+    from dpe5g.studies import choices
 
     e = experiment.Experiment.build(name="o", n_trials=3, seed=2, snrs_db=(20.0,), m_values=(3, 5))
     res = engine.run(e, cache=tmp_path, progress=False)
-    off = studies.range_offsets_m(res)
+    off = choices.range_offsets_m(res)
     assert off.shape == (3, 1, 2, 5)
     assert np.all(np.isnan(off[:, :, 0, 3:])) and not np.any(np.isnan(off[:, :, 0, :3]))
     bs = e.load_deployment().bs_xyz

@@ -3,8 +3,10 @@
 import jax
 import numpy as np
 
-from dpe5g import cost, figure_data, nr, signal
-from dpe5g.nr import PAPER
+from dpe5g.phy import nr, signal
+from dpe5g.receivers import cost
+from dpe5g.figures import data as figure_data
+from dpe5g.phy.nr import PAPER
 
 
 def test_cost_on_grid_is_eq10_at_every_sampled_grid_point():

@@ -9,7 +9,7 @@ Image (figures/<id>.png): matplotlib's compare_images RMS over pixels (0–255 s
 On failure the message names the figure and the largest difference, and a diff image is written to
 ``figure-diff/<id>-failed-diff.png`` in the repository.
 
-The Monte Carlo figures read the engine's store (``dpe5g.store``) when it holds the experiment for the current code (the
+The Monte Carlo figures read the engine's store (``dpe5g.simulation.store``) when it holds the experiment for the current code (the
 cache key hashes the config and the source of every module the numbers depend on); on a fresh clone the first
 build computes it, so ``make test`` there regenerates Fig. 9 from its seed.
 """
@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 from matplotlib.testing.compare import compare_images
 
-from dpe5g import figures
+from dpe5g.figures import registry as figures
 from figure_diff import compare_data
 
 pytestmark = pytest.mark.book  # reads the figures' Monte Carlo results, which the book's chapters compute

@@ -1,4 +1,4 @@
-"""Tests of paired receivers in ``dpe5g.intervals``: the signed-rank test against a hand-worked case and scipy, Holm's
+"""Tests of paired receivers in ``dpe5g.studies.intervals``: the signed-rank test against a hand-worked case and scipy, Holm's
 correction against a hand-worked example, the quantile difference's bootstrap p value against its interval, the
 per-group comparison's verdicts, its bad input, and the simulated coverage of the paired interval at 45 trials."""
 
@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from dpe5g import intervals, report, significance
+from dpe5g.studies import intervals, significance
+from dpe5g.figures import tables
 
 
 def correlated_lognormals(seed, n_trials, scale_b=1.0, rho=0.8):
@@ -116,7 +117,7 @@ def test_group_comparisons_minimum_and_table():
     assert [r.verdicts[0] for r in rows] == ["a better", significance.TOO_FEW, significance.TOO_FEW]
     # alone in its family, its two qs: both p at the floor 1/200, adjusted 2 · 0.005 and max(0.01, 1 · 0.005)
     assert rows[0].p == (0.005, 0.005) and rows[0].p_holm == (0.01, 0.01)
-    table = report.markdown_table(rows[0].header("DPE", "OTDoA"), [r.cells("DPE", "OTDoA") for r in rows])
+    table = tables.markdown_table(rows[0].header("DPE", "OTDoA"), [r.cells("DPE", "OTDoA") for r in rows])
     lines = table.splitlines()
     assert lines[0] == "| group | n | Q50 DPE − OTDoA | Q90 DPE − OTDoA | signed rank, DPE − OTDoA |"
     assert {line.count("|") for line in lines} == {6}

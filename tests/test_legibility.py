@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 from matplotlib.figure import Figure
 
-from dpe5g import figures, plots, result_plots, reuse_plots, studies
+from dpe5g.studies import choices
+from dpe5g.figures import plots, registry as figures, result_plots, reuse_plots
 
 DATA = Path(__file__).resolve().parents[1] / "figures" / "data"
 
@@ -66,7 +67,7 @@ def _chapter_plots() -> dict:
                                                                                  "hi_m": [4, 5, 7, 13]}
                                                  for k in range(5)} for c in "ab"},
              "marks": {"the paper's OTDoA: 90 % at 42 m": 42.0}}),
-        "plateau": lambda: plots.plot_plateau(studies.plateau_payload()),
+        "plateau": lambda: plots.plot_plateau(choices.plateau_payload()),
     }
 
 

@@ -26,6 +26,15 @@ def module_of(path: Path) -> tuple[str, str]:
 
 MODULES = {module_of(p)[0] for p in SOURCES}
 
+#: the top level's public names, each its module (``from dpe5g import dpe`` is ``dpe5g.receivers.dpe``)
+PUBLIC = dict(__import__("dpe5g").PUBLIC)
+
+
+def module_named(mod: str, name: str) -> str | None:
+    """The package module that ``name`` imported from ``mod`` (``imported_module``) is, or None for another name."""
+    sub = f"{mod}.{name}" if mod else name
+    return sub if sub in MODULES else PUBLIC.get(name) if not mod else None
+
 
 def imported_module(node: ast.ImportFrom, package: str) -> str | None:
     """The module (inside ``dpe5g``, "" for the package itself) that ``from X import …`` imports from: relative
@@ -55,8 +64,7 @@ def private_uses(source: str, own: str, package: str = "dpe5g") -> list[str]:
                     aliases[a.asname or a.name.split(".")[0]] = "__init__" if a.asname is None else a.name[6:]
         if isinstance(node, ast.ImportFrom) and (mod := imported_module(node, package)) is not None:
             for a in node.names:
-                sub = f"{mod}.{a.name}" if mod else a.name
-                if sub in MODULES:  # from . import dpe, from .phy import channel
+                if (sub := module_named(mod, a.name)) is not None:  # from . import dpe, from ..phy import channel
                     aliases[a.asname or a.name] = sub
                 elif a.name.startswith("_") and not a.name.startswith("__") and (mod or "__init__") != own:
                     bad.append(f"from {mod or 'dpe5g'} import {a.name}")
@@ -99,20 +107,22 @@ def test_chapters_use_and_show_public_names_only():
 
 
 def test_the_lint_catches_a_private_use():
-    src = "from . import dpe, _checks\nx = dpe._ml_cost(1)\ny = _checks.integer('a', 1, 0, 2)\n"
-    assert private_uses(src, "otdoa") == ["dpe._ml_cost (line 2)"]
-    assert private_uses("from .dpe import _lookup\n", "otdoa") == ["from dpe import _lookup"]
-    assert private_uses("from dpe5g.cost import _lookup\n", "") == ["from cost import _lookup"]
+    src = "from . import dpe\nfrom ..common import _checks\nx = dpe._ml_cost(1)\ny = _checks.integer('a', 1, 0, 2)\n"
+    assert private_uses(src, "receivers.otdoa", "dpe5g.receivers") == ["dpe._ml_cost (line 3)"]
+    assert private_uses("from .dpe import _lookup\n", "receivers.otdoa", "dpe5g.receivers") == [
+        "from receivers.dpe import _lookup"]
+    assert private_uses("from dpe5g.receivers.cost import _lookup\n", "") == ["from receivers.cost import _lookup"]
     assert private_uses("from dpe5g import _xla\n", "") == ["from dpe5g import _xla"]
     assert private_uses("import dpe5g\nx = dpe5g._xla\n", "") == ["dpe5g._xla (line 2)"]
-    assert private_uses("from dpe5g import cost as c\nx = c._lookup\n", "") == ["c._lookup (line 2)"]
-    assert private_uses("from . import dpe\nx = dpe._lookup\n", "dpe") == []
-    assert private_uses("from dpe5g import cost\nx = cost.lookup\n", "") == []
-    # a module of a subpackage: relative imports of depth 2 resolve against its package
-    assert private_uses("from ..cost import _lookup\n", "phy.channel", "dpe5g.phy") == ["from cost import _lookup"]
-    assert private_uses("from .. import dpe\nx = dpe._ml_cost(1)\n", "phy.channel", "dpe5g.phy") == [
+    assert private_uses("from dpe5g.receivers import cost as c\nx = c._lookup\n", "") == ["c._lookup (line 2)"]
+    assert private_uses("from . import dpe\nx = dpe._lookup\n", "receivers.dpe", "dpe5g.receivers") == []
+    assert private_uses("from dpe5g.receivers import cost\nx = cost.lookup\n", "") == []
+    # relative imports of depth 2 resolve against the module's package
+    assert private_uses("from ..receivers.cost import _lookup\n", "phy.channel", "dpe5g.phy") == [
+        "from receivers.cost import _lookup"]
+    assert private_uses("from ..receivers import dpe\nx = dpe._ml_cost(1)\n", "phy.channel", "dpe5g.phy") == [
         "dpe._ml_cost (line 2)"]
-    text = "```{code-cell} ipython3\n:tags: [hide-input]\nfrom dpe5g import cost\ncost._lookup(1)\n```\n"
+    text = "```{code-cell} ipython3\n:tags: [hide-input]\nfrom dpe5g.receivers import cost\ncost._lookup(1)\n```\n"
     assert private_uses(chapter_code(text), "") == ["cost._lookup (line 2)"]
 
 
@@ -178,7 +188,7 @@ def missing_names(source: str, own: str, package: str = "dpe5g") -> list[str]:
     for node in ast.walk(tree):
         if isinstance(node, ast.ImportFrom) and (mod := imported_module(node, package)) is not None:
             for a in node.names:
-                if (sub := f"{mod}.{a.name}" if mod else a.name) in MODULES:
+                if (sub := module_named(mod, a.name)) is not None:
                     aliases[a.asname or a.name] = sub
     bad = []
     for node in ast.walk(tree):
@@ -199,9 +209,11 @@ def test_every_module_name_read_exists():
 
 
 def test_the_name_check_sees_a_moved_name():
-    assert missing_names("from dpe5g import correlogram\ncorrelogram.mix_parts(1)\n", "") == [
+    assert missing_names("from dpe5g.receivers import correlogram\ncorrelogram.mix_parts(1)\n", "") == [
         "correlogram.mix_parts (line 2)"]
-    assert missing_names("from dpe5g import receiver\nreceiver.mix_parts(1)\n", "") == []
+    assert missing_names("from dpe5g.receivers import receiver\nreceiver.mix_parts(1)\n", "") == []
+    # the top level's public names (``dpe5g.PUBLIC``) are their modules
+    assert missing_names("from dpe5g import cost\ncost.no_such_name(1)\n", "") == ["cost.no_such_name (line 2)"]
 
 
 def book_sources() -> dict:
@@ -236,3 +248,26 @@ def test_no_prose_line_is_a_myst_comment():
             elif not fence and line.startswith("%"):
                 dropped.append(f"{name}:{k}")
     assert not dropped, f"lines MyST drops as comments: {dropped}"
+
+
+def test_the_top_level_names_load_their_modules():
+    """``from dpe5g import dpe`` (``PUBLIC``) loads its module silently; a module of the flat layout (``MOVED``) loads
+    with a DeprecationWarning naming its new place; neither shadows a subpackage."""
+    import importlib
+    import warnings
+
+    import pytest
+
+    import dpe5g
+
+    packages = {p.parent.name for p in PKG.glob("*/__init__.py")}
+    assert not (set(dpe5g.PUBLIC) | set(dpe5g.MOVED)) & packages
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for name, path in dpe5g.PUBLIC.items():
+            assert getattr(dpe5g, name) is importlib.import_module(f"dpe5g.{path}")
+    for name, path in dpe5g.MOVED.items():
+        with pytest.warns(DeprecationWarning, match=rf"dpe5g\.{name} moved to dpe5g\.{path}"):
+            assert getattr(dpe5g, name) is importlib.import_module(f"dpe5g.{path}")
+    with pytest.raises(AttributeError, match="no_such_module"):
+        dpe5g.no_such_module  # noqa: B018

@@ -1,4 +1,4 @@
-"""The bounds under the NLoS excess delay (``dpe5g.nlos_bounds``): the misspecified CRB against the well-specified
+"""The bounds under the NLoS excess delay (``dpe5g.bounds.misspecified``): the misspecified CRB against the well-specified
 one, an independent optimiser and a Monte Carlo of the weighted fit; the prior's Fisher information against a
 numerical integral; the NLoS-aware bound against the full Bayesian information matrix."""
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy import integrate, optimize, stats
 
-from dpe5g import bounds, nlos_bounds
-from dpe5g.nr import C
+from dpe5g.bounds import crb, misspecified as nlos_bounds
+from dpe5g.phy.nr import C
 
 UE = np.array([12.0, -30.0, 1.5])
 BS = np.array([[150.0, 20.0, 10.0], [-90.0, 120.0, 10.0], [-60.0, -170.0, 10.0], [110.0, -140.0, 10.0],
@@ -19,7 +19,7 @@ EXCESS = np.array([0.0, 80e-9, 0.0, 25e-9, 0.0])
 def test_without_a_delay_it_is_the_crb_and_no_bias():
     mb = nlos_bounds.misspecified_bound(UE, BS, J, np.zeros(5))
     np.testing.assert_allclose(mb.bias_m, 0.0, atol=1e-9)
-    np.testing.assert_allclose(mb.mcrb, bounds.position_crb(UE, BS, J), rtol=1e-9)
+    np.testing.assert_allclose(mb.mcrb, crb.position_crb(UE, BS, J), rtol=1e-9)
 
 
 def test_the_pseudo_true_point_is_the_weighted_fit_of_scipy():
@@ -56,7 +56,7 @@ def test_the_misspecified_crb_is_the_spread_of_the_weighted_fit():
     fits = th - np.array([UE[0], UE[1], 0.0])
     np.testing.assert_allclose(np.diag(np.cov(fits.T)), np.diag(mb.mcrb), rtol=0.1)
     assert np.all(np.abs(fits.mean(axis=0) - mb.bias_m) < 4 * np.sqrt(np.diag(mb.mcrb) / 4000))
-    assert not np.allclose(np.diag(mb.mcrb), np.diag(bounds.position_crb(UE, BS, j)), rtol=0.1)  # A ≠ B here
+    assert not np.allclose(np.diag(mb.mcrb), np.diag(crb.position_crb(UE, BS, j)), rtol=0.1)  # A ≠ B here
 
 
 def test_the_log_normal_fisher_information_is_its_integral():
@@ -82,8 +82,8 @@ def test_the_aware_bound_is_the_full_bayesian_information_inverted():
     want = np.linalg.inv(full)[:3, :3]
     got = nlos_bounds.aware_crb(UE, BS, J, nlos, 31.6e-9, 0.5)
     np.testing.assert_allclose(got, want, rtol=1e-9)
-    h = lambda c: bounds.horizontal_rmse_bound_m(c)
-    assert h(bounds.position_crb(UE, BS, J)) < h(got) < h(bounds.position_crb(UE, BS[~nlos], J[~nlos]))
+    h = lambda c: crb.horizontal_rmse_bound_m(c)
+    assert h(crb.position_crb(UE, BS, J)) < h(got) < h(crb.position_crb(UE, BS[~nlos], J[~nlos]))
 
 
 def test_bad_input_names_the_parameter():

@@ -3,7 +3,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from dpe5g import nr
+from dpe5g.phy import nr
 
 
 def gold_bit_by_bit(c_init, length, nc=1600):

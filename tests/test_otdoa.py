@@ -3,8 +3,9 @@ import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
 
-from dpe5g import deployment, nr, otdoa, signal
-from dpe5g.nr import C, PAPER
+from dpe5g.phy import deployment, nr, signal
+from dpe5g.receivers import otdoa
+from dpe5g.phy.nr import C, PAPER
 
 
 def _brute_force(bs, t, ue_z, centre, half=300.0):

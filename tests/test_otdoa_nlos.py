@@ -1,4 +1,4 @@
-"""The NLoS-aware OTDoA receiver (``dpe5g.otdoa_nlos``): its σ model against the spread of the detector's ToAs, its
+"""The NLoS-aware OTDoA receiver (``dpe5g.receivers.otdoa_nlos``): its σ model against the spread of the detector's ToAs, its
 weighted fit against an independent optimiser and the paper's fit, its fallback flag, its test's false-alarm rate,
 and what it can do with 4 and 6 links."""
 
@@ -8,9 +8,10 @@ import pytest
 from scipy.optimize import least_squares
 from scipy.stats import binom
 
-from dpe5g import correlogram, cost, nr, otdoa, otdoa_nlos, signal
-from dpe5g.nr import PAPER
-from dpe5g.nr import C
+from dpe5g.phy import nr, signal
+from dpe5g.receivers import correlogram, cost, otdoa, otdoa_nlos
+from dpe5g.phy.nr import PAPER
+from dpe5g.phy.nr import C
 
 
 #: eq. (O1)'s resolution term, c / (B √12) with the paper's full band B = N Δf
@@ -263,7 +264,8 @@ def test_link_sigma_bad_input_names_the_parameter():
 def test_the_engine_runs_the_receiver_on_each_trials_own_signals(tmp_path):
     """``otdoa_nlos``: the engine's σ of each link is ``link_sigma_m`` on the trial's received signals (its grid in
     the engine's precision), its fix the receiver's on them; every other field as computed without it, to the bit."""
-    from dpe5g import engine, experiment, results, search_config, trials
+    from dpe5g.receivers import search_config
+    from dpe5g.simulation import engine, experiment, results, trials
 
     kw = dict(name="s", n_trials=2, seed=1, snrs_db=(0.0, 20.0), m_values=(5,), otdoa=True, centring="truth",
               nlos_excess_median_s=31.6e-9, nlos_excess_sigma_lg=0.5,

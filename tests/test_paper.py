@@ -1,10 +1,12 @@
-"""The paper's experiments (``dpe5g.paper``), its readings and the claims' tests (``dpe5g.readings``), and the list of
-every experiment the store holds (``dpe5g.catalog.store_experiments``)."""
+"""The paper's experiments (``dpe5g.studies.paper``), its readings and the claims' tests (``dpe5g.studies.readings``), and the list of
+every experiment the store holds (``dpe5g.studies.catalog.store_experiments``)."""
 
 import numpy as np
 import pytest
 
-from dpe5g import catalog, channel, chunk_cache, nlos_study, paper, readings, scenario, signal
+from dpe5g.phy import channel, propagation, signal
+from dpe5g.simulation import chunk_cache
+from dpe5g.studies import catalog, nlos as nlos_study, paper, readings
 
 
 def test_claim_intervals_give_each_claim_its_verdict_from_its_interval():

@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dpe5g import engine, paper, results, verify
+from dpe5g.simulation import engine, results, verify
+from dpe5g.studies import paper
 
 PINS = json.loads((Path(__file__).parent / "data" / "pinned_trials.json").read_text())
 N_TRIALS = 3

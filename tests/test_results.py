@@ -1,11 +1,11 @@
-"""The paired statistics of ``dpe5g.results``: their intervals cover the true value as often as their level says on
+"""The paired statistics of ``dpe5g.simulation.results``: their intervals cover the true value as often as their level says on
 simulated data whose quantiles are known, pairing narrows them, and a claim's verdict follows its interval."""
 
 import numpy as np
 import pytest
 from scipy import stats
 
-from dpe5g import intervals
+from dpe5g.studies import intervals
 
 Z90 = stats.norm.ppf(0.9)
 

@@ -5,7 +5,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from dpe5g import deployment, nlos_study, scenario, trial_draw
+from dpe5g.phy import deployment, propagation as scenario
+from dpe5g.simulation import trial_draw
+from dpe5g.studies import nlos as nlos_study
 
 
 def test_packaged_deployment_has_the_papers_numbers():
@@ -132,7 +134,8 @@ def test_packaged_rings_draw_the_ue_in_their_ue_region():
     """The rings of Chapter 3 ("ring", "ring-wide"): 8 BSs on a 150 m circle; every UE of the engine's draws lies in
     the deployment's UE square (10 m and 100 m wide), which check_ue enforces too; the "tst" layout draws over its
     whole region."""
-    from dpe5g import draw, paper
+    from dpe5g.simulation import draw
+    from dpe5g.studies import paper
 
     for name, half in (("ring", 5.0), ("ring-wide", 50.0)):
         dep = deployment.named(name)
@@ -150,7 +153,8 @@ def test_packaged_rings_draw_the_ue_in_their_ue_region():
 
 def test_free_space_links_are_one_unit_path():
     """los_mode "free_space": every link LoS, one path of unit power at the first tap, its phase drawn per link."""
-    from dpe5g import draw, paper
+    from dpe5g.simulation import draw
+    from dpe5g.studies import paper
 
     e = paper.ml_toa_experiment(n_trials=2)
     d = draw.draw_fn(e, e.load_deployment())(trial_draw.trial_key(e.run.seed, 0), 0)
@@ -216,7 +220,9 @@ def test_nlos_excess_delay_delays_every_path_of_the_nlos_links_only():
 
     import jax
 
-    from dpe5g import draw, experiment, paper, signal
+    from dpe5g.phy import signal
+    from dpe5g.simulation import draw, experiment
+    from dpe5g.studies import paper
 
     base = paper.fig9_truth(n_trials=4)
     late = dataclasses.replace(base, scenario=dataclasses.replace(base.scenario, nlos_excess_median_s=30e-9,
@@ -260,8 +266,8 @@ def test_the_clock_nlos_window_adds_the_excess_delays_99th_percentile_to_the_clo
     """Receiver clock_window "clock_nlos": the c δt window ± (3 σ c + c Δτ₉₉) of the scenario's law, in boxes of
     about box_m; "clock" keeps ± 3 σ c; the default leaves every stored key as it was; refused when centred on the
     truth."""
-    from dpe5g import experiment
-    from dpe5g.nr import C
+    from dpe5g.simulation import experiment
+    from dpe5g.phy.nr import C
 
     wide = nlos_study.fig10_clock_nlos(10)["two_of_four"]
     plain = nlos_study.fig10_nlos_excess(nlos_study.UMI.median_s, 10)[("two_of_four", "otdoa")]
@@ -282,7 +288,8 @@ def test_the_clock_nlos_window_adds_the_excess_delays_99th_percentile_to_the_clo
 def test_nearest_two_los_and_the_snr_offset_change_only_what_they_say():
     """los_mode "nearest_two_los": the two nearest of the four links LoS, the two farther NLoS, every trial;
     snr_offset_db: every link's SNR moved by exactly that many dB, the other draws unchanged."""
-    from dpe5g import draw, paper
+    from dpe5g.simulation import draw
+    from dpe5g.studies import paper
 
     base = paper.fig10(4)[("two_of_four", "truth")]
     near = nlos_study.fig10_nearest_los(4)["truth"]

@@ -4,8 +4,10 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from dpe5g import cost, engine, experiment, nr, signal
-from dpe5g.nr import Numerology
+from dpe5g.phy import nr, signal
+from dpe5g.receivers import cost
+from dpe5g.simulation import engine, experiment
+from dpe5g.phy.nr import Numerology
 
 SMALL = Numerology(scs_hz=30e3, n_fft=64, n_rb=5)
 
@@ -71,7 +73,8 @@ def test_computing_refuses_without_float64():
     """float64 is guaranteed where dpe5g computes: with x64 turned off after import, the entry points refuse."""
     import jax
 
-    from dpe5g import correlogram, otdoa, signal
+    from dpe5g.phy import signal
+    from dpe5g.receivers import correlogram, otdoa
 
     prs = np.ones((2, 64), complex)
     calls = [lambda: signal.ofdm_symbol(prs), lambda: signal.demodulate(prs),

@@ -8,7 +8,11 @@ import os
 import numpy as np
 import pytest
 
-from dpe5g import catalog, engine, figures, locations, otdoa, paper, store, verify
+from dpe5g.common import locations
+from dpe5g.receivers import otdoa
+from dpe5g.simulation import engine, store, verify
+from dpe5g.studies import catalog, paper
+from dpe5g.figures import registry as figures
 
 #: the store's size budget: 25 MB in all (issue 31), 30 MB since the UMi excess-delay runs (issue 41), 50 MB with the
 #: ray-traced city (issue 45)
@@ -91,7 +95,7 @@ def test_an_otdoa_experiments_positions_may_differ_by_the_polishs_precision():
     """Where the OTDoA fix enters (``verify.position_atol``), positions and distances may differ by
     ``otdoa.POSITION_ATOL_M`` absolutely (the convex solver's last digits differ between CPUs, and the
     Gauss-Newton polish stops at 1 µm steps); elsewhere they may not, and no other field gets that tolerance."""
-    from dpe5g import paper
+    from dpe5g.studies import paper
 
     step = otdoa.POSITION_ATOL_M
     assert verify.position_atol(paper.fig10()[("pr_los", "otdoa")]) == step
@@ -137,7 +141,7 @@ def test_coverage_runs_matches_a_simulation():
 
 
 def test_verify_command_prints_its_seed_and_names_mismatches(small, monkeypatch, capsys):
-    from dpe5g import cli
+    from dpe5g.cli import main as cli
 
     e, _, entry = small
     monkeypatch.setattr(catalog, "store_experiments", lambda: [e])
@@ -159,7 +163,7 @@ def test_verify_command_prints_its_seed_and_names_mismatches(small, monkeypatch,
 def test_verify_reports_each_mismatch_as_it_finds_it(small, monkeypatch, capsys):
     """dpe5g verify prints a mismatch as soon as its experiment is compared: a check stopped part-way (Ctrl-C in the
     next experiment) has already told what it found."""
-    from dpe5g import cli
+    from dpe5g.cli import main as cli
 
     e, _, entry = small
     other = e.replace(name=e.run.name + "-next")
@@ -224,8 +228,8 @@ DAMAGES = ("edited value", "more trials claimed", "fewer trials claimed", "trunc
 def test_a_damaged_entry_is_named_and_make_reproduce_repairs_it(small, tmp_path, monkeypatch, capsys):
     """Each kind of damage: reading the entry (a run, the CLI, the store check) is one line naming the file and
     `make reproduce`, never a number; `reproduce` then rewrites the entry without reading it, to the same bits."""
-    from dpe5g import cli
-    from dpe5g.errors import DamagedEntry
+    from dpe5g.cli import main as cli
+    from dpe5g.common.errors import DamagedEntry
 
     e, res, entry = small
     monkeypatch.setenv("DPE5G_CACHE", str(tmp_path / "cache"))  # the fixture's chunks: reproduce computes nothing
@@ -256,7 +260,7 @@ def test_no_bit_flip_of_an_entry_escapes_as_another_error(small):
     """A flipped bit in a zip's or an .npy header's bytes raises anything from BadZipFile to SyntaxError,
     NotImplementedError or RuntimeError inside NumPy and zipfile; each is an ``errors.DamagedEntry`` naming the file,
     or (a bit of zip metadata nothing reads) the arrays as stored.  Every byte of the entry, one bit each."""
-    from dpe5g.errors import DamagedEntry
+    from dpe5g.common.errors import DamagedEntry
 
     _, _, entry = small
     data = entry.npz.read_bytes()
@@ -310,16 +314,16 @@ def test_a_store_variable_naming_a_file_is_named(tmp_path, monkeypatch):
 def test_reproduce_refuses_changed_code_unless_told(tmp_path, monkeypatch, capsys):
     """``dpe5g reproduce`` (``make reproduce``) on a tree whose code differs from its commit stops with one line
     (exit 2) before computing anything; with --allow-dirty it runs."""
-    from dpe5g import cli
+    from dpe5g.cli import main as cli
 
     (tmp_path / "store").mkdir()
     monkeypatch.setenv("DPE5G_STORE", str(tmp_path / "store"))
-    monkeypatch.setattr(store, "code_changes", lambda root=None: ["dpe5g/cost.py"])
+    monkeypatch.setattr(store, "code_changes", lambda root=None: ["dpe5g/receivers/cost.py"])
     ran = []
     monkeypatch.setattr(verify, "reproduce", lambda exps, **kw: ran.append(kw) or [])
     assert cli.main(["reproduce"]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "the code differs from its commit (dpe5g/cost.py)" in err and not ran
+    assert err.count("\n") == 1 and "the code differs from its commit (dpe5g/receivers/cost.py)" in err and not ran
     assert cli.main(["reproduce", "--allow-dirty"]) == 0 and len(ran) == 1
 
 
@@ -343,10 +347,10 @@ def test_git_commit_names_the_commit_and_a_digest_of_the_changes(tmp_path):
     (tmp_path / "dpe5g" / "cost.py").write_text("x = 2\n")
     first = store.git_commit(tmp_path)
     assert first.startswith(head + "+diff.") and len(first) == len(head) + 18
-    assert store.git_commit(tmp_path) == first and store.code_changes(tmp_path) == ["dpe5g/cost.py"]
+    assert store.git_commit(tmp_path) == first and store.code_changes(tmp_path) == ["dpe5g/receivers/cost.py"]
     (tmp_path / "dpe5g" / "new.py").write_text("y = 1\n")  # an untracked module counts
     second = store.git_commit(tmp_path)
-    assert second != first and store.code_changes(tmp_path) == ["dpe5g/cost.py", "dpe5g/new.py"]
+    assert second != first and store.code_changes(tmp_path) == ["dpe5g/receivers/cost.py", "dpe5g/new.py"]
     (tmp_path / "dpe5g" / "new.py").write_text("y = 2\n")
     assert store.git_commit(tmp_path) not in (first, second)
     assert store.git_commit(tmp_path / "nowhere") is None

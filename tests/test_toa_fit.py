@@ -6,8 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from dpe5g import experiment, toa_fit
-from dpe5g.nr import C
+from dpe5g.receivers import toa_fit
+from dpe5g.simulation import experiment
+from dpe5g.phy.nr import C
 
 
 def _trials(n, m, seed, bias_sigma_m=1.5, noise_m=0.0):

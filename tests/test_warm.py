@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from dpe5g import catalog
+from dpe5g.studies import catalog
 
 ROOT = Path(__file__).resolve().parents[1]
 RUN_LOG = ROOT / ".cache" / "book-runs.jsonl"  # written by the book build (Makefile, DPE5G_RUN_LOG)

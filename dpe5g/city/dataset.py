@@ -1,0 +1,466 @@
+"""A ray-traced city's links as a committed dataset of the results store (``figures/trials/cities``), typed
+(``TracedCity``), checksummed, and re-traced in part by ``make test`` (``verify_links``).  ``dpe5g trace`` (``make reproduce``) traces
+the city again only when its ``CitySpec`` or the tracing code changed (``is_current``).
+
+Each link (UE u, BS b) that has at least one traced path keeps K of them (``city_trace.compact_links``): the first to
+arrive and the strongest others, their delays after the straight line's d/c (float32, seconds) and their complex
+amplitudes (complex64, the path gain with isotropic antennas).  A link with no path is absent: the UE does not hear
+that BS.  ``save_city`` also writes the city's deployment (``deployment.BUILTIN``), whose file names the dataset's
+checksum, so every experiment run on the city is keyed by the paths it read (``deployment.digest``).
+
+Units: metres, seconds, dB.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..common import _checks
+from ..phy import deployment
+from . import trace as city_trace
+from ..common._io import arrays_digest, atomic_write, jsonable, read_npz
+from ..common.errors import DamagedEntry
+from ..common.locations import STORE_DIR
+from ..phy.nr import C
+
+#: the store's subfolder of traced cities
+CITY_FOLDER = "cities"
+#: the arrays of a traced city, as stored
+ARRAYS = ("region", "bs_xyz", "ue_xyz", "link_ue", "link_bs", "excess_s", "gains", "n_paths", "los", "power_db",
+          "kept_db")
+#: ``verify_links``'s tolerances against a re-trace: the link's power (dB) and its first path's excess delay (s).  A
+#: few UEs traced alone find the same first paths as the whole city's trace but, on some links, a few weak paths more
+#: or fewer (the solver's ray sampling): 0.76 dB was the largest difference in power seen over the links of 5 UEs
+VERIFY_POWER_DB = 1.5
+VERIFY_EXCESS_S = 0.05e-9
+#: links weaker than this path gain (dB) in both traces are not compared: 20 dB below the weakest link a UE hears
+#: (``simulation.traced_draw.DETECTION_SNR_DB`` at 24 dBm is about −121 dB), where a path more or fewer decides whether one exists
+VERIFY_FLOOR_DB = -140.0
+
+
+@dataclass(frozen=True, eq=False)
+class TracedCity:
+    """A traced city: its deployment and, over its L heard links, the kept paths.
+
+    Attributes
+    ----------
+    name : str
+        The city's name, also its deployment's (``deployment.BUILTIN``).
+    spec : dict
+        The ``city_trace.CitySpec`` it was traced with.
+    region : float (4,)
+        (x_min, y_min, x_max, y_max), metres.
+    bs_xyz : float (B, 3)
+        BS positions, metres.
+    ue_xyz : float (U, 3)
+        UE positions, metres.
+    link_ue, link_bs : int (L,)
+        Each heard link's UE and BS.
+    excess_s : float32 (L, K)
+        Each kept path's delay after d/c, seconds, in order of arrival (0 where a link has fewer than K paths).
+    gains : complex64 (L, K)
+        Each kept path's amplitude (0 where a link has fewer than K paths).
+    n_paths : int (L,)
+        The paths traced on each link (K or fewer kept).
+    los : bool (L,)
+        Whether the straight line is clear (the LoS path exists).
+    power_db : float32 (L,)
+        The link's path gain Σ|a|² over all its traced paths, dB.
+    kept_db : float32 (L,)
+        The power of the K kept paths over all, dB (≤ 0).
+    """
+
+    name: str
+    spec: dict
+    region: np.ndarray
+    bs_xyz: np.ndarray
+    ue_xyz: np.ndarray
+    link_ue: np.ndarray
+    link_bs: np.ndarray
+    excess_s: np.ndarray
+    gains: np.ndarray
+    n_paths: np.ndarray
+    los: np.ndarray
+    power_db: np.ndarray
+    kept_db: np.ndarray
+
+    @property
+    def n_ue(self) -> int:
+        """U, the UE positions traced."""
+        return len(self.ue_xyz)
+
+    @property
+    def n_bs(self) -> int:
+        """B, the base stations."""
+        return len(self.bs_xyz)
+
+    def link_table(self) -> np.ndarray:
+        """The link index of every (UE, BS), −1 where the UE hears no path from the BS.
+
+        Returns
+        -------
+        int (U, B)
+        """
+        table = np.full((self.n_ue, self.n_bs), -1)
+        table[self.link_ue, self.link_bs] = np.arange(len(self.link_ue))
+        return table
+
+    def heard(self) -> np.ndarray:
+        """How many BSs each UE hears (at least one traced path).
+
+        Returns
+        -------
+        int (U,)
+        """
+        return np.bincount(self.link_ue, minlength=self.n_ue)
+
+    def first_excess_s(self, threshold_db: float | None = None) -> np.ndarray:
+        """Each link's first-path excess delay: its first path's delay after d/c, seconds.
+
+        The first path is the earliest traced path (the straight line's on a LoS link: 0), or, with ``threshold_db``,
+        the earliest kept path whose power ``|a|²`` is within ``threshold_db`` of the link's strongest path's, as a
+        first-path detector finds it (``studies.city.FIRST_PATH_THRESHOLD_DB``): never earlier than the earliest path,
+        the strongest path at latest.
+
+        Parameters
+        ----------
+        threshold_db : float or None
+            The first path's power relative to the strongest path, dB, ≤ 0; None: the earliest path, however weak.
+
+        Returns
+        -------
+        float (L,)
+
+        Raises
+        ------
+        ValueError
+            When threshold_db is above 0 dB or not a number.
+        """
+        if threshold_db is None:
+            return self.excess_s[:, 0].astype(float)
+        thr = _checks.in_range("threshold_db", threshold_db, -math.inf, 0.0, "dB")
+        p = np.abs(self.gains.astype(np.complex128)) ** 2  # (L, K), 0 where a link has fewer than K paths
+        above = p >= p.max(axis=1, keepdims=True) * 10.0 ** (thr / 10.0)
+        above &= p > 0
+        return self.excess_s[np.arange(len(p)), np.argmax(above, axis=1)].astype(float)
+
+
+def city_file(name: str, root: Path | None = None) -> Path:
+    """The ``.npz`` of the traced city ``name`` in the results store.
+
+    Parameters
+    ----------
+    name : str
+        The city's name.
+    root : Path or None
+        The store's folder; None: ``STORE_DIR``.
+
+    Returns
+    -------
+    Path
+    """
+    return (STORE_DIR if root is None else root) / CITY_FOLDER / f"{name}.npz"
+
+
+def save_city(name: str, traced: dict, spec: dict, provenance: dict, root: Path | None = None) -> Path:
+    """Write a traced city to the store (``.npz`` and its ``.json``) and its deployment to the package data.
+
+    Parameters
+    ----------
+    name : str
+        The city's name.
+    traced : dict
+        ``city_trace.trace_city``'s arrays.
+    spec : dict
+        The ``CitySpec`` it was traced with.
+    provenance : dict
+        What traced it: commit, library versions, seconds.
+    root : Path or None
+        The store's folder; None: ``STORE_DIR``.
+
+    Returns
+    -------
+    Path
+        The ``.npz`` written.
+    """
+    path = city_file(name, root)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    arrays = {k: np.asarray(traced[k]) for k in ARRAYS}
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)
+    meta = {"name": name, "spec": spec, "checksum": arrays_digest(arrays), "provenance": provenance}
+    atomic_write(path, buf.getvalue())
+    atomic_write(path.with_suffix(".json"), json.dumps(jsonable(meta), indent=1).encode())
+    write_deployment(name, arrays, spec, meta["checksum"])
+    return path
+
+
+def write_deployment(name: str, arrays: dict, spec: dict, checksum: str) -> Path:
+    """The city's deployment file (``deployment.BUILTIN``, beside its paths): its BSs, region and UE height, and the
+    paths' checksum.
+
+    Parameters
+    ----------
+    name : str
+        The city's name.
+    arrays : dict
+        The traced city's arrays ("region", "bs_xyz").
+    spec : dict
+        Its ``CitySpec`` (power, UE height, scene).
+    checksum : str
+        The dataset's checksum (``_io.arrays_digest``).
+
+    Returns
+    -------
+    Path
+    """
+    x0, y0, x1, y1 = (float(v) for v in arrays["region"])
+    doc = {"name": name,
+           "description": (f"{len(arrays['bs_xyz'])} BSs placed outdoors in Sionna RT's '{spec['scene']}' scene, "
+                           f"ray-traced paths in the results store ({CITY_FOLDER}/{name}.npz, checksum {checksum}); "
+                           "made by dpe5g.city.dataset.save_city."),
+           "region": {"x_min_m": x0, "y_min_m": y0, "x_max_m": x1, "y_max_m": y1},
+           "ue_height_m": float(spec["ue_height_m"]),
+           "base_stations": [{"id": f"C{b + 1:02d}", "x_m": float(p[0]), "y_m": float(p[1]), "height_m": float(p[2]),
+                              "power_dbm": float(spec["power_dbm"])} for b, p in enumerate(arrays["bs_xyz"])]}
+    path = deployment.BUILTIN.get(name, deployment.TRACED_DIR / f"{name}_deployment.json")
+    atomic_write(path, (json.dumps(doc, indent=1) + "\n").encode())
+    return path
+
+
+def view_file(name: str, root: Path | None = None) -> Path:
+    """The ``.npz`` of the city's 3-D view (``save_view``) in the results store.
+
+    Parameters
+    ----------
+    name : str
+        The city's name.
+    root : Path or None
+        The store's folder; None: ``STORE_DIR``.
+
+    Returns
+    -------
+    Path
+    """
+    return city_file(name, root).with_name(f"{name}_view.npz")
+
+
+def save_view(name: str, view: dict, root: Path | None = None) -> Path:
+    """Write the city's 3-D view: the buildings' triangles and one UE's traced paths (``city_view.scene_triangles``,
+    ``city_view.example_paths``), with the checksum of its arrays in a ``.json`` beside it.
+
+    Parameters
+    ----------
+    name : str
+        The city's name.
+    view : dict
+        "triangles", "ue" (the UE's index), "ue_bs" (its BSs) and ``city_view.example_paths``'s arrays.
+    root : Path or None
+        The store's folder; None: ``STORE_DIR``.
+
+    Returns
+    -------
+    Path
+    """
+    path = view_file(name, root)
+    arrays = {k: np.asarray(v) for k, v in view.items()}
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)
+    atomic_write(path, buf.getvalue())
+    atomic_write(path.with_suffix(".json"), json.dumps({"checksum": arrays_digest(arrays)}).encode())
+    return path
+
+
+def load_view(name: str, root: Path | None = None) -> dict:
+    """The city's 3-D view (``save_view``), its checksum checked.
+
+    Parameters
+    ----------
+    name : str
+        The city's name.
+    root : Path or None
+        The store's folder; None: ``STORE_DIR``.
+
+    Returns
+    -------
+    dict
+
+    Raises
+    ------
+    errors.DamagedEntry
+        When it is missing or does not match its checksum.
+    """
+    path = view_file(name, root)
+    try:
+        arrays = read_npz(path)
+        ok = arrays_digest(arrays) == json.loads(path.with_suffix(".json").read_text())["checksum"]
+    except (OSError, ValueError, KeyError) as err:
+        raise DamagedEntry(path, f"cannot be read ({err})") from err
+    if not ok:
+        raise DamagedEntry(path, "its arrays do not match the checksum in its .json")
+    return arrays
+
+
+def is_current(name: str, spec: dict, code_digest: str, root: Path | None = None) -> bool:
+    """Whether the stored city ``name`` was traced with ``spec`` by the tracing code of ``code_digest``.
+
+    Parameters
+    ----------
+    name : str
+        The city's name.
+    spec : dict
+        The ``CitySpec`` wanted.
+    code_digest : str
+        ``city_trace.code_digest()`` of today's tracing code.
+    root : Path or None
+        The store's folder; None: ``STORE_DIR``.
+
+    Returns
+    -------
+    bool
+    """
+    try:
+        meta = json.loads(city_file(name, root).with_suffix(".json").read_text())
+    except (OSError, ValueError):
+        return False
+    return meta.get("spec") == spec and meta.get("provenance", {}).get("code") == code_digest
+
+
+def load_city(name: str, root: Path | None = None) -> TracedCity:
+    """The traced city ``name`` from the store, its checksum checked.
+
+    Parameters
+    ----------
+    name : str
+        The city's name.
+    root : Path or None
+        The store's folder; None: ``STORE_DIR``.
+
+    Returns
+    -------
+    TracedCity
+
+    Raises
+    ------
+    errors.DamagedEntry
+        When a file is missing, unreadable, or its arrays do not match the recorded checksum.
+    """
+    path = city_file(name, root)
+    if not path.exists() or not path.with_suffix(".json").exists():
+        raise DamagedEntry(path, "is missing: run make reproduce (it traces the city)")
+    try:
+        meta = json.loads(path.with_suffix(".json").read_text())
+        arrays = read_npz(path)
+    except (OSError, ValueError) as err:
+        raise DamagedEntry(path, f"cannot be read ({err})") from err
+    if set(arrays) != set(ARRAYS) or arrays_digest(arrays) != meta.get("checksum"):
+        raise DamagedEntry(path, "its arrays do not match the checksum in its .json: run make reproduce")
+    return TracedCity(name=name, spec=meta["spec"], **{k: arrays[k] for k in ARRAYS})
+
+
+def retrace_links(city: TracedCity, ues) -> dict:
+    """Trace again the links of the UEs ``ues`` to every BS, as ``city_trace.trace_city`` traced them.
+
+    Parameters
+    ----------
+    city : TracedCity
+        The stored city.
+    ues : int (n,)
+        UE indices.
+
+    Returns
+    -------
+    dict
+        ``city_trace.compact_links``'s arrays, "link_ue" indexing into ``ues``.
+    """
+
+    spec = city_trace.CitySpec(**city.spec)
+    scene = city_trace.load_scene(spec)
+    return city_trace.trace_links(scene, city.bs_xyz, city.ue_xyz[np.asarray(ues)], spec, batch=len(ues))
+
+
+def verify_links(city: TracedCity, ues) -> list[str]:
+    """Re-trace the UEs ``ues`` (``retrace_links``) and compare with the stored links (``compare_links``).
+
+    Parameters
+    ----------
+    city : TracedCity
+        The stored city.
+    ues : int (n,)
+        UE indices.
+
+    Returns
+    -------
+    list of str
+        One line per difference; empty when the re-trace agrees.
+    """
+    return compare_links(city, ues, retrace_links(city, ues))
+
+
+def compare_links(city: TracedCity, ues, new: dict) -> list[str]:
+    """Compare a re-trace ``new`` of the UEs ``ues`` with the stored links above ``VERIFY_FLOOR_DB``: the same links,
+    the same LoS states, the power within ``VERIFY_POWER_DB`` and the first path's excess delay within
+    ``VERIFY_EXCESS_S``.
+
+    Parameters
+    ----------
+    city : TracedCity
+        The stored city.
+    ues : int (n,)
+        UE indices.
+    new : dict
+        ``retrace_links(city, ues)``.
+
+    Returns
+    -------
+    list of str
+        One line per difference; empty when the re-trace agrees.
+    """
+    ues = np.asarray(ues)
+    table, out = city.link_table(), []
+    for i, u in enumerate(ues):
+        mine = {int(b): j for j, b in zip(np.nonzero(new["link_ue"] == i)[0], new["link_bs"][new["link_ue"] == i])}
+        for b in range(city.n_bs):
+            k, j = table[u, b], mine.get(b)
+            p_old = float(city.power_db[k]) if k >= 0 else -np.inf
+            p_new = float(new["power_db"][j]) if j is not None else -np.inf
+            if max(p_old, p_new) < VERIFY_FLOOR_DB:
+                continue
+            if k < 0 or j is None:
+                out.append(f"UE {u}, BS {b}: path gain {p_new:.1f} dB traced today, {p_old:.1f} dB stored")
+                continue
+            dp, dx = abs(p_new - p_old), abs(float(new["excess_s"][j, 0]) - float(city.excess_s[k, 0]))
+            if bool(new["los"][j]) != bool(city.los[k]) or dp > VERIFY_POWER_DB or dx > VERIFY_EXCESS_S:
+                out.append(f"UE {u}, BS {b}: power {dp:.3g} dB, first-path delay {dx * 1e9:.3g} ns off, LoS "
+                           f"{bool(new['los'][j])} (stored {bool(city.los[k])})")
+    return out
+
+
+def path_gain_check(city: TracedCity) -> float:
+    """The largest gap (dB) between a LoS link's first path and the free-space gain (λ/4πd)² of its straight line.
+
+    The traced LoS path against Friis on a pure LoS link (``make test``'s check of the trace against the model).
+
+    Parameters
+    ----------
+    city : TracedCity
+        The stored city.
+
+    Returns
+    -------
+    float
+        The largest absolute difference, over the LoS links, between the first path's power (dB) and the free-space
+        gain 20 lg(λ/4πd) (dB).
+    """
+
+    lam = C / float(city.spec["fc_hz"])
+    los = np.nonzero(city.los)[0]
+    d = np.linalg.norm(city.ue_xyz[city.link_ue[los]] - city.bs_xyz[city.link_bs[los]], axis=1)
+    first = 10 * np.log10(np.abs(city.gains[los, 0].astype(complex)) ** 2)
+    return float(np.max(np.abs(first - 20 * np.log10(lam / (4 * math.pi * d)))))

@@ -1,0 +1,331 @@
+"""More than one machine: the Monte Carlo's chunks as tasks on a Dask cluster (``dask.distributed``).
+
+``connect`` returns a client of an existing scheduler (``--scheduler tcp://host:8786`` or DPE5G_SCHEDULER) or of a
+``LocalCluster`` of ``--workers N`` processes on this machine; ``engine.run(e, client=…)`` then submits each
+missing chunk as one task (``engine.chunk_task``).  A worker imports ``dpe5g`` (float64, the XLA level and the
+persistent compile cache in ``.cache/jax`` of its own checkout, or DPE5G_JAX_CACHE: point it at a shared folder so
+that workers on a shared filesystem compile each program once) and compiles the programs itself: jitted functions
+do not pickle, an ``Experiment`` does.  The task returns the chunk's arrays; the calling process writes them into
+its cache atomically, so workers need no shared filesystem.  Trial t depends only on the seed and t, so results are
+the same bits whatever the cluster (``tests/test_cluster.py``).
+
+A worker must run the client's code: each task first compares its process's ``code_key.code_version`` with the
+client's and refuses before any work (``OtherCode``), and the client checks the version each chunk comes back with
+(``gather``): a worker started from another checkout, or with other library versions, ends the run in one line
+naming it, and none of its chunks is kept.  A worker killed too often or a lost scheduler ends it in one line too
+(``errors.ClusterFailed``); the chunks finished before are in the cache, and the same command resumes.
+
+Each worker process runs one task at a time (``threads_per_worker=1``), the chunk's batches in that one thread;
+XLA still uses the process's cores for the operations it parallelises, so on a machine of C cores start about C/2
+to C workers.  Memory: a worker holds its compiled programs and one chunk (``Experiment.run.chunk_trials`` trials),
+a few hundred MB (``benchmarks/bench_cluster.py`` measures it).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+
+from ..common import _checks
+from ..common.errors import ClusterFailed
+
+
+#: the scheduler addresses ``connect`` takes: TCP only (TLS, UCX and in-process addresses need set-up this package
+#: does not do), a host name (Docker's service names with "_" too), IPv4 or [IPv6] address, and a port
+SCHEDULER_ADDRESS = re.compile(r"tcp://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9][A-Za-z0-9._\-]*):([0-9]{1,5})")
+
+
+def connect(scheduler: str | None = None, workers: int | None = None, timeout_s: float = 20.0):
+    """A ``distributed.Client`` of a scheduler, or of a new ``LocalCluster``; None when neither is asked for.
+
+    Parameters
+    ----------
+    scheduler : str or None
+        The scheduler's address ``tcp://host:port``; None (or ""): DPE5G_SCHEDULER if set.
+    workers : int or None
+        Start a ``LocalCluster`` of this many single-threaded processes, 1 to 256.
+    timeout_s : float
+        How long the whole connection may take, seconds (``check_scheduler``: TCP connect, Dask's handshake and the
+        scheduler's answer).
+
+    Returns
+    -------
+    distributed.Client or None
+        The client; None when neither a scheduler nor ``workers`` is given (run in this process).
+
+    Raises
+    ------
+    ValueError
+        When both are given, ``workers`` is not in [1, 256], the address is not ``tcp://host:port`` or no Dask
+        scheduler answers there in time.
+    """
+
+    source = "--scheduler"
+    if not scheduler and os.environ.get("DPE5G_SCHEDULER"):
+        scheduler, source = os.environ["DPE5G_SCHEDULER"], "DPE5G_SCHEDULER"
+    scheduler = scheduler or None
+    if scheduler is not None and workers is not None:
+        raise ValueError(f"{source} {scheduler} and --workers {workers} exclude each other: --workers starts a "
+                         f"cluster on this machine, --scheduler (or DPE5G_SCHEDULER) uses an existing one")
+    if scheduler is None and workers is None:
+        return None
+    from distributed import Client
+
+    if scheduler is not None:
+        left = check_scheduler(scheduler, timeout_s, source)
+        try:
+            return Client(scheduler, timeout=f"{max(left, 1.0)}s")
+        except (OSError, TimeoutError) as exc:
+            raise ValueError(f"{source} {scheduler}: no Dask scheduler answers there ({exc})") from None
+    return Client(local_cluster(_checks.integer("--workers", workers, 1, 256)))
+
+
+def local_cluster(n_workers: int, **options):
+    """A ``distributed.LocalCluster`` of single-threaded worker processes with no dashboard.
+
+    Its scheduler's HTTP server listens on a free port of 127.0.0.1 (distributed binds it to 8787 even without a
+    dashboard, so two clusters on one machine, or a real scheduler's dashboard there, collided).
+
+    Parameters
+    ----------
+    n_workers : int
+        Worker processes.
+    **options
+        Further ``LocalCluster`` options (they override these).
+
+    Returns
+    -------
+    distributed.LocalCluster
+        The cluster, started.
+    """
+    from distributed import LocalCluster
+
+    return LocalCluster(**{"n_workers": n_workers, "threads_per_worker": 1, "processes": True,
+                           "dashboard_address": None,
+                           "scheduler_kwargs": {"dashboard": False, "dashboard_address": "127.0.0.1:0"}, **options})
+
+
+def check_scheduler(address: str, timeout_s: float, source: str = "--scheduler") -> float:
+    """Check that a Dask scheduler answers at ``address`` within ``timeout_s`` seconds in all.
+
+    The TCP connect, Dask's handshake and its answer to an "identity" request run under one deadline:
+    ``distributed.Client``'s own timeout covers the connect only, so a port where something else listens (a web server,
+    the dashboard's 8787) would hang it for good.  Runs in a thread of its own, so it works inside a running event loop
+    (Jupyter) too.
+
+    Parameters
+    ----------
+    address : str
+        ``tcp://host:port`` (``SCHEDULER_ADDRESS``).
+    timeout_s : float
+        The deadline, seconds.
+    source : str
+        Where the address came from, for the message ("--scheduler" or "DPE5G_SCHEDULER").
+
+    Returns
+    -------
+    float
+        The seconds left of ``timeout_s``.
+
+    Raises
+    ------
+    ValueError
+        Naming ``source`` and what was found, when the address is malformed or no Dask scheduler answers there in time.
+    """
+    import asyncio
+    import socket
+    import time
+    from concurrent.futures import ThreadPoolExecutor
+
+    from distributed.comm import connect as comm_connect
+
+    m = SCHEDULER_ADDRESS.fullmatch(address)
+    if m is None or not 1 <= int(m.group(2)) <= 65535:
+        raise ValueError(f"{source} must be a Dask scheduler address tcp://host:port (port 1-65535; the "
+                         f"scheduler's default is 8786; tls://, ucx:// and inproc:// are not supported), got "
+                         f"{address!r}")
+    deadline = time.monotonic() + timeout_s
+    left = lambda: max(deadline - time.monotonic(), 0.001)  # noqa: E731
+    try:  # first a plain TCP connect: distributed's own retries a refused connection until its timeout
+        socket.create_connection((m.group(1).strip("[]"), int(m.group(2))), timeout=left()).close()
+    except OSError as exc:
+        raise ValueError(f"{source} {address}: no Dask scheduler answers there (nothing accepts a connection: "
+                         f"{' '.join(str(exc.strerror or exc).split())})") from None
+
+    async def identity():
+        comm = await comm_connect(address, timeout=left())
+        try:
+            await comm.write({"op": "identity"})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    async def within():
+        return await asyncio.wait_for(identity(), left())
+
+    try:
+        with ThreadPoolExecutor(1) as pool:
+            answer = pool.submit(asyncio.run, within()).result()
+    except (TimeoutError, asyncio.TimeoutError):
+        raise ValueError(f"{source} {address}: no Dask scheduler answered within {timeout_s:g} s (something may "
+                         f"listen there that is not one: the dashboard is on 8787, the scheduler on 8786 by "
+                         f"default)") from None
+    except OSError as exc:
+        raise ValueError(f"{source} {address}: no Dask scheduler answers there "
+                         f"({' '.join(str(exc).split())})") from None
+    except Exception as exc:  # noqa: BLE001  (a peer that answers, but not in Dask's protocol)
+        raise ValueError(f"{source} {address}: what answers there is not a Dask scheduler "
+                         f"({type(exc).__name__})") from None
+    if not isinstance(answer, dict) or answer.get("type") != "Scheduler":
+        raise ValueError(f"{source} {address}: what answers there is not a Dask scheduler (it said "
+                         f"{str(answer)[:80]!r})")
+    return left()
+
+
+def close(client) -> None:
+    """Close a client from ``connect`` and the ``LocalCluster`` it started, if any.
+
+    Parameters
+    ----------
+    client : distributed.Client or None
+        The client; None does nothing.
+    """
+    if client is None:
+        return
+    cluster = getattr(client, "cluster", None)
+    client.close()
+    if cluster is not None:
+        cluster.close()
+
+
+class OtherCode(Exception):
+    """Raised by ``engine.chunk_task``, before any work, on a worker that does not run the client's code.
+
+    The worker's code version is not the client's, or its sources changed after it imported them.  It travels back to
+    the client, which ``gather`` turns into an ``errors.ClusterFailed``.  The arguments are kept as attributes of the
+    same names.
+
+    Parameters
+    ----------
+    worker : str
+        The worker's address.
+    theirs, ours : str
+        The worker's and the client's code versions.
+    stale : tuple of str
+        The names of the sources that changed after the worker imported them.
+    """
+
+    def __init__(self, worker: str, theirs: str, ours: str, stale: tuple[str, ...] = ()):
+        super().__init__(worker, theirs, ours, tuple(stale))
+        self.worker, self.theirs, self.ours, self.stale = worker, theirs, ours, tuple(stale)
+
+
+def worker_address() -> str:
+    """The address of the Dask worker running this call.
+
+    Returns
+    -------
+    str
+        The address; "this process" outside a worker.
+    """
+    try:
+        from distributed import get_worker
+
+        return get_worker().address
+    except (ImportError, ValueError):
+        return "this process"
+
+
+def gather(futures: dict, chunks, bar=None) -> None:
+    """Write each chunk a Dask task returns into ``chunks`` as it arrives, after checking that its worker ran this code.
+
+    Parameters
+    ----------
+    futures : dict
+        {future of ``engine.chunk_task``: (start, stop)}.
+    chunks : chunk_cache.ChunkCache
+        The run's cache.
+    bar : tqdm or None
+        Progress bar updated per chunk.
+
+    Raises
+    ------
+    dpe5g.common.errors.ClusterFailed
+        Saying so in one line, on a chunk from other code, a worker killed too often or a lost scheduler; the chunks
+        written before it stay in the cache.
+    """
+    if not futures:
+        return
+    from distributed import as_completed
+
+    mine = chunks.code_version
+    for fut in as_completed(futures):
+        start, stop = futures[fut]
+        try:
+            arrays, origin = fut.result()
+        except OtherCode as err:
+            raise ClusterFailed(other_code_message(err.worker, err.theirs, mine, err.stale)) from None
+        except Exception as err:  # noqa: BLE001  (distributed's errors, named in the message)
+            raise ClusterFailed(cluster_lost_message(err, start, stop, chunks)) from None
+        if origin["code_version"] != mine:
+            raise ClusterFailed(other_code_message(origin["worker"], origin["code_version"], mine))
+        chunks.save(start, stop, arrays, computed_by=f"Dask worker {origin['worker']}")
+        if bar is not None:
+            bar.update(stop - start)
+
+
+def other_code_message(worker: str, theirs: str, mine: str, stale: tuple[str, ...] = ()) -> str:
+    """``gather``'s line for a worker that runs other code (or code older than its files).
+
+    Parameters
+    ----------
+    worker : str
+        The worker's address.
+    theirs, mine : str
+        The worker's and this process's code versions.
+    stale : tuple of str
+        The sources that changed after the worker imported them (empty: another code version).
+
+    Returns
+    -------
+    str
+        The line.
+    """
+    if stale:
+        return (f"Dask worker {worker} runs dpe5g code older than its files ({', '.join(stale)} changed after it "
+                f"imported them); its chunks were refused, none kept: restart the worker")
+    return (f"Dask worker {worker} runs other dpe5g code (code version {theirs}, this checkout's {mine}: another "
+            f"checkout, or other library versions); its chunks were refused, none kept: start every worker from "
+            f"this checkout's environment")
+
+
+def cluster_lost_message(err: Exception, start: int, stop: int, chunks) -> str:
+    """``gather``'s line for a task that failed on the cluster: what happened, and that finished chunks are kept.
+
+    Parameters
+    ----------
+    err : Exception
+        The task's error.
+    start, stop : int
+        The chunk's trials, start … stop-1.
+    chunks : chunk_cache.ChunkCache
+        The run's cache.
+
+    Returns
+    -------
+    str
+        The line.
+    """
+    kind = type(err).__name__
+    if kind == "KilledWorker":
+        what = (f"the workers running trials {start}-{stop - 1} died repeatedly (Dask gave up after "
+                f"distributed.scheduler.allowed-failures; out of memory?)")
+    elif kind in ("CancelledError", "FutureCancelledError", "CommClosedError", "TimeoutError", "OSError",
+                  "ConnectionError", "StreamClosedError"):
+        what = f"the connection to the Dask scheduler was lost ({kind}) while trials {start}-{stop - 1} ran"
+    else:
+        hint = " (a worker of an older dpe5g checkout?)" if kind == "TypeError" and "chunk_task" in str(err) else ""
+        what = f"trials {start}-{stop - 1} failed on a Dask worker: {kind}: {' '.join(str(err).split())}{hint}"
+    done = len(chunks.chunks) - len(chunks.missing())
+    return (f"{what}; {done} of the run's {len(chunks.chunks)} chunks are finished and kept in the cache "
+            f"({chunks.dir}), and the same command resumes from them")
