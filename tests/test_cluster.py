@@ -78,9 +78,8 @@ def test_a_worker_running_other_code_is_refused(tmp_path):
     from dpe5g.common.errors import ClusterFailed
 
     other = tmp_path / "other"
-    shutil.copytree(os.path.dirname(experiment.__file__), other / "dpe5g",
-                    ignore=shutil.ignore_patterns("__pycache__"))
-    sc = other / "dpe5g" / "search_config.py"
+    shutil.copytree(code_key.PACKAGE, other / "dpe5g", ignore=shutil.ignore_patterns("__pycache__"))
+    sc = other / "dpe5g" / "receivers" / "search_config.py"
     sc.write_text(sc.read_text() + "\n\ndef levels_of_another_checkout():\n    return 3\n")
     e = experiment.Experiment.build(name="dask", **SMALL)
     with cluster.local_cluster(0, processes=False, protocol="tcp") as lc, cluster.connect(lc.scheduler_address) as client:
@@ -128,7 +127,7 @@ def test_a_worker_whose_files_changed_after_it_imported_them_refuses(monkeypatch
     monkeypatch.setattr(dpe5g, "IMPORTED_AT_NS", 0)  # every source file is newer than the import
     with pytest.raises(cluster.OtherCode) as err:
         engine.chunk_task(pickle.dumps(e), 0, 2, 2, code_key.code_version())
-    assert "engine.py" in err.value.stale
+    assert "simulation/engine.py" in err.value.stale
     assert "restart the worker" in cluster.other_code_message(err.value.worker, err.value.theirs, "x", err.value.stale)
 
 

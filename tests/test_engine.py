@@ -308,50 +308,51 @@ def test_code_version_covers_every_module_the_engine_imports(tmp_path):
     import shutil
 
     pkg = tmp_path / "dpe5g"
-    shutil.copytree(os.path.dirname(experiment.__file__), pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(code_key.PACKAGE, pkg, ignore=shutil.ignore_patterns("__pycache__"))
     mods = code_key.source_modules(pkg)
-    assert {"search_config.py", "engine.py", "trials.py", "store.py", "__init__.py"} <= set(mods)
-    assert not {"cli.py", "plots.py", "figures.py", "paper.py"} & set(mods)
+    assert {"receivers/search_config.py", "simulation/engine.py", "simulation/trials.py", "simulation/store.py",
+            "__init__.py", "phy/__init__.py"} <= set(mods)
+    assert not {"cli/main.py", "figures/plots.py", "figures/registry.py", "studies/paper.py"} & set(mods)
     base = code_key.code_version(pkg)
     assert base == code_key.code_version()
     (pkg / "lonely.py").write_text("X = 1\n")
     assert code_key.code_version(pkg) == base
-    sc = pkg / "search_config.py"
+    sc = pkg / "receivers" / "search_config.py"
     sc.write_text(sc.read_text().replace("def steps(self", "def unused(self):\n        return 0\n\n    def steps(self", 1))
     changed = code_key.code_version(pkg)
     assert changed != base
     (pkg / "helper.py").write_text("def offset():\n    return 0.0\n")
-    tr = pkg / "trials.py"
+    tr = pkg / "simulation" / "trials.py"
     tr.write_text(tr.read_text().replace("from __future__ import annotations\n",
-                                         "from __future__ import annotations\n\nfrom .helper import offset\n", 1))
+                                         "from __future__ import annotations\n\nfrom ..helper import offset\n", 1))
     assert "helper.py" in code_key.source_modules(pkg) and code_key.code_version(pkg) != changed
 
 
 def test_code_version_follows_nested_packages(tmp_path):
     """In a copy of the package grown a subpackage: every package's ``__init__`` counts; a module the engine reaches
-    through ``from .sub import leaf``, and the ones leaf reaches by relative imports of depth 1 and 2 (``from .inner
-    import deeper``, ``from ..nr import C``), are keyed by their path inside the package; a change of code in the
+    through ``from ..sub import leaf``, and the ones leaf reaches by relative imports of depth 1 and 2 (``from .inner
+    import deeper``, ``from ..phy.nr import C``), are keyed by their path inside the package; a change of code in the
     deepest changes the version, a change of its docstring does not."""
     import shutil
 
     pkg = tmp_path / "dpe5g"
-    shutil.copytree(os.path.dirname(experiment.__file__), pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(code_key.PACKAGE, pkg, ignore=shutil.ignore_patterns("__pycache__"))
     base = code_key.code_version(pkg)
     (pkg / "sub" / "inner").mkdir(parents=True)
     (pkg / "sub" / "__init__.py").write_text('"""A subpackage."""\n\nLEVEL = 1\n')
     (pkg / "sub" / "inner" / "__init__.py").write_text("")
     deeper = pkg / "sub" / "inner" / "deeper.py"
     deeper.write_text('"""Deeper."""\n\n\ndef g():\n    return 1\n')
-    (pkg / "sub" / "leaf.py").write_text('"""Leaf."""\n\nfrom ..nr import C\nfrom .inner import deeper\n\n\n'
+    (pkg / "sub" / "leaf.py").write_text('"""Leaf."""\n\nfrom ..phy.nr import C\nfrom .inner import deeper\n\n\n'
                                          'def f():\n    return deeper.g() * C\n')
     mods = code_key.source_modules(pkg)
     assert {"sub/__init__.py", "sub/inner/__init__.py"} <= set(mods) and "sub/leaf.py" not in mods
     with_inits = code_key.code_version(pkg)
     assert with_inits != base
-    eng = pkg / "engine.py"
+    eng = pkg / "simulation" / "engine.py"
     eng.write_text(eng.read_text().replace("from __future__ import annotations\n",
-                                           "from __future__ import annotations\n\nfrom .sub import leaf\n", 1))
-    assert {"sub/leaf.py", "sub/inner/deeper.py", "nr.py"} <= set(code_key.source_modules(pkg))
+                                           "from __future__ import annotations\n\nfrom ..sub import leaf\n", 1))
+    assert {"sub/leaf.py", "sub/inner/deeper.py", "phy/nr.py"} <= set(code_key.source_modules(pkg))
     reached = code_key.code_version(pkg)
     assert reached != with_inits
     deeper.write_text('"""Deeper still, and said at more length."""\n\n\ndef g():\n    return 1\n')

@@ -347,10 +347,10 @@ def test_git_commit_names_the_commit_and_a_digest_of_the_changes(tmp_path):
     (tmp_path / "dpe5g" / "cost.py").write_text("x = 2\n")
     first = store.git_commit(tmp_path)
     assert first.startswith(head + "+diff.") and len(first) == len(head) + 18
-    assert store.git_commit(tmp_path) == first and store.code_changes(tmp_path) == ["dpe5g/receivers/cost.py"]
+    assert store.git_commit(tmp_path) == first and store.code_changes(tmp_path) == ["dpe5g/cost.py"]
     (tmp_path / "dpe5g" / "new.py").write_text("y = 1\n")  # an untracked module counts
     second = store.git_commit(tmp_path)
-    assert second != first and store.code_changes(tmp_path) == ["dpe5g/receivers/cost.py", "dpe5g/new.py"]
+    assert second != first and store.code_changes(tmp_path) == ["dpe5g/cost.py", "dpe5g/new.py"]
     (tmp_path / "dpe5g" / "new.py").write_text("y = 2\n")
     assert store.git_commit(tmp_path) not in (first, second)
     assert store.git_commit(tmp_path / "nowhere") is None
