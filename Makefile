@@ -43,7 +43,7 @@ figures: reproduce
 # Build the HTML book, its chapters executed two at a time (scripts/build_book.py: Sphinx's parallel read; BOOK_JOBS=1
 # for one); a chapter is re-executed when it changed, every chapter when dpe5g/ or environment.txt changed
 # (book/_ext/dpe5g_book.py clears the execution cache then),
-# and warnings are errors.  The chapters record the Monte Carlo runs they ask for in RUN_LOG (tests/test_warm.py
+# and warnings are errors.  The chapters record the Monte Carlo runs they ask for in RUN_LOG (tests/book/test_warm.py
 # checks that `dpe5g warm`, which prefills the cache, knows them all).
 RUN_LOG := .cache/book-runs.jsonl
 $(HTML): $(STAMP) $(BOOK_SRC) $(SOURCES)
@@ -61,14 +61,14 @@ chapter: $(STAMP)
 
 # Every test: unit + property tests, bad input, figure-diff against the committed baselines, browser test of the book.
 # The tests that need neither the book nor the figures' Monte Carlo results run at low priority while the book builds
-# (its Monte Carlo leaves part of the CPUs idle); those marked "book" (figure-diff, browser) start when it is built,
+# (its Monte Carlo leaves part of the CPUs idle); those in tests/book/ (figure-diff, browser) start when it is built,
 # beside the rest of them (a browser waits on pages more than it computes).  Each test file runs in one pytest worker
 # (pyproject.toml's --dist loadfile): the browser opens each page once, not once per worker (the book's tests: 72 s
 # -> 57 s), and a file's tests share the programs they compile (the others, on an idle machine: 310 s -> 299 s).  Low
 # priority takes more than `nice` where Linux groups processes by session (autogroup): Jupyter starts each chapter's kernel in a
 # session of its own, and the scheduler shares the CPUs equally between sessions whatever their nice values, so the
 # tests run in a session of their own whose group is niced to 19 (without setsid or autogroup: plain nice).
-# One seed for the whole run's check of the results store (the chapters' samples and tests/test_store.py's), printed
+# One seed for the whole run's check of the results store (the chapters' samples and tests/simulation/test_store.py's), printed
 # first; DPE5G_VERIFY_SEED=N make test repeats a run's samples.
 # Each pytest worker computes on one thread (as each chapter's kernel does, scripts/build_book.py): two workers and
 # two kernels share 2 CPUs, and thread pools sized to every CPU in each of them spin while they wait for work.
@@ -82,11 +82,11 @@ test: $(STAMP)
 	lowpri() { if command -v setsid > /dev/null; then \
 	    setsid -w sh -c '{ echo 19 > /proc/self/autogroup; } 2> /dev/null; exec nice -n 19 "$$@"' sh "$$@"; \
 	  else nice -n 19 "$$@"; fi; }; \
-	lowpri $(ONE_THREAD) $(BIN)/python -m pytest -m "not book" > $(UNIT_LOG) 2>&1 & unit=$$!; \
+	lowpri $(ONE_THREAD) $(BIN)/python -m pytest --ignore=tests/book > $(UNIT_LOG) 2>&1 & unit=$$!; \
 	book=0; $(MAKE) --no-print-directory book || book=$$?; \
 	booktests=0; if test $$book -eq 0; then \
-	  $(ONE_THREAD) $(BIN)/python -m pytest -m book > $(BOOK_LOG) 2>&1 || booktests=$$?; \
-	else echo "make book failed: the tests marked book were not run" > $(BOOK_LOG); fi; \
+	  $(ONE_THREAD) $(BIN)/python -m pytest tests/book > $(BOOK_LOG) 2>&1 || booktests=$$?; \
+	else echo "make book failed: the tests in tests/book were not run" > $(BOOK_LOG); fi; \
 	status=0; wait $$unit || status=$$?; \
 	cat $(UNIT_LOG) $(BOOK_LOG); \
 	test $$book -eq 0 -a $$status -eq 0 -a $$booktests -eq 0

@@ -10,7 +10,7 @@ results store (``DPE5G_STORE=off`` in the environment computes it instead, the w
 and records its wall-clock and CPU seconds and each
 figure's seconds as the command prints them (figures run in the registry's order, so a figure whose experiments an
 earlier one computed reads them from the cache).  Target (issue 11): ≤ 240 s.  The figures' own numbers are not
-compared here; the figure-diff (``tests/test_figures.py``) does that.
+compared here; the figure-diff (``tests/book/test_figures.py``) does that.
 """
 
 from __future__ import annotations

@@ -218,7 +218,7 @@ def timing_text() -> str:
             + (f", {b['tests_skipped']} skipped" if b["tests_skipped"] else "")
             + (f", the pytest suite {b['pytest_s']:.0f} s; " if len(b.get("pytest_runs_s", [])) != 2 else
                f"; pytest {b['pytest_runs_s'][0]:.0f} s for the tests that need no book (at low priority, from the "
-               f"start) and {b['pytest_runs_s'][1]:.0f} s for those marked `book` (once it is built, beside them); ")
+               f"start) and {b['pytest_runs_s'][1]:.0f} s for those in `tests/book/` (once it is built, beside them); ")
             + "chapter execution: " + ", ".join(f"{k} {v:.0f} s" for k, v in ch) + ".  "
             + (f"`make book` alone (a clean clone, at {b['make_book_commit']}): {b['make_book_s']} s "
                f"({b['make_book_s'] // 60} min {b['make_book_s'] % 60} s), "

@@ -18,7 +18,7 @@ def root() -> Path:
 
 
 def pytest_configure(config):
-    """The results store's verification sample (tests/test_store.py) gets a new seed each run, unless
+    """The results store's verification sample (tests/simulation/test_store.py) gets a new seed each run, unless
     DPE5G_VERIFY_SEED names one; set here, before xdist starts its workers, so they all share it."""
     if not os.environ.get("DPE5G_VERIFY_SEED"):
         os.environ["DPE5G_VERIFY_SEED"] = str(random.SystemRandom().randrange(2**31))

@@ -11,7 +11,7 @@ PKG = ROOT / "dpe5g"
 CHAPTERS = ROOT / "chapters"
 #: every module of the package, in its subpackages too
 SOURCES = sorted(PKG.rglob("*.py"))
-OUTSIDE = [p for d in ("tests", "benchmarks", "scripts") for p in sorted((ROOT / d).glob("*.py"))]
+OUTSIDE = [p for d in ("tests", "benchmarks", "scripts") for p in sorted((ROOT / d).rglob("*.py"))]
 
 
 def module_of(path: Path) -> tuple[str, str]:

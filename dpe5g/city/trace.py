@@ -337,7 +337,7 @@ def place_ues(scene, region, spec: CitySpec) -> np.ndarray:
 def ues_per_call(spec: CitySpec) -> int:
     """UEs per call of the solver: 250, or 50 where diffuse reflection is traced (its paths fill the memory: 50 UEs at
     S = 0.3 took 15 GB, 200 more than this machine's 23 GB).  A UE's paths do not depend on the UEs traced beside it
-    (``solve_paths``' table of chains is sized per UE; ``tests/test_city.py`` traces a few UEs alone and compares).
+    (``solve_paths``' table of chains is sized per UE; ``tests/city/test_city.py`` traces a few UEs alone and compares).
 
     Parameters
     ----------

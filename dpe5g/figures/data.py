@@ -99,7 +99,7 @@ def cost_on_grid(y, prs, bs_xyz, x_m, y_m, z_m: float, clock_bias_s: float, n_ta
     (``cost.correlogram_lookup``).
 
     One FFT per BS instead of one per BS and grid point (``cost.ml_cost``): Fig. 8's 101 × 101 points and 12 BSs take
-    about 1 s instead of 22 s; the two agree within 2e-5 of the peak (``tests/test_figure_data.py``).
+    about 1 s instead of 22 s; the two agree within 2e-5 of the peak (``tests/figures/test_figure_data.py``).
 
     Parameters
     ----------

@@ -223,7 +223,7 @@ class Solver:
     ``Solver(m).solve(bs_xyz, toa_s, ue_z)`` → ``Fix``.  DPP makes the map from the parameters to Clarabel's data
     (c, A, b) affine: the constructor reads it from cvxpy once (``Problem.get_problem_data`` at the zero parameter and
     at each unit parameter: the constant and one column per scalar parameter), ``data`` applies it (to the bit: each
-    entry is a constant or one parameter times ±1, ``tests/test_otdoa.py``) and ``solve`` hands the data to cvxpy's
+    entry is a constant or one parameter times ±1, ``tests/receivers/test_otdoa.py``) and ``solve`` hands the data to cvxpy's
     solving chain, skipping the reduction ``Problem.solve`` repeats, which for a program this small costs more than
     Clarabel's own solve (the engine chapter of the book).  ``solve`` leaves the Parameters alone; ``set_parameters``
     writes them, for a variant of the problem built on them.

@@ -324,7 +324,7 @@ def snr_superset_runs(e: Experiment, cache: str | os.PathLike | None = None) -> 
 
     Such a run equals ``e`` in every field but the name and ``snrs_db``, its SNRs include all of ``e``'s and its key
     (code, data and library versions) is the same.  Trial t's draws and its noise (drawn once, scaled to each SNR) do
-    not depend on the SNR list (``tests/test_engine.py`` computes both).
+    not depend on the SNR list (``tests/simulation/test_engine.py`` computes both).
 
     Parameters
     ----------

@@ -7,7 +7,7 @@ persistent compile cache in ``.cache/jax`` of its own checkout, or DPE5G_JAX_CAC
 that workers on a shared filesystem compile each program once) and compiles the programs itself: jitted functions
 do not pickle, an ``Experiment`` does.  The task returns the chunk's arrays; the calling process writes them into
 its cache atomically, so workers need no shared filesystem.  Trial t depends only on the seed and t, so results are
-the same bits whatever the cluster (``tests/test_cluster.py``).
+the same bits whatever the cluster (``tests/simulation/test_cluster.py``).
 
 A worker must run the client's code: each task first compares its process's ``code_key.code_version`` with the
 client's and refuses before any work (``OtherCode``), and the client checks the version each chunk comes back with

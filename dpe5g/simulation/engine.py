@@ -414,7 +414,7 @@ def run(e: Experiment, cache: str | os.PathLike | None = None, progress: bool = 
     e.load_deployment()  # validates m_values against the deployment before any work
     hit = stored(e) if use_store else None
     chunks = None if hit is not None else ChunkCache(e, cache).open()
-    if os.environ.get("DPE5G_RUN_LOG"):  # the book build records what its chapters run (tests/test_warm.py)
+    if os.environ.get("DPE5G_RUN_LOG"):  # the book build records what its chapters run (tests/book/test_warm.py)
         with open(os.environ["DPE5G_RUN_LOG"], "a") as f:
             f.write(json.dumps({"run": f"{e.run.name}-{e.config_key()}", "n_trials": e.run.n_trials,
                                 "stored": hit is not None if use_store else None}) + "\n")  # None: not asked

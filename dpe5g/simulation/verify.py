@@ -35,7 +35,7 @@ ABSOLUTE_FIELDS = ("gap",)
 #: a position or distance (fields ending in _m or _xyz) of an experiment that computes OTDoA fixes may differ by
 #: ``otdoa.POSITION_ATOL_M`` absolutely (the OTDoA fix's last digits differ between CPUs)
 OTDOA_POSITION_FIELDS = ("_m", "_xyz")
-#: the sample ``make test`` recomputes (``tests/test_store.py``, ``dpe5g verify``): two trials of every experiment in
+#: the sample ``make test`` recomputes (``tests/simulation/test_store.py``, ``dpe5g verify``): two trials of every experiment in
 #: three random families; the compiles of a family are its cost (book/running.md, "The results store")
 SAMPLE_FAMILIES, SAMPLE_TRIALS = 3, 2
 

@@ -18,7 +18,7 @@ def store_experiments() -> list[Experiment]:
     They come at the trial counts the chapters read, in the order they first need them (the DPE chapter and the
     Fig. 9 to NLoS chapters); ``run`` reuses a longer run's first trials, so an experiment whose first trials a chapter
     reads at a smaller count appears once, at its largest.  ``dpe5g warm`` and ``dpe5g reproduce`` run them;
-    ``tests/test_warm.py`` checks the list against the runs a book build recorded.
+    ``tests/book/test_warm.py`` checks the list against the runs a book build recorded.
 
     Returns
     -------

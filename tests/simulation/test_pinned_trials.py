@@ -1,6 +1,6 @@
 """The engine computes today what it computed before its redesign (issue 30): trials 0–2 of Fig. 9 (honest and
 truth-centred) and Fig. 10 (two of four LoS, OTDoA-centred), every stored field equal to the values recorded at
-f2270f3 (``tests/data/pinned_trials.json``, float64 as ``float.hex``), to the bit — except the certified search's
+f2270f3 (``tests/simulation/data/pinned_trials.json``, float64 as ``float.hex``), to the bit — except the certified search's
 relative gap, whose upper bounds go through XLA's vectorised arithmetic, whose last bits depend on the CPU's vector
 units: on an AVX-512 machine the gaps of these trials differ from the record by up to 7e-12 relative while every fix
 is the same bits.  The gap is compared as the results store's check compares it (``verify.ABSOLUTE_FIELDS``)."""

@@ -13,7 +13,7 @@ from matplotlib.figure import Figure
 from dpe5g.studies import choices
 from dpe5g.figures import plots, registry as figures, result_plots, reuse_plots
 
-DATA = Path(__file__).resolve().parents[1] / "figures" / "data"
+DATA = Path(__file__).resolve().parents[2] / "figures" / "data"
 
 
 def test_small_text_and_wide_figures_are_refused():

@@ -14,12 +14,11 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 HTML = ROOT / "book" / "_build" / "html"
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 
-pytestmark = [pytest.mark.book,  # reads the built book
-              pytest.mark.skipif(CHROMIUM is None, reason="chromium not installed (apt-get install chromium); "
+pytestmark = [pytest.mark.skipif(CHROMIUM is None, reason="chromium not installed (apt-get install chromium); "
                                  "the browser test of the book is skipped")]
 
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -257,7 +256,7 @@ def test_no_code_block_runs_off_the_page(loaded, page_path):
 @pytest.mark.parametrize("page_path", pages() or ["index.html"])
 def test_figures_are_shown_at_their_own_size(loaded, page_path):
     """Every page: every figure image is shown at least as wide as its pixels (the book never shrinks one).  With
-    ``tests/test_legibility.py`` (every figure at most 7.68 in at 100 dpi, every text at least 9 pt) this keeps every
+    ``tests/figures/test_legibility.py`` (every figure at most 7.68 in at 100 dpi, every text at least 9 pt) this keeps every
     figure's text at 9 pt or more on the page."""
     shrunk = loaded(page_path).page.evaluate("""() => [...document.querySelectorAll('article img')]
         .filter(i => i.naturalWidth > i.clientWidth + 1)

@@ -25,9 +25,8 @@ from matplotlib.testing.compare import compare_images
 from dpe5g.figures import registry as figures
 from figure_diff import compare_data
 
-pytestmark = pytest.mark.book  # reads the figures' Monte Carlo results, which the book's chapters compute
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 BASELINE = ROOT / "figures"
 DIFF_DIR = ROOT / "figure-diff"
 

@@ -391,19 +391,6 @@ def test_the_real_baselines_are_not_touched_by_a_refusal(capsys):
     assert {p: p.stat().st_mtime_ns for p in cli.BASELINE_DIR.rglob("*")} == stamp
 
 
-@pytest.mark.book
-def test_figures_with_a_trial_count(tmp_path):
-    """``dpe5g figures --trials N`` runs the paper's experiment (``dpe5g.studies.paper``) with N trials.  Marked "book": it
-    compiles Fig. 9's three programs, which the book has put in JAX's compilation cache by then (beside the book's own
-    compiles, at low priority, it took 536-600+ s of the 2-core machine; after it, about 20 s)."""
-    env = {**os.environ, "DPE5G_CACHE": str(tmp_path / "cache")}
-    r = subprocess.run([sys.executable, "-m", "dpe5g", "figures", "--only", "fig09_rmse_vs_snr", "--trials", "3",
-                        "--out", str(tmp_path / "out")], capture_output=True, text=True, timeout=600, env=env)
-    assert r.returncode == 0, r.stderr
-    doc = json.loads((tmp_path / "out" / "data" / "fig09_rmse_vs_snr.json").read_text())
-    assert {v["n_trials"] for v in doc["config"]["receivers"].values()} == {3}
-
-
 def test_warm_fills_the_cache_with_the_books_runs(workdir, monkeypatch, capsys):
     tiny = [experiment.Experiment.build(name=f"warm{i}", n_trials=4, chunk_trials=2, seed=i, snrs_db=(20.0,), m_values=(4,),
                                   search=search_config.SearchConfig(half_width_m=2.0, bias_half_width_m=2.0)) for i in (1, 2)]

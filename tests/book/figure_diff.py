@@ -1,4 +1,4 @@
-"""The figure-diff's comparator of two figure payloads (``tests/test_figures.py``)."""
+"""The figure-diff's comparator of two figure payloads (``tests/book/test_figures.py``)."""
 
 import math
 
