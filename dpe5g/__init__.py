@@ -28,10 +28,12 @@ run's key.  XLA reads the flag when JAX first starts its backend: importing ``dp
 anything leaves the level as it was.
 """
 
+import importlib as _importlib
 import os
-import signal as _signal
-import time as _time  # (not ``signal``: that name is the package's module dpe5g.signal)
+import signal as _signal  # (not ``signal``: that name is the public module ``phy.signal``)
+import time as _time
 import sys
+import warnings as _warnings
 from pathlib import Path
 
 #: when this process imported dpe5g (ns since the epoch): a source file changed later is not the code it runs
@@ -113,22 +115,19 @@ MOVED = {"correlogram": "receivers.correlogram", "search_config": "receivers.sea
          "city_channel": "studies.city_channel", "city_errors": "studies.city_errors",
          "city_sensitivity": "studies.city_sensitivity", "intervals": "studies.intervals",
          "significance": "studies.significance", "catalog": "studies.catalog", "figure_data": "figures.data",
-         "plots": "figures.plots", "result_plots": "figures.result_plots", "reuse_plots": "figures.reuse_plots",
+         "plots": "figures.plots", "result_plots": "figures.result_plots", "reuse_plots": "figures.result_plots",
          "city_plots": "figures.city_plots", "report": "figures.tables", "scene3d": "figures.scene3d",
          "errors": "common.errors", "locations": "common.locations"}
 
 
 def __getattr__(name: str):
     """``PUBLIC``'s modules and the flat layout's ``MOVED`` ones, loaded on first use (PEP 562)."""
-    import importlib
-    import warnings
-
     if name in PUBLIC:
-        return importlib.import_module(f"{__name__}.{PUBLIC[name]}")
+        return _importlib.import_module(f"{__name__}.{PUBLIC[name]}")
     if name in MOVED:
-        warnings.warn(f"dpe5g.{name} moved to dpe5g.{MOVED[name]}; import it from there", DeprecationWarning,
+        _warnings.warn(f"dpe5g.{name} moved to dpe5g.{MOVED[name]}; import it from there", DeprecationWarning,
                       stacklevel=2)
-        return importlib.import_module(f"{__name__}.{MOVED[name]}")
+        return _importlib.import_module(f"{__name__}.{MOVED[name]}")
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 

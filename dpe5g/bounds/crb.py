@@ -40,9 +40,9 @@ import numpy as np
 
 from ..common import _checks
 from ..phy import nr, signal
+from ..phy.nr import C, PAPER, Numerology
 from ..simulation import chunk_cache, code_key, draw
 from ..simulation.experiment import OTDOA_DETECTORS
-from ..phy.nr import C, PAPER, Numerology
 
 #: the pilot subcarrier sets ``subcarrier_frequencies_hz`` knows: every FFT bin (the paper's full-band PRS), the
 #: active subcarriers of the carrier (3276 for 273 RB), and a comb of them (the standard's PRS pattern)

@@ -28,8 +28,8 @@ from dataclasses import dataclass
 import jax
 import numpy as np
 
-from . import crb
 from ..phy.nr import C
+from . import crb
 
 #: Gauss–Newton of the pseudo-true point stops once its step is shorter than this (m)
 PSEUDO_TRUE_STOP_M = 1e-9

@@ -22,12 +22,12 @@ from pathlib import Path
 import numpy as np
 
 from ..common import _checks
-from ..phy import deployment
-from . import trace as city_trace
 from ..common._io import arrays_digest, atomic_write, jsonable, read_npz
 from ..common.errors import DamagedEntry
 from ..common.locations import STORE_DIR
+from ..phy import deployment
 from ..phy.nr import C
+from . import trace as city_trace
 
 #: the store's subfolder of traced cities
 CITY_FOLDER = "cities"

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import glob
 import os
+from importlib.metadata import version
 
 import numpy as np
 
@@ -54,8 +55,6 @@ def library_versions() -> dict:
     -------
     dict
     """
-    from importlib.metadata import version
-
     return {p: version(p) for p in ("sionna-rt", "mitsuba", "drjit")} | {"libllvm": os.path.basename(llvm_library())}
 
 
@@ -89,9 +88,9 @@ def solve_paths(scene, bs_xyz, ue_xyz, spec):
     -------
     sionna.rt.Paths
     """
-    import mitsuba as mi
-    import sionna.rt as rt
-    from sionna.rt.path_solvers.sb_candidate_generator import SBCandidateGenerator
+    import mitsuba as mi  # (Sionna RT: loaded only to trace)
+    import sionna.rt as rt  # (Sionna RT: loaded only to trace)
+    from sionna.rt.path_solvers.sb_candidate_generator import SBCandidateGenerator  # (Sionna RT: loaded only to trace)
 
     for name in list(scene.transmitters) + list(scene.receivers):
         scene.remove(name)

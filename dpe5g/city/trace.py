@@ -160,7 +160,7 @@ def load_scene(spec: CitySpec):
     sionna.rt.Scene
     """
     llvm_library()
-    import sionna.rt as rt
+    import sionna.rt as rt  # (Sionna RT: loaded only to trace)
 
     scene = rt.load_scene(getattr(rt.scene, spec.scene), merge_shapes=True)
     scene.frequency = spec.fc_hz
@@ -186,7 +186,7 @@ def ground_open(scene, xy) -> np.ndarray:
     -------
     bool (P,)
     """
-    import mitsuba as mi
+    import mitsuba as mi  # (Sionna RT: loaded only to trace)
 
     xy = np.asarray(xy, dtype=np.float32)
     top = np.full(len(xy), 1000.0, np.float32)
@@ -417,7 +417,7 @@ def compact_links(a, tau, valid, direct, bs_xyz, ue_xyz, n_paths: int) -> dict:
         "n_paths" int16 (L,); "los" bool (L,), whether the LoS path exists; "power_db" float32 (L,), the link's
         traced path gain Σ|a|² over all its paths, dB; "kept_db" float32 (L,), the power of the K kept over it, dB.
     """
-    from ..phy.nr import C
+    from ..phy.nr import C  # (here, as the stored city's tracing code was written: ``code_digest`` reads it)
 
     pw = np.where(valid, np.abs(a) ** 2, 0.0)
     has = valid.any(axis=-1)
@@ -459,7 +459,7 @@ def trace_city(spec: CitySpec, progress: bool = True) -> dict:
     dict
         "region" float (4,) metres, "bs_xyz" (B, 3), "ue_xyz" (U, 3), and ``trace_links``'s arrays.
     """
-    from tqdm import tqdm
+    from tqdm import tqdm  # (here, as the stored city's tracing code was written: ``code_digest`` reads its imports)
 
     scene = load_scene(spec)
     region = densest_square(scene, spec.side_m)

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .trace import CitySpec
 from .ray_tracer import solve_paths
+from .trace import CitySpec
 
 
 def scene_triangles(scene, region, margin_m: float = 20.0) -> np.ndarray:

@@ -6,9 +6,11 @@ parameter, the value received and the allowed range, so that the CLI can print o
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Iterable
 
+import jax
 import numpy as np
 
 
@@ -52,8 +54,6 @@ def values_in_range(name: str, value, lo: float, hi: float, unit: str = ""):
     """Check an array (or scalar) of a physical quantity: real, finite and in [lo, hi] ``unit``; returns it as
     given.  Inside a traced (jit, vmap) call it is a JAX tracer, whose values are not known: returned unchecked
     (the engine checks its inputs before tracing)."""
-    import jax
-
     if isinstance(value, jax.core.Tracer):
         return value
     try:
@@ -87,8 +87,6 @@ def require_x64() -> None:
     (``jax.config.update("jax_enable_x64", False)``, ``jax.experimental.disable_x64``), which would silently move
     ToAs by centimetres (float32 carries ~7 digits of a ~1e-6 s ToA) and change every DPE result.  Called at trace
     time inside jitted functions, so the check costs nothing per call."""
-    import jax
-
     if not jax.config.jax_enable_x64:
         raise RuntimeError("dpe5g needs JAX float64 (jax_enable_x64), which is off: ToAs and phases lose their "
                            "precision in float32.  `import dpe5g` turns it on; do not turn it off afterwards.")
@@ -123,8 +121,6 @@ def plain_fields(obj) -> None:
     """Replace each field of the frozen dataclass ``obj`` by its ``plain`` value as its declared type
     (``as_declared``; in ``__post_init__``), so settings given as lists, NumPy values or ints where floats are
     declared give the same object and the same key as the plain numbers."""
-    import dataclasses
-
     for f in dataclasses.fields(obj):
         v = getattr(obj, f.name)
         declared = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", "")

@@ -13,12 +13,12 @@ import jax
 import numpy as np
 
 from ..phy import channel, nr, signal
+from ..phy.deployment import named as named_deployment
+from ..phy.nr import C, PAPER
 from ..receivers import correlogram, cost, dpe, search_config
 from ..simulation import engine, experiment, results, trials
 from ..bounds import crb
 from ..studies import intervals, paper, readings
-from ..phy.deployment import named as named_deployment
-from ..phy.nr import C, PAPER
 
 # ---------------------------------------------------------------------------------------------------------------
 # Figs. 1–5: TDL-A … TDL-E at 65 ns.

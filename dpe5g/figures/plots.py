@@ -21,7 +21,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib import patheffects
 from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
 from matplotlib.text import Text
+from matplotlib.transforms import Bbox
 
 #: rcParams on top of matplotlib's "default" style.  Fixed font and hinting keep PNGs byte-stable per version.
 RC = {
@@ -253,8 +255,6 @@ def place_texts(fig, ax, texts, markers=(), pad_px: float = 1.5) -> None:
     pad_px : float
         Margin added around each text's box, pixels.
     """
-    from matplotlib.transforms import Bbox
-
     for t, _ in texts:
         t.set_in_layout(False)
     fig.draw_without_rendering()
@@ -297,8 +297,6 @@ def plot_deployment(payload: dict):
     -------
     matplotlib.figure.Figure
     """
-    from matplotlib.patches import Rectangle
-
     d = payload["data"]
     x0, y0, x1, y1 = d["region"]
     with style():

@@ -21,10 +21,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
+from matplotlib.figure import Figure
+
+from ..common._io import atomic_target, atomic_write, jsonable
 from ..simulation import chunk_cache, code_key, store
 from ..studies import paper
 from . import data as figure_data, plots, result_plots
-from ..common._io import atomic_target, atomic_write, jsonable
 
 
 @dataclass(frozen=True)
@@ -189,8 +191,7 @@ def glue(name: str, fig) -> None:
     fig : matplotlib.figure.Figure or object
         The figure, or any displayable object.
     """
-    from matplotlib.figure import Figure
-    from myst_nb import glue as _glue
+    from myst_nb import glue as _glue  # (the book's: loaded only in a chapter's kernel)
 
     if isinstance(fig, Figure):
         plots.check_legible(fig)

@@ -33,7 +33,7 @@ class _Recorder:
         self.commands: list[bytes] = []
 
     def send(self, command) -> None:
-        import umsgpack
+        import umsgpack  # (meshcat's: loaded only for a 3-D scene)
 
         self.commands.append(umsgpack.packb(command.lower()))
 
@@ -43,7 +43,7 @@ def _meshcat():
     error under the tests' warnings filter, and noise on a reader's console)."""
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="zmq.eventloop.ioloop is deprecated", category=DeprecationWarning)
-        import meshcat
+        import meshcat  # (meshcat: loaded only for a 3-D scene, its warning silenced)
         import meshcat.geometry  # noqa: F401  (the scene's objects)
         import meshcat.servers.zmqserver  # noqa: F401  (create_command)
     return meshcat
@@ -225,7 +225,7 @@ def recorded_iframe(rec: _Recorder, title: str, height_px: int = 520) -> str:
     str
         The ``<iframe>`` element.
     """
-    from meshcat.visualizer import srcdoc_escape
+    from meshcat.visualizer import srcdoc_escape  # (meshcat: loaded only for a 3-D scene)
 
     return (f'<iframe class="dpe5g-scene3d" title="{title}" srcdoc="{srcdoc_escape(html(rec))}" '
             f'style="width:100%;height:{height_px}px;border:1px solid #ccc"></iframe>')

@@ -12,10 +12,10 @@ import random
 from dataclasses import dataclass
 
 from ..simulation import verify
-from ..studies import readings
-from . import result_plots
 from ..simulation.results import Results
 from ..simulation.store import stored
+from ..studies import readings
+from . import result_plots
 
 
 def run_summary(res: Results) -> str:

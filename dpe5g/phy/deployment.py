@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ..common import _checks
+from .propagation import prs_plan
 
 DATA_DIR = Path(__file__).resolve().parents[1] / "data"
 TST_FILE = DATA_DIR / "tst_deployment.json"
@@ -147,8 +148,6 @@ class Deployment:
         resource, prs_id : numpy.ndarray int (B,)
             As ``scenario.prs_plan``.
         """
-        from .propagation import prs_plan
-
         return prs_plan(self.bs_xyz, reuse)
 
     def nearest(self, ue_xy, m: int) -> np.ndarray:
@@ -255,7 +254,7 @@ def nearest_neighbours(xy) -> tuple[np.ndarray, np.ndarray]:
     index : numpy.ndarray int (B,)
         Its index.
     """
-    from scipy.spatial import cKDTree
+    from scipy.spatial import cKDTree  # (scipy.spatial: 0.9 s to import, only for the streets' check)
 
     d, j = cKDTree(xy).query(xy, k=2)
     return d[:, 1], j[:, 1]

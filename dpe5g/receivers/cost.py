@@ -31,8 +31,8 @@ import numpy as np
 
 from ..common import _checks
 from ..phy import signal
-from . import correlogram
 from ..phy.nr import C
+from . import correlogram
 
 def ml_cost_literal(y, prs, tau, n_taps: int, scs_hz: float) -> np.ndarray:
     """Eq. (10) evaluated literally: Σ_m ‖S_m(τ_m)^H y_m‖² with S_m = F D_m Γ_m(τ_m) F_L built as matrices.

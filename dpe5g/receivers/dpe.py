@@ -18,8 +18,8 @@ import numpy as np
 
 from ..common import _checks
 from ..phy import signal
-from . import correlogram, cost, receiver
 from ..phy.nr import C, PAPER, Numerology
+from . import correlogram, cost, receiver
 from .search_config import SearchConfig, honest_search  # honest_search: fix's default, public here
 
 

@@ -36,8 +36,8 @@ import numpy as np
 
 from ..common import _checks
 from ..phy import propagation
-from . import otdoa_nlos
 from ..phy.nr import PAPER, Numerology
+from . import otdoa_nlos
 from .search_config import SearchConfig
 from .spline_boxes import slice_cells, spline_window
 

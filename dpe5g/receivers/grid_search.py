@@ -13,8 +13,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..common import _checks
-from . import cost
 from ..phy.nr import C, PAPER, Numerology
+from . import cost
 from .search_config import WindowFix, SearchConfig
 
 def _axis(half_width, step):

@@ -17,8 +17,8 @@ import numpy as np
 
 from ..common import _checks
 from ..phy import signal
-from . import certified_search, correlogram, cost, grid_search
 from ..phy.nr import C, PAPER, Numerology
+from . import certified_search, correlogram, cost, grid_search
 from .search_config import SearchConfig, WindowFix
 
 

@@ -13,8 +13,8 @@ import jax
 import numpy as np
 
 from ..common import _checks
-from . import correlogram
 from ..phy.nr import C, PAPER, Numerology
+from . import correlogram
 
 #: Default receiver window L (taps).  First chosen in the DPE chapter on 8 NLoS (TDL-C) links on a 150 m ring with the
 #: grid on the truth, where L = 12 gave the smallest RMSE; chosen again on the urban scenario (mixed LoS/NLoS, Figs. 9

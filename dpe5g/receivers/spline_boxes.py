@@ -17,8 +17,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import cost
 from ..phy.nr import C, PAPER, Numerology
+from . import cost
 from .search_config import SearchConfig
 
 def spline_values(coef, pos) -> jax.Array:

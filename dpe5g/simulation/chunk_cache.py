@@ -21,9 +21,9 @@ import numpy as np
 
 from ..common._io import arrays_digest, atomic_write, read_npz, remove_stale_temporaries
 from ..common.errors import Failure
+from ..common.locations import DEFAULT_CACHE
 from .code_key import code_version
 from .experiment import Experiment
-from ..common.locations import DEFAULT_CACHE
 
 #: default cache directory: ``.cache/montecarlo`` next to the package (the repository root for an editable install);
 #: the environment variable DPE5G_CACHE overrides it.

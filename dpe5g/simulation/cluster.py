@@ -23,8 +23,12 @@ a few hundred MB (``benchmarks/bench_cluster.py`` measures it).
 
 from __future__ import annotations
 
+import asyncio
 import os
 import re
+import socket
+import time
+from concurrent.futures import ThreadPoolExecutor
 
 from ..common import _checks
 from ..common.errors import ClusterFailed
@@ -69,7 +73,7 @@ def connect(scheduler: str | None = None, workers: int | None = None, timeout_s:
                          f"cluster on this machine, --scheduler (or DPE5G_SCHEDULER) uses an existing one")
     if scheduler is None and workers is None:
         return None
-    from distributed import Client
+    from distributed import Client  # (Dask: loaded only for a cluster)
 
     if scheduler is not None:
         left = check_scheduler(scheduler, timeout_s, source)
@@ -98,7 +102,7 @@ def local_cluster(n_workers: int, **options):
     distributed.LocalCluster
         The cluster, started.
     """
-    from distributed import LocalCluster
+    from distributed import LocalCluster  # (Dask: loaded only for a cluster)
 
     return LocalCluster(**{"n_workers": n_workers, "threads_per_worker": 1, "processes": True,
                            "dashboard_address": None,
@@ -132,12 +136,7 @@ def check_scheduler(address: str, timeout_s: float, source: str = "--scheduler")
     ValueError
         Naming ``source`` and what was found, when the address is malformed or no Dask scheduler answers there in time.
     """
-    import asyncio
-    import socket
-    import time
-    from concurrent.futures import ThreadPoolExecutor
-
-    from distributed.comm import connect as comm_connect
+    from distributed.comm import connect as comm_connect  # (Dask: loaded only for a cluster)
 
     m = SCHEDULER_ADDRESS.fullmatch(address)
     if m is None or not 1 <= int(m.group(2)) <= 65535:
@@ -229,7 +228,7 @@ def worker_address() -> str:
         The address; "this process" outside a worker.
     """
     try:
-        from distributed import get_worker
+        from distributed import get_worker  # (Dask: loaded only for a cluster)
 
         return get_worker().address
     except (ImportError, ValueError):
@@ -256,7 +255,7 @@ def gather(futures: dict, chunks, bar=None) -> None:
     """
     if not futures:
         return
-    from distributed import as_completed
+    from distributed import as_completed  # (Dask: loaded only for a cluster)
 
     mine = chunks.code_version
     for fut in as_completed(futures):

@@ -11,6 +11,7 @@ import importlib.util
 import json
 import sys
 from functools import lru_cache
+from importlib.metadata import version
 from pathlib import Path
 
 import jax
@@ -183,6 +184,4 @@ def numerics() -> dict:
 @lru_cache(maxsize=1)
 def _library_versions() -> dict:
     """{library: installed version}, read once per process (the metadata lookups cost 5 ms a key)."""
-    from importlib.metadata import version
-
     return {lib: version(lib) for lib in ("jax", "jaxlib", "numpy", "cvxpy", "clarabel")}

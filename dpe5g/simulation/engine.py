@@ -20,19 +20,20 @@ from functools import lru_cache, partial
 import jax
 import jax.numpy as jnp
 import numpy as np
+from tqdm import tqdm
 
 from ..common import _checks
+from ..common.errors import Failure
 from ..phy import deployment
 from ..receivers import otdoa, otdoa_nlos, receiver
 from . import trials
-from .trial_draw import trial_keys
+from .chunk_cache import ChunkCache, sliced_chunk, snr_superset_runs
 from .cluster import OtherCode, gather, worker_address
-from ..common.errors import Failure
 from .code_key import changed_since_import, code_version
 from .experiment import OTDOA_DETECTORS, Experiment
 from .results import Results
-from .chunk_cache import ChunkCache, sliced_chunk, snr_superset_runs
 from .store import stored, stored_fields
+from .trial_draw import trial_keys
 
 #: trials vmapped together by ``run``, per search method (speed only; results do not depend on it): the grid search
 #: runs the same steps for every trial and gains from batching; the certified search's loops run as long as the
@@ -449,8 +450,6 @@ def fill(e: Experiment, chunks: ChunkCache, todo: list, batch_size: int, workers
     """
     bar = None
     if todo and progress:
-        from tqdm import tqdm
-
         bar = tqdm(total=e.run.n_trials, initial=e.run.n_trials - sum(b - a for a, b in todo), desc=f"{e.run.name} trials",
                    unit="trial", file=sys.stderr, dynamic_ncols=True)
     runner = None

@@ -19,10 +19,10 @@ import numpy as np
 
 from ..common import _checks
 from ..phy import channel, deployment, nr, propagation as scenario, signal
-from ..receivers import otdoa, search_config
-from .code_key import code_version
-from ..receivers.dpe_nlos import CLOCK_NLOS_QUANTILE
 from ..phy.nr import C
+from ..receivers import otdoa, search_config
+from ..receivers.dpe_nlos import CLOCK_NLOS_QUANTILE
+from .code_key import code_version
 
 #: settings added after the results store was first filled, with their defaults: at its default such a setting is
 #: left out of ``Experiment.config_key``, so the stored results of every experiment that does not use it keep their key

@@ -7,6 +7,7 @@ on the same trials, and the verdicts of claims are in ``intervals``.
 
 from __future__ import annotations
 
+import csv
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -189,8 +190,6 @@ class Results:
         path : str or os.PathLike
             The file written.
         """
-        import csv
-
         rows = self.table()
         with open(path, "w", newline="") as f:
             w = csv.DictWriter(f, fieldnames=list(rows[0]))

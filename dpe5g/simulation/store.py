@@ -21,9 +21,9 @@ import numpy as np
 
 from ..common._io import arrays_digest, atomic_write, jsonable, read_npz
 from ..common.errors import DamagedEntry
+from ..common.locations import REPOSITORY, store_root
 from .code_key import code_version, numerics
 from .experiment import Experiment
-from ..common.locations import REPOSITORY, store_root
 from .results import Results
 
 def store_digest() -> str:

@@ -20,13 +20,13 @@ import numpy as np
 
 from ..common import _checks
 from ..phy import deployment, signal
-from ..receivers import correlogram, dpe_nlos, grid_search, otdoa, otdoa_nlos, receiver, toa_fit
-from .draw import draw_fn, prior_center
-from .trial_draw import CoChannelDraw, ReuseDraw, TrialDraw, trial_key
-from .experiment import OTDOA_DETECTORS, Experiment, Receiver
 from ..phy.nr import C, PAPER
+from ..receivers import correlogram, dpe_nlos, grid_search, otdoa, otdoa_nlos, receiver, toa_fit
 from ..receivers.search_config import SearchConfig, WindowFix
 from ..receivers.spline_boxes import spline_window
+from .draw import draw_fn, prior_center
+from .experiment import OTDOA_DETECTORS, Experiment, Receiver
+from .trial_draw import CoChannelDraw, ReuseDraw, TrialDraw, trial_key
 
 #: OTDoA ToA detector settings used by the engine (``dpe5g.receivers.otdoa.toa``'s defaults)
 OTDOA_UPSAMPLE = 8

@@ -16,13 +16,14 @@ import random
 import sys
 import time
 from dataclasses import dataclass
+from math import comb
 from pathlib import Path
 
 import numpy as np
 
+from ..common.errors import DamagedEntry
 from ..receivers import otdoa
 from . import engine, store, trials
-from ..common.errors import DamagedEntry
 from .experiment import Experiment
 
 #: a recomputed float agrees with the stored one within this relative difference: about 4.5 million float64 steps,
@@ -286,8 +287,6 @@ def coverage_runs(n_stored: int, n_per_run: int, quantile: float = 0.95) -> tupl
     q_point : int
         The ``quantile`` point of the number of runs.
     """
-    from math import comb
-
     n, m = n_stored, min(n_per_run, n_stored)
     step = np.zeros((n + 1, n + 1))  # step[k, k - i]: P(k undrawn → k - i undrawn)
     for k in range(n + 1):

@@ -8,8 +8,8 @@ It stands above the studies that define the experiments and below the commands t
 from __future__ import annotations
 
 from ..simulation import code_key
-from . import city as city_study, city_sensitivity, nlos as nlos_study, paper, readings
 from ..simulation.experiment import Experiment
+from . import city as city_study, city_sensitivity, nlos as nlos_study, paper, readings
 
 
 def store_experiments() -> list[Experiment]:

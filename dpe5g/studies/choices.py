@@ -10,12 +10,12 @@ import jax
 import numpy as np
 
 from ..phy import channel, nr, signal
-from ..receivers import correlogram, toa_fit
-from ..simulation import engine, results
-from . import intervals, nlos as nlos_study, paper
-from ..simulation.experiment import OTDOA_DETECTORS
 from ..phy.nr import C
+from ..receivers import correlogram, toa_fit
 from ..receivers.otdoa import POSITION_ATOL_M as OTDOA_POSITION_ATOL_M  # (a function here names its result otdoa)
+from ..simulation import engine, results
+from ..simulation.experiment import OTDOA_DETECTORS
+from . import intervals, nlos as nlos_study, paper
 
 
 def ring_window_table(experiments: dict, progress: bool = False) -> list[dict]:

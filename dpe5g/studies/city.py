@@ -18,8 +18,8 @@ from scipy import stats
 from ..phy import propagation
 from ..city import dataset as city_paths
 from ..simulation import engine, traced_draw, trials
-from . import choices, intervals, paper
 from ..simulation.experiment import Experiment
+from . import choices, intervals, paper
 
 #: the traced city (its deployment's and its dataset's name): Sionna RT's "munich" scene (``city_trace.CitySpec``)
 CITY = "munich"

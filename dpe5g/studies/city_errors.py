@@ -31,12 +31,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..common import _checks
+from ..phy.nr import C, PAPER
 from ..receivers import otdoa, toa_fit
 from ..city import dataset as city_paths
 from ..simulation import traced_draw
-from . import city as city_study, city_channel
 from ..simulation.experiment import OTDOA_DETECTORS, Experiment
-from ..phy.nr import C, PAPER
+from . import city as city_study, city_channel
 
 
 def trial_links(city: city_paths.TracedCity, e: Experiment, res) -> np.ndarray:

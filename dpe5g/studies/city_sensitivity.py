@@ -21,12 +21,12 @@ from dataclasses import replace
 import numpy as np
 
 from ..common import _checks
+from ..common._io import arrays_digest, atomic_write, jsonable
 from ..phy import deployment
 from ..city import dataset as city_paths, ray_tracer, trace as city_trace
 from ..simulation import engine, store, traced_draw
-from . import choices, city as city_study
-from ..common._io import arrays_digest, atomic_write, jsonable
 from ..simulation.experiment import OTDOA_DETECTORS
+from . import choices, city as city_study
 
 #: the UEs of the subset: the stored city's first SUBSET_UES, every BS
 SUBSET_UES = 200

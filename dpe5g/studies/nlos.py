@@ -14,8 +14,8 @@ from dataclasses import replace
 
 from ..phy import propagation as scenario
 from ..receivers import search_config
-from . import paper
 from ..simulation.experiment import Experiment
+from . import paper
 
 #: the excess delay of the paper's scenario: TR 38.901 Table 7.6.9-1's UMi street-canyon row (lg Δτ: mean −7.5,
 #: σ 0.5 decade; median 31.6 ns), ``scenario.TR38901_EXCESS_DELAY``

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import intervals, nlos as nlos_study, paper
 from ..simulation.experiment import Experiment
+from . import intervals, nlos as nlos_study, paper
 
 #: the readings, in the order of the table: name → (label, changes to the paper's set-up as we read it).  Set-up as
 #: we read it: window centred on the truth (the paper's centring), RMS delay spread, per-sample SNR, L = 12,

@@ -11,7 +11,7 @@ import pytest
 from matplotlib.figure import Figure
 
 from dpe5g.studies import choices
-from dpe5g.figures import plots, registry as figures, result_plots, reuse_plots
+from dpe5g.figures import plots, registry as figures, result_plots
 
 DATA = Path(__file__).resolve().parents[2] / "figures" / "data"
 
@@ -49,12 +49,12 @@ def _chapter_plots() -> dict:
         "window study": lambda: result_plots.plot_window_study(
             [dict(setup=s, m=m, n_taps=n, rmse_m=rng.uniform(1, 5), p90_m=rng.uniform(1, 9))
              for s in ("paper's SNR", long_label) for m in (4, 6, 12) for n in (1, 2, 4, 8, 12, 16)]),
-        "link SINR": lambda: reuse_plots.plot_link_sinr(
+        "link SINR": lambda: result_plots.plot_link_sinr(
             {f"{k}{'st' if k == 1 else 'th'} nearest links": {"snr_db": rng.normal(-5 * k, 5, 300),
                                                               "sinr_db": rng.normal(-6 * k, 5, 300)} for k in (1, 2, 5)}),
-        "reuse RMSE": lambda: reuse_plots.plot_reuse_rmse(
+        "reuse RMSE": lambda: result_plots.plot_reuse_rmse(
             {"snrs_db": snr, "m_values": ms, "setups": {f"({c}) {long_label}": rmse() for c in "abc"}}),
-        "reuse CDF": lambda: reuse_plots.plot_reuse_cdf(
+        "reuse CDF": lambda: result_plots.plot_reuse_cdf(
             {"cases": {c: {"no reuse": {"dpe": errs(), "otdoa": errs()}, "reuse 6": {"dpe": errs(), "otdoa": errs()}}
                        for c in ("two_of_four", "pr_los")}}),
         "RMSE and bound": lambda: result_plots.plot_rmse_and_bound(
