@@ -43,14 +43,25 @@ def test_a_sample_of_the_stored_links_is_what_sionna_traces_today(city, retraced
 
 
 def test_compare_links_finds_a_changed_link(city, retraced):
-    """The check above can fail: a stored power moved by 3 dB, or a first path by 1 ns, is reported."""
+    """The check above can fail: a stored power moved by 3 dB, a first path by 1 ns or its gain by 0.1 dB, a LoS state
+    flipped, or every link's power moved by 0.2 dB, is reported."""
     k = int(np.argmax(city.power_db))
-    power, excess = city.power_db.copy(), city.excess_s.copy()
+    base = set(city_paths.compare_links(city, *retraced))
+
+    def found(**changes):
+        changed = city_paths.TracedCity(**{**city.__dict__, **changes})
+        return [line for line in city_paths.compare_links(changed, *retraced) if line not in base]
+
+    power, excess, gains, los = city.power_db.copy(), city.excess_s.copy(), city.gains.copy(), city.los.copy()
     power[k] += 3.0
     excess[k, 0] += 1e-9
-    changed = city_paths.TracedCity(**{**city.__dict__, "power_db": power, "excess_s": excess})
-    found = city_paths.compare_links(changed, *retraced)
-    assert len(found) == 1 and "power 3 dB, first-path delay 1 ns off" in found[0], found
+    new = found(power_db=power, excess_s=excess)
+    assert len(new) == 1 and "power 3 dB, first-path delay 1 ns off" in new[0], new
+    gains[k, 0] *= 10 ** (0.1 / 20)
+    assert len(new := found(gains=gains)) == 1 and "first-path gain 0.1 dB off" in new[0], new
+    los[k] = not los[k]
+    assert len(new := found(los=los)) == 1 and f"(stored {not city.los[k]})" in new[0], new
+    assert any("median power difference is 0.2 dB" in line for line in found(power_db=city.power_db + 0.2))
 
 
 def test_the_traced_los_path_is_free_space(city):
