@@ -171,7 +171,7 @@ def city_file(name: str, root: Path | None = None) -> Path:
     -------
     Path
     """
-    return (STORE_DIR if root is None else root) / CITY_FOLDER / f"{name}.npz"
+    return (STORE_DIR if root is None else root) / CITY_FOLDER / f"{_checks.name('name', name)}.npz"
 
 
 def save_city(name: str, traced: dict, spec: dict, provenance: dict, root: Path | None = None) -> Path:

@@ -10,7 +10,12 @@ Units: metres, dBm.
 from __future__ import annotations
 
 import glob
+import importlib.util
 import os
+import re
+import subprocess
+import sys
+from functools import lru_cache
 from importlib.metadata import version
 
 import numpy as np
@@ -22,8 +27,17 @@ LLVM_GLOBS = ("/usr/lib/x86_64-linux-gnu/libLLVM.so.19*", "/usr/lib/aarch64-linu
               "/usr/lib/llvm-19/lib/libLLVM*.so*", "/usr/lib/*/libLLVM.so.1[6-9]*", "/usr/lib/*/libLLVM-1[6-9].so")
 
 
+#: the oldest LLVM that Dr.Jit's CPU backend runs on: with LLVM 15 it aborts the process ("LLVM ERROR: Cannot select")
+MIN_LLVM = 16
+
+#: what ``check_llvm`` runs in a subprocess: a min/max through Dr.Jit's CPU backend, where LLVM 15 aborts
+LLVM_PROBE = ("import drjit as dr\nfrom drjit.llvm import Float\nx = Float([1.0, 2.0, 3.0])\n"
+              "dr.eval(dr.minimum(x, 1.5) + dr.maximum(x, 2.5))\n")
+
+
 def llvm_library() -> str:
-    """The libLLVM that Dr.Jit's CPU backend loads: DRJIT_LIBLLVM_PATH if set, else the first of ``LLVM_GLOBS``.
+    """The libLLVM that Dr.Jit's CPU backend loads, checked (``check_llvm``): DRJIT_LIBLLVM_PATH if set, else the first
+    of ``LLVM_GLOBS``; and the tracer's packages checked installed (``check_packages``).
 
     Returns
     -------
@@ -33,8 +47,9 @@ def llvm_library() -> str:
     Raises
     ------
     errors.Failure
-        When none is found: one line naming the Debian package.
+        When sionna-rt is missing, or no usable libLLVM is found: one line naming the package to install.
     """
+    check_packages()
     path = os.environ.get("DRJIT_LIBLLVM_PATH")
     if path and not os.path.exists(path):
         raise Failure(f"DRJIT_LIBLLVM_PATH={path}: no such file (unset it, or name libLLVM.so.19.1)")
@@ -44,8 +59,54 @@ def llvm_library() -> str:
             raise Failure("ray tracing needs LLVM 19 for Dr.Jit's CPU backend: apt-get install libllvm19 "
                                "(or set DRJIT_LIBLLVM_PATH to a libLLVM.so of version 16 or later)")
         path = found[0]
+    check_llvm(os.path.realpath(path))
     os.environ["DRJIT_LIBLLVM_PATH"] = path
     return path
+
+
+def check_packages() -> None:
+    """The ray tracer's Python packages (sionna-rt, which brings mitsuba and drjit) are installed.
+
+    Raises
+    ------
+    errors.Failure
+        Naming the one to install (its pin is in environment.txt); everything that does not trace works without it.
+    """
+    for module, package in (("sionna", "sionna-rt"), ("mitsuba", "sionna-rt"), ("drjit", "sionna-rt")):
+        if importlib.util.find_spec(module) is None:  # (top-level names: found without importing them)
+            raise Failure(f"ray tracing needs {package} (its module {module} is missing): pip install the {package} "
+                          "pinned in environment.txt; nothing else needs it")
+
+
+@lru_cache(maxsize=8)
+def check_llvm(path: str) -> None:
+    """The libLLVM at ``path`` runs Dr.Jit's CPU backend: a version of ``MIN_LLVM`` or later by its file name, and
+    ``LLVM_PROBE`` run in a subprocess on it (an unusable library aborts that process, never this one).  Once per
+    library and process.
+
+    Parameters
+    ----------
+    path : str
+        The library, its links resolved.
+
+    Raises
+    ------
+    errors.Failure
+        Naming the library, what was wrong and the package to install.
+    """
+    remedy = "apt-get install libllvm19 and unset DRJIT_LIBLLVM_PATH (or name a libLLVM.so of version 16 or later)"
+    m = re.search(r"LLVM(?:-|\.so\.)(\d+)", os.path.basename(path))
+    if m and int(m.group(1)) < MIN_LLVM:
+        raise Failure(f"{path}: LLVM {m.group(1)}, but Dr.Jit's CPU backend needs LLVM {MIN_LLVM} or later: {remedy}")
+    try:
+        r = subprocess.run([sys.executable, "-c", LLVM_PROBE], env={**os.environ, "DRJIT_LIBLLVM_PATH": path},
+                           capture_output=True, text=True, timeout=300)
+    except subprocess.TimeoutExpired:
+        raise Failure(f"{path}: Dr.Jit's CPU backend did not start on it within 300 s: {remedy}") from None
+    if r.returncode != 0:
+        why = next((line.strip() for line in r.stderr.splitlines() if "LLVM" in line or "Unable" in line),
+                   f"exit code {r.returncode}")
+        raise Failure(f"{path}: Dr.Jit's CPU backend cannot run on it ({why[:200]}): {remedy}")
 
 
 def library_versions() -> dict:

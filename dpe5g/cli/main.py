@@ -284,6 +284,7 @@ def _trace(args) -> int:
     from ..studies import city as city_study, city_sensitivity
 
     writable_dir("DPE5G_STORE", STORE_DIR)
+    ray_tracer.llvm_library()  # the tracer's packages and its LLVM, checked before anything is traced or written
     spec, name = city_trace.CitySpec(), city_study.CITY
     if not args.force and city_paths.is_current(name, spec.to_dict(), city_trace.code_digest()):
         print(f"trace: {city_paths.city_file(name)} was traced with today's settings and code "

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from typing import Iterable
 
 import jax
@@ -80,6 +81,37 @@ def one_of(name: str, value: str, allowed: Iterable[str]) -> str:
     return value
 
 
+#: a name of something the results store keeps (an experiment's runs, a traced city): it becomes part of a file name
+NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}")
+
+
+def name(param: str, value) -> str:
+    """Check that ``value`` is a name, never a path: 1–100 letters, digits, ".", "_" or "-", starting with a letter or
+    digit, without "..".
+
+    Parameters
+    ----------
+    param : str
+        The parameter's name, for the message.
+    value : str
+        The name.
+
+    Returns
+    -------
+    str
+        ``value``.
+
+    Raises
+    ------
+    ValueError
+        Naming ``param``, the allowed form and ``value``.
+    """
+    if not isinstance(value, str) or not NAME.fullmatch(value) or ".." in value:
+        raise ValueError(f"{param} must be a name of 1-100 letters, digits, '.', '_' or '-' that starts with a letter "
+                         f"or digit (it names files in the results store, never a path), got {value!r}")
+    return value
+
+
 def require_x64() -> None:
     """Raise unless JAX float64 is on.
 
@@ -120,11 +152,14 @@ def as_declared(value, declared: str):
 def plain_fields(obj) -> None:
     """Replace each field of the frozen dataclass ``obj`` by its ``plain`` value as its declared type
     (``as_declared``; in ``__post_init__``), so settings given as lists, NumPy values or ints where floats are
-    declared give the same object and the same key as the plain numbers."""
+    declared give the same object and the same key as the plain numbers; a ``bool`` field takes only True or False
+    (or a NumPy bool)."""
     for f in dataclasses.fields(obj):
         v = getattr(obj, f.name)
         declared = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", "")
         p = as_declared(plain(v), declared)
+        if declared == "bool" and not isinstance(p, bool):  # not "False" (truthy) and not 1 (another key)
+            raise ValueError(f"{f.name} must be True or False, got {v!r}")
         if declared.startswith("tuple[") and not isinstance(p, tuple):
             raise ValueError(f"{f.name} must be a tuple (or list) of values, got {v!r}")
         if p is not v:

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ..common import _checks
-from .propagation import prs_plan
+from .propagation import N_PRS_IDS, prs_plan
 
 DATA_DIR = Path(__file__).resolve().parents[1] / "data"
 TST_FILE = DATA_DIR / "tst_deployment.json"
@@ -43,7 +43,7 @@ MIN_BS = 3  # (x, y, c δt) has three unknowns
 #: the largest deployment file read (bytes) and the most base stations and buildings it may hold: a city's
 #: deployment is far below these; a larger file is most likely not a deployment
 MAX_FILE_BYTES = 20_000_000
-MAX_BS = 5_000
+MAX_BS = N_PRS_IDS  # (without PRS reuse, each BS needs a PRS ID of its own)
 MAX_BUILDINGS = 100_000
 #: base stations must stand at least this far apart (m), and off one line by at least this much (RMS, m)
 MIN_SPACING_M = 0.5
@@ -216,7 +216,7 @@ def _base_stations(source, rows, text: bool = False):
         n = len(rows) if isinstance(rows, list) else 0
         _fail(source, f"needs at least {MIN_BS} base stations (x, y and the clock bias are unknown), got {n}")
     if len(rows) > MAX_BS:
-        _fail(source, f"holds {len(rows)} base stations; at most {MAX_BS} are read")
+        _fail(source, f"holds {len(rows)} base stations; at most {MAX_BS} are read (one PRS ID each)")
     ids, seen, xyz, pw = [], set(), [], []
     for i, r in enumerate(rows):
         where = f"base station {i + 1}"
@@ -254,10 +254,11 @@ def nearest_neighbours(xy) -> tuple[np.ndarray, np.ndarray]:
     index : numpy.ndarray int (B,)
         Its index.
     """
-    from scipy.spatial import cKDTree  # (scipy.spatial: 0.9 s to import, only for the streets' check)
+    from scipy.spatial import cKDTree  # (scipy.spatial: 0.9 s to import, only for the spacing check)
 
     d, j = cKDTree(xy).query(xy, k=2)
-    return d[:, 1], j[:, 1]
+    other = j[:, 0] != np.arange(len(xy))  # two BSs at one place: the tree may list the other one first
+    return np.where(other, d[:, 0], d[:, 1]), np.where(other, j[:, 0], j[:, 1])
 
 
 def _check_geometry(source, ids, xy) -> None:

@@ -104,6 +104,10 @@ def fix(y, prs, bs_xyz, center_m, cfg: SearchConfig | None = None, num: Numerolo
     if bs_xyz.shape[-2:] != (y.shape[-2], 3) or center_m.shape[-1] != 4:
         raise ValueError(f"bs_xyz must be (..., M, 3) and center_m (..., 4); got {bs_xyz.shape} and "
                          f"{center_m.shape}")
+    if center_m.shape[:-1] != y.shape[:-2] or bs_xyz.shape[:-2] != y.shape[:-2]:
+        raise ValueError(f"center_m must be {y.shape[:-2] + (4,)} and bs_xyz {y.shape[:-2] + (y.shape[-2], 3)}: one "
+                         f"window centre and one set of BSs per trial of y {y.shape}; got {center_m.shape} and "
+                         f"{bs_xyz.shape}")
     if y.shape[-2] < 3:
         raise ValueError(f"y must hold at least 3 links (M >= 3: x, y and the clock bias are unknown), got "
                          f"M = {y.shape[-2]}")

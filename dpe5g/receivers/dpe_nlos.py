@@ -71,6 +71,7 @@ def excess_log_masses(p_los, median_s: float, sigma_lg: float, quantile: float, 
     _checks.in_range("median_s", median_s, 1e-12, 1e-6, "s (31.6 ns is 3.16e-8)")
     _checks.in_range("sigma_lg", sigma_lg, 1e-3, 1.0, "decades")
     _checks.in_range("knot_s", knot_s, 1e-12, 1e-6, "s")
+    _checks.values_in_range("p_los", p_los, 0.0, 1.0)
     n_lags = int(np.ceil(propagation.excess_quantile_s(median_s, sigma_lg, quantile) / knot_s)) + 1
     edges = (np.arange(n_lags) + 0.5) * knot_s  # the upper edge of each lag's cell
     cdf = np.array([NormalDist(np.log10(median_s), sigma_lg).cdf(np.log10(x)) for x in edges])

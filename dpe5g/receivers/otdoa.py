@@ -185,8 +185,13 @@ class Fix:
     polish_rejected: bool = False
 
 
+#: base stations closer than this (metres) are at one place for ``check_geometry``
+SAME_PLACE_M = 1e-3
+
+
 def check_geometry(bs_xyz) -> np.ndarray:
-    """Validate base-station positions for a 2-D fix: M ≥ 3, finite, not all on one line (in plan view).
+    """Validate base-station positions for a 2-D fix: M ≥ 3, finite, each at its own place (``SAME_PLACE_M`` apart),
+    not all on one line (in plan view).
 
     Parameters
     ----------
@@ -201,7 +206,7 @@ def check_geometry(bs_xyz) -> np.ndarray:
     Raises
     ------
     ValueError
-        When they are not (M, 3), fewer than 3, not finite, or collinear in plan view.
+        When they are not (M, 3), fewer than 3, not finite, two at one place, or collinear in plan view.
     """
     b = np.asarray(bs_xyz, dtype=np.float64)
     if b.ndim != 2 or b.shape[1] != 3:
@@ -210,6 +215,12 @@ def check_geometry(bs_xyz) -> np.ndarray:
         raise ValueError(f"OTDoA in 2-D needs at least 3 base stations (2 TDoAs for x, y), got {b.shape[0]}")
     if not np.all(np.isfinite(b)):
         raise ValueError("bs_xyz must be finite")
+    close = np.triu(np.linalg.norm(b[:, None] - b[None], axis=-1) < SAME_PLACE_M, 1)
+    if close.any():
+        i, j = (int(k) for k in np.argwhere(close)[0])
+        raise ValueError(f"bs_xyz: base stations {i} and {j} are at one place ({b[i].tolist()} m): their TDoA is 0 "
+                         f"whatever the UE's position (give each BS its own site, {SAME_PLACE_M * 1e3:g} mm apart at "
+                         "least)")
     d = b[1:, :2] - b[0, :2]
     s = np.linalg.svd(d, compute_uv=False)
     if s[-1] <= 1e-6 * max(s[0], 1.0):

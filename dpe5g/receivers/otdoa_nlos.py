@@ -362,7 +362,7 @@ def threshold(dof: int, false_alarm: float = FALSE_ALARM) -> float:
     dof : int
         Degrees of freedom, ≥ 1 (NaN for 0: nothing to test).
     false_alarm : float
-        In (0, 0.5].
+        1e-6 to 0.5.
 
     Returns
     -------
@@ -370,6 +370,7 @@ def threshold(dof: int, false_alarm: float = FALSE_ALARM) -> float:
     """
     from scipy.stats import chi2  # (scipy.stats: 0.8 s to import, only for the NLoS test)
 
+    _checks.in_range("false_alarm", false_alarm, 1e-6, 0.5)
     return float("nan") if dof < 1 else float(chi2.isf(false_alarm, dof))
 
 
@@ -386,6 +387,8 @@ class NlosSolver:
 
     def __init__(self, false_alarm: float = FALSE_ALARM, exclude: bool = True):
         self.false_alarm = _checks.in_range("false_alarm", false_alarm, 1e-6, 0.5)
+        if not isinstance(exclude, (bool, np.bool_)):
+            raise ValueError(f"exclude must be True or False, got {exclude!r}")
         self.exclude = bool(exclude)
         self._solvers = {}
 

@@ -291,6 +291,7 @@ class Run:
 
     def __post_init__(self):
         _checks.plain_fields(self)  # lists and NumPy values as the plain Python they hash as
+        _checks.name("name", self.name)
         _checks.integer("n_trials", self.n_trials, 1, 10_000_000)
         _checks.integer("seed", self.seed, 0, 2**31 - 1)
         _checks.integer("chunk_trials", self.chunk_trials, 1, 100_000)

@@ -66,7 +66,7 @@ def program_config(e: Experiment, program: str) -> Experiment | tuple[SearchConf
     """
     if program not in PROGRAMS:
         raise ValueError(f"program must be one of {PROGRAMS}, got {program!r}")
-    run_free = e.replace(name="", seed=0, n_trials=1, chunk_trials=1)
+    run_free = e.replace(name="program", seed=0, n_trials=1, chunk_trials=1)  # (the run: not a program's)
     if program == "toa":
         return run_free.replace(dpe_nlos=False)  # read by "bnb_prep" only
     run_free = run_free.replace(otdoa_nlos=False)  # read by "toa" only

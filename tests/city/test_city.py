@@ -1,8 +1,11 @@
 """The ray-traced city (issue 45): the stored paths re-traced in part, the traced LoS path against free space, the
 traced channel source through the one signal model, its population and link order, and its bad input."""
 
+import glob
 import inspect
 import os
+import subprocess
+import sys
 from types import SimpleNamespace
 
 import numpy as np
@@ -239,3 +242,40 @@ def test_the_trials_links_are_heard_links_are_traced_links(city):
     assert 0 < nlos["trial"].sum() < nlos["heard"].sum() < nlos["all"].sum()
     with pytest.raises(ValueError, match="not a run of"):
         city_study.link_populations(city, e, SimpleNamespace(**{**res.__dict__, "bs_index": res.bs_index[::-1]}))
+
+
+LLVM15 = sorted(glob.glob("/usr/lib/*/libLLVM-15.so*"))
+
+
+@pytest.mark.skipif(not LLVM15, reason="no libLLVM 15 on this machine (Debian's default llvm)")
+def test_an_unusable_llvm_is_refused_before_it_can_abort(tmp_path, monkeypatch):
+    """LLVM 15 (Debian's default) aborts Dr.Jit's CPU backend with SIGABRT: refused by its version, and, named without
+    one, by the probe in a subprocess; a file that is no library likewise: each an ``errors.Failure`` of one line."""
+    from dpe5g.common.errors import Failure
+
+    ray_tracer.check_llvm.cache_clear()
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", LLVM15[0])
+    with pytest.raises(Failure, match="LLVM 15, but Dr.Jit's CPU backend needs LLVM 16 or later: apt-get install"):
+        ray_tracer.llvm_library()
+    (tmp_path / "libLLVM.so").symlink_to(LLVM15[0])
+    with pytest.raises(Failure, match="cannot run on it .*apt-get install libllvm19"):
+        ray_tracer.check_llvm(str(tmp_path / "libLLVM.so"))
+    (tmp_path / "junk.so").write_text("not a library\n")
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", str(tmp_path / "junk.so"))
+    with pytest.raises(Failure, match="junk.so: Dr.Jit's CPU backend cannot run on it"):
+        ray_tracer.llvm_library()
+
+
+def test_trace_without_its_stack_is_one_line_and_nothing_else_needs_it():
+    """Without sionna-rt, ``dpe5g trace`` ends in one line naming the package and exit code 1; the stored city, its
+    traced channel source and its studies load without it."""
+    block = "import sys; sys.modules.update(sionna=None, mitsuba=None, drjit=None); "
+    r = subprocess.run([sys.executable, "-c", block + "from dpe5g.cli.main import main; raise SystemExit(main(['trace']))"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 1 and r.stderr.count("\n") == 1, r.stderr
+    assert "ray tracing needs sionna-rt" in r.stderr and "Traceback" not in r.stderr
+    r = subprocess.run([sys.executable, "-c", block + "from dpe5g.city import dataset; from dpe5g.simulation import "
+                        "traced_draw; from dpe5g.studies import city; c = dataset.load_city(city.CITY); "
+                        "traced_draw.population(city.city_fig10(4, 'otdoa', n_trials=2)); print(c.n_ue)"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0 and r.stdout.strip() == "5000", r.stderr

@@ -107,3 +107,33 @@ def test_dpe_fix_refuses_nan_samples_and_empty_pilots():
     empty[2] = 0
     with pytest.raises(ValueError, match="prs must not be all zero"):
         dpe.fix(y, empty, bs, centre)
+    two = (np.stack([y, y]), np.stack([prs, prs]))  # two trials
+    with pytest.raises(ValueError, match=r"center_m must be \(2, 4\) and bs_xyz \(2, 3, 3\)"):
+        dpe.fix(*two, np.stack([bs, bs]), np.stack([centre] * 3))
+    with pytest.raises(ValueError, match=r"center_m must be \(2, 4\)"):
+        dpe.fix(*two, bs, np.stack([centre] * 2))
+
+
+@pytest.mark.parametrize("bad", ["../../../../somewhere/x", "a/b", "..", "", ".hidden", "x" * 101, 3, None])
+def test_a_stored_thing_is_named_never_pathed(bad, tmp_path):
+    """An experiment's or a traced city's name becomes a file name in the results store: a path, or what is not a
+    name, is a ValueError naming the parameter, before any file is read or written."""
+    from dpe5g.city import dataset
+
+    with pytest.raises(ValueError, match="name must be a name of 1-100 letters"):
+        experiment.Experiment.build(name=bad, n_trials=2, snrs_db=(20.0,), m_values=(4,))
+    with pytest.raises(ValueError, match="name must be a name of 1-100 letters"):
+        dataset.load_city(bad, root=tmp_path)
+    assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("bad", ["False", "True", 1, 0, None, 1.0])
+def test_a_switch_is_true_or_false(bad):
+    """A boolean setting takes True or False (or a NumPy bool): "False" would switch a receiver on, and 1 beside True
+    would give two keys for one experiment."""
+    with pytest.raises(ValueError, match="dpe_nlos must be True or False"):
+        experiment.Experiment.build(dpe_nlos=bad, n_trials=2, snrs_db=(20.0,), m_values=(4,))
+    with pytest.raises(ValueError, match="co_channel must be True or False"):
+        experiment.Experiment.build(co_channel=bad, n_trials=2, snrs_db=(20.0,), m_values=(4,))
+    assert (experiment.Experiment.build(dpe_nlos=np.bool_(False), n_trials=2).key()
+            == experiment.Experiment.build(dpe_nlos=False, n_trials=2).key())

@@ -121,7 +121,7 @@ BAD = [
     (("deployment", "region5.json"), "region5.json: needs a region {x_min_m, y_min_m, x_max_m, y_max_m}"),
     (("deployment", "deep.json"), "deep.json: is nested too deeply to be a deployment"),
     (("deployment", "extra.csv"), "extra.csv: row 3 has more fields than the header"),
-    (("deployment", "many.csv"), "many.csv: holds 40000 base stations; at most 5000 are read"),
+    (("deployment", "many.csv"), "many.csv: holds 40000 base stations; at most 4096 are read (one PRS ID each)"),
     (RUN + ("--deployment", "bld5.json"), "bld5.json: buildings must be a list of objects, got int"),
     (("profile", "C", "--delay-spread", "1e-300"), "delay_spread_s=1e-300 s is outside the allowed range [1e-09"),
     (("scene", "--out", "existing.html"), "--out existing.html: exists; pass --force"),

@@ -93,6 +93,8 @@ def _write(tmp_path, name, text):
     ("d.csv", "id,x_m,y_m,height_m,power_dbm\nA,0,0,10,24\nA,100,0,10,24\nC,0,100,10,24\n", "duplicate id"),
     ("d.csv", "id,x_m,y_m,height_m,power_dbm\nA,0,0,10,24\nB,100,nan,10,24\nC,0,100,10,24\n", "y_m must be"),
     ("d.json", "{not json", "not valid JSON"),
+    ("d.csv", "id,x_m,y_m,height_m,power_dbm\nA,0,0,10,24\nB,100,0,10,24\nC,0,100,10,24\nD,50,50,10,24\nE,50,50,10,24\n",
+     "base stations D and E are less than 0.5 m apart"),
     ("d.json", json.dumps({"base_stations": [{"x_m": 0, "y_m": 0, "height_m": 10, "power_dbm": 24}] * 3}),
      "less than 0.5 m apart"),
     ("d.json", json.dumps({"base_stations": [{"x_m": i * 50, "y_m": i * i * 10, "height_m": 10, "power_dbm": 24}

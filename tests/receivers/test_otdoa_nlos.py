@@ -289,3 +289,23 @@ def test_the_engine_runs_the_receiver_on_each_trials_own_signals(tmp_path):
     assert res.otdoa_nlos_error_m.shape == res.error_m.shape
     with pytest.raises(ValueError, match="otdoa_nlos"):
         experiment.Experiment.build(**{**kw, "otdoa": False}, otdoa_nlos=True)
+
+
+def test_the_nlos_receivers_refuse_what_they_cannot_mean():
+    """Two BSs at one place (their TDoA is 0 wherever the UE is: a fix 348 m off was reported consistent), a
+    false-alarm rate outside its range, a switch that is not True or False, and a LoS prior outside [0, 1] are
+    ValueErrors naming the parameter."""
+    from dpe5g.receivers import dpe_nlos
+
+    bs = np.array([[0.0, 0.0, 10.0], [200.0, 0.0, 10.0], [0.0, 200.0, 10.0], [0.0, 200.0, 10.0]])
+    toa = np.linalg.norm(bs - [50.0, 50.0, 1.5], axis=1) / C
+    with pytest.raises(ValueError, match="base stations 2 and 3 are at one place"):
+        otdoa_nlos.NlosSolver().fix(bs, toa, np.ones(4), 1.5)
+    for rate in (0.0, 1.0, -0.1, float("nan")):
+        with pytest.raises(ValueError, match="false_alarm must"):
+            otdoa_nlos.threshold(2, rate)
+    with pytest.raises(ValueError, match="exclude must be True or False"):
+        otdoa_nlos.NlosSolver(exclude="False")
+    for p in (-0.1, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="p_los must be finite and in"):
+            dpe_nlos.excess_log_masses(np.array([0.5, p]), 3e-8, 0.3, 0.99, 1e-9)
