@@ -13,6 +13,7 @@ Units: metres, seconds, dB.
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import math
@@ -174,8 +175,12 @@ def city_file(name: str, root: Path | None = None) -> Path:
     return (STORE_DIR if root is None else root) / CITY_FOLDER / f"{_checks.name('name', name)}.npz"
 
 
-def save_city(name: str, traced: dict, spec: dict, provenance: dict, root: Path | None = None) -> Path:
-    """Write a traced city to the store (``.npz`` and its ``.json``) and its deployment to the package data.
+def save_city(name: str, traced: dict, spec: dict, provenance: dict, root: Path | None = None,
+              extra: dict | None = None) -> Path:
+    """Write a traced city to the store: its arrays (``.npz``), its deployment file (``write_deployment``), then its
+    record (``.json``: name, settings, the arrays' checksum, provenance, ``extra``) sealed by ``record_checksum``, last.
+
+    A stop between the files leaves a city that ``check_city`` finds damaged, never one that reads as whole.
 
     Parameters
     ----------
@@ -189,6 +194,8 @@ def save_city(name: str, traced: dict, spec: dict, provenance: dict, root: Path 
         What traced it: commit, library versions, seconds.
     root : Path or None
         The store's folder; None: ``STORE_DIR``.
+    extra : dict or None
+        More fields of the record (a subset's label and the positions it was traced at).
 
     Returns
     -------
@@ -200,16 +207,38 @@ def save_city(name: str, traced: dict, spec: dict, provenance: dict, root: Path 
     arrays = {k: np.asarray(traced[k]) for k in ARRAYS}
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)
-    meta = {"name": name, "spec": spec, "checksum": arrays_digest(arrays), "provenance": provenance}
+    meta = jsonable({"name": name, "spec": spec, **(extra or {}), "checksum": arrays_digest(arrays),
+                     "provenance": provenance})
     atomic_write(path, buf.getvalue())
-    atomic_write(path.with_suffix(".json"), json.dumps(jsonable(meta), indent=1).encode())
-    write_deployment(name, arrays, spec, meta["checksum"])
+    dep = write_deployment(name, arrays, spec, meta["checksum"], root)
+    meta["record_checksum"] = record_checksum(meta, dep.read_bytes())
+    atomic_write(path.with_suffix(".json"), json.dumps(meta, indent=1).encode())
     return path
 
 
-def write_deployment(name: str, arrays: dict, spec: dict, checksum: str) -> Path:
-    """The city's deployment file (``deployment.BUILTIN``, beside its paths): its BSs, region and UE height, and the
-    paths' checksum.
+def record_checksum(meta: dict, deployment_bytes: bytes) -> str:
+    """SHA-256 of a city's record (every field but this one, as sorted JSON) and of its deployment file's bytes: with
+    the arrays' checksum inside the record, it covers the whole city.
+
+    Parameters
+    ----------
+    meta : dict
+        The record (its ``.json``).
+    deployment_bytes : bytes
+        Its deployment file.
+
+    Returns
+    -------
+    str
+        The hex digest.
+    """
+    record = json.dumps({k: v for k, v in meta.items() if k != "record_checksum"}, sort_keys=True)
+    return hashlib.sha256(record.encode() + b"\0" + deployment_bytes).hexdigest()
+
+
+def write_deployment(name: str, arrays: dict, spec: dict, checksum: str, root: Path | None = None) -> Path:
+    """The city's deployment file (``deployment_file``, beside its paths; ``deployment.builtin`` finds it): its BSs,
+    region and UE height, and the paths' checksum.
 
     Parameters
     ----------
@@ -221,6 +250,8 @@ def write_deployment(name: str, arrays: dict, spec: dict, checksum: str) -> Path
         Its ``CitySpec`` (power, UE height, scene).
     checksum : str
         The dataset's checksum (``_io.arrays_digest``).
+    root : Path or None
+        The store's folder; None: ``STORE_DIR``.
 
     Returns
     -------
@@ -235,7 +266,7 @@ def write_deployment(name: str, arrays: dict, spec: dict, checksum: str) -> Path
            "ue_height_m": float(spec["ue_height_m"]),
            "base_stations": [{"id": f"C{b + 1:02d}", "x_m": float(p[0]), "y_m": float(p[1]), "height_m": float(p[2]),
                               "power_dbm": float(spec["power_dbm"])} for b, p in enumerate(arrays["bs_xyz"])]}
-    path = deployment.BUILTIN.get(name, deployment.TRACED_DIR / f"{name}_deployment.json")
+    path = deployment_file(name, root)
     atomic_write(path, (json.dumps(doc, indent=1) + "\n").encode())
     return path
 
@@ -306,15 +337,16 @@ def load_view(name: str, root: Path | None = None) -> dict:
     try:
         arrays = read_npz(path)
         ok = arrays_digest(arrays) == json.loads(path.with_suffix(".json").read_text())["checksum"]
-    except (OSError, ValueError, KeyError) as err:
-        raise DamagedEntry(path, f"cannot be read ({err})") from err
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise DamagedEntry(path, f"cannot be read ({err}): dpe5g trace makes it again") from err
     if not ok:
-        raise DamagedEntry(path, "its arrays do not match the checksum in its .json")
+        raise DamagedEntry(path, "its arrays do not match the checksum in its .json: dpe5g trace makes it again")
     return arrays
 
 
 def is_current(name: str, spec: dict, code_digest: str, root: Path | None = None) -> bool:
-    """Whether the stored city ``name`` was traced with ``spec`` by the tracing code of ``code_digest``.
+    """Whether the stored city ``name`` is whole (``check_city``) and was traced with ``spec`` by the tracing code of
+    ``code_digest``: a damaged or missing part makes it stale, so ``dpe5g trace`` traces it again.
 
     Parameters
     ----------
@@ -331,15 +363,101 @@ def is_current(name: str, spec: dict, code_digest: str, root: Path | None = None
     -------
     bool
     """
+    damage, meta, _ = _read_city(name, root)
+    return damage is None and meta.get("spec") == spec and meta.get("provenance", {}).get("code") == code_digest
+
+
+def check_city(name: str, root: Path | None = None) -> str | None:
+    """What is wrong with the stored city ``name``, in a few words, or None when it is whole: its ``.npz``, its
+    ``.json`` and its deployment file present and readable; the arrays those of ``ARRAYS`` and equal to the recorded
+    checksum; the record naming this city and a valid ``CitySpec``; the deployment file (``write_deployment``) the
+    arrays' base stations, in number and place, their power and the region; and the record and the deployment file
+    equal to their ``record_checksum``.
+
+    Parameters
+    ----------
+    name : str
+        The city's name.
+    root : Path or None
+        The store's folder; None: ``STORE_DIR``.
+
+    Returns
+    -------
+    str or None
+    """
+    return _read_city(name, root)[0]
+
+
+def _read_city(name: str, root: Path | None) -> tuple[str | None, dict, dict]:
+    """(``check_city``'s answer, the record, the arrays): one read of the files for the check and the load."""
+    path = city_file(name, root)
+    dep = deployment_file(name, root)
+    for part in (path, path.with_suffix(".json"), dep):
+        if not part.is_file():
+            return f"{part.name} is missing", {}, {}
     try:
-        meta = json.loads(city_file(name, root).with_suffix(".json").read_text())
-    except (OSError, ValueError):
-        return False
-    return meta.get("spec") == spec and meta.get("provenance", {}).get("code") == code_digest
+        meta = json.loads(path.with_suffix(".json").read_text())
+        arrays = read_npz(path)
+        dep_bytes = dep.read_bytes()
+        doc = json.loads(dep_bytes)
+    except (OSError, ValueError) as err:
+        return f"cannot be read ({' '.join(str(err).split())[:160]})", {}, {}
+    if not isinstance(meta, dict):
+        return "its .json is not a city's record", {}, {}
+    if set(arrays) != set(ARRAYS) or arrays_digest(arrays) != meta.get("checksum"):
+        return "its arrays do not match the checksum in its .json", {}, {}
+    damage = _record_damage(name, meta) or _deployment_damage(doc, arrays, meta["spec"])
+    if damage is None and meta.get("record_checksum") != record_checksum(meta, dep_bytes):
+        damage = "its .json or its deployment file is not what was traced (their checksum differs)"
+    return damage, meta, arrays
+
+
+def _record_damage(name: str, meta: dict) -> str | None:
+    """What is wrong with a city's record (its ``.json``), or None."""
+    if meta.get("name") != name or not isinstance(meta.get("spec"), dict):
+        return "its .json does not name this city and its settings"
+    try:
+        city_trace.CitySpec(**meta["spec"])
+    except (TypeError, ValueError) as err:
+        return f"its .json holds settings that are not a CitySpec ({' '.join(str(err).split())[:160]})"
+    return None
+
+
+def _deployment_damage(doc, arrays: dict, spec: dict) -> str | None:
+    """What is wrong with a city's deployment file against its arrays and settings, or None."""
+    try:
+        rows = doc["base_stations"]
+        xyz = np.array([[r["x_m"], r["y_m"], r["height_m"]] for r in rows], dtype=np.float64)
+        power = {float(r["power_dbm"]) for r in rows}
+        region = [doc["region"][k] for k in ("x_min_m", "y_min_m", "x_max_m", "y_max_m")]
+    except (KeyError, TypeError, ValueError):
+        return "its deployment file is not a deployment"
+    if xyz.shape != arrays["bs_xyz"].shape or not np.array_equal(xyz, arrays["bs_xyz"].astype(np.float64)):
+        return "its deployment file's base stations are not the traced ones"
+    if power != {float(spec["power_dbm"])} or region != [float(v) for v in arrays["region"]]:
+        return "its deployment file's power or region is not the traced city's"
+    return None
+
+
+def deployment_file(name: str, root: Path | None = None) -> Path:
+    """The deployment file of the traced city ``name`` (``write_deployment``), beside its paths.
+
+    Parameters
+    ----------
+    name : str
+        The city's name.
+    root : Path or None
+        The store's folder; None: ``STORE_DIR``.
+
+    Returns
+    -------
+    Path
+    """
+    return city_file(name, root).with_name(f"{name}_deployment.json")
 
 
 def load_city(name: str, root: Path | None = None) -> TracedCity:
-    """The traced city ``name`` from the store, its checksum checked.
+    """The traced city ``name`` from the store, checked whole (``check_city``).
 
     Parameters
     ----------
@@ -355,18 +473,11 @@ def load_city(name: str, root: Path | None = None) -> TracedCity:
     Raises
     ------
     errors.DamagedEntry
-        When a file is missing, unreadable, or its arrays do not match the recorded checksum.
+        Naming what is damaged or missing, and ``dpe5g trace`` (``make reproduce``), which traces it again.
     """
-    path = city_file(name, root)
-    if not path.exists() or not path.with_suffix(".json").exists():
-        raise DamagedEntry(path, "is missing: run make reproduce (it traces the city)")
-    try:
-        meta = json.loads(path.with_suffix(".json").read_text())
-        arrays = read_npz(path)
-    except (OSError, ValueError) as err:
-        raise DamagedEntry(path, f"cannot be read ({err})") from err
-    if set(arrays) != set(ARRAYS) or arrays_digest(arrays) != meta.get("checksum"):
-        raise DamagedEntry(path, "its arrays do not match the checksum in its .json: run make reproduce")
+    damage, meta, arrays = _read_city(name, root)
+    if damage is not None:
+        raise DamagedEntry(city_file(name, root), f"{damage}: dpe5g trace (make reproduce) traces the city again")
     return TracedCity(name=name, spec=meta["spec"], **{k: arrays[k] for k in ARRAYS})
 
 

@@ -286,8 +286,9 @@ def _trace(args) -> int:
     writable_dir("DPE5G_STORE", STORE_DIR)
     ray_tracer.llvm_library()  # the tracer's packages and its LLVM, checked before anything is traced or written
     spec, name = city_trace.CitySpec(), city_study.CITY
-    if not args.force and city_paths.is_current(name, spec.to_dict(), city_trace.code_digest()):
-        print(f"trace: {city_paths.city_file(name)} was traced with today's settings and code "
+    retraced = args.force or not city_paths.is_current(name, spec.to_dict(), city_trace.code_digest())
+    if not retraced:
+        print(f"trace: {city_paths.city_file(name)} is whole and was traced with today's settings and code "
               "(--force traces it again)", flush=True)
     else:
         start = time.perf_counter()
@@ -298,11 +299,24 @@ def _trace(args) -> int:
         path = city_paths.save_city(name, traced, spec.to_dict(), provenance)
         print(f"trace: {len(traced['link_ue'])} links of {spec.n_ue} UEs and {spec.n_bs} BSs traced, written to "
               f"{path} in {provenance['seconds']:.0f} s", flush=True)
-    path = city_paths.save_view(name, _city_view(spec, name))
-    print(f"trace: the 3-D view of its first trial's UE written to {path}", flush=True)
+    if retraced or not _view_whole(name):  # a current city's files stay as they are, byte for byte
+        path = city_paths.save_view(name, _city_view(spec, name))
+        print(f"trace: the 3-D view of its first trial's UE written to {path}", flush=True)
     for line in city_sensitivity.trace_stale(city_paths.load_city(name), args.force):  # the solver's settings tested
         print(f"trace: {line}", flush=True)
     return 0
+
+
+def _view_whole(name: str) -> bool:
+    """Whether the stored 3-D view of the city ``name`` reads and matches its checksum."""
+    from ..city import dataset as city_paths
+    from ..common.errors import DamagedEntry
+
+    try:
+        city_paths.load_view(name)
+    except DamagedEntry:
+        return False
+    return True
 
 
 def _city_view(spec, name: str) -> dict:
@@ -438,6 +452,19 @@ _one_line = lambda text: " ".join(str(text).split())  # noqa: E731  (a message o
 STOP_SIGNALS = {os_signal.SIGINT: (130, "interrupted"), os_signal.SIGTERM: (143, "terminated")}
 
 
+#: what a stopped command leaves, by command; the others keep their finished Monte Carlo chunks
+KEPT_ON_STOP = {"trace": "nothing of this trace is kept; the same command starts it again, and traces a city left "
+                         "half-written",
+                "profile": "nothing was written", "deployment": "nothing was written",
+                "scene": "nothing was written"}
+
+
+def kept_on_stop(prog: str) -> str:
+    """What the command ``prog`` ("dpe5g run", …) leaves when it is stopped, for its one line."""
+    return KEPT_ON_STOP.get(prog.removeprefix("dpe5g").strip(),
+                            "finished Monte Carlo chunks are cached; the same command resumes")
+
+
 def _interrupted(prog: str, signum: int = os_signal.SIGINT):
     """Ctrl-C (SIGINT) or SIGTERM, at any moment of a command: the files being written are removed (every finished
     file is whole: ``_io.atomic_target``), one line, exit code 130 (143 for SIGTERM) at once.  Not a
@@ -450,7 +477,7 @@ def _interrupted(prog: str, signum: int = os_signal.SIGINT):
     sys.stdout.flush()
     bars = getattr(getattr(sys.modules.get("tqdm"), "tqdm", None), "_instances", None)  # a progress bar is drawn:
     sys.stderr.write("\n" if bars else "")  # end its line first
-    sys.stderr.write(f"{prog}: {word} (finished Monte Carlo chunks are cached; the same command resumes)\n")
+    sys.stderr.write(f"{prog}: {word} ({kept_on_stop(prog)})\n")
     sys.stderr.flush()
     os._exit(code)
 
@@ -487,8 +514,7 @@ def main(argv=None) -> int:
         where = f": {e.filename}" if e.filename else ""
         print(f"{prog}: error: {_one_line(e.strerror or e)}{where}", file=sys.stderr)
     except KeyboardInterrupt:  # (called from another thread, where the handler above cannot be set)
-        print(f"{prog}: interrupted (finished Monte Carlo chunks are cached; the same command resumes)",
-              file=sys.stderr)
+        print(f"{prog}: interrupted ({kept_on_stop(prog)})", file=sys.stderr)
         return 130
     finally:  # give a caller in this process its handlers back; the command line's start-up handler stays replaced
         for signum, handler in previous.items():

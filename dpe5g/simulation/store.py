@@ -22,6 +22,7 @@ import numpy as np
 from ..common._io import arrays_digest, atomic_write, jsonable, read_npz
 from ..common.errors import DamagedEntry
 from ..common.locations import REPOSITORY, store_root
+from ..city import dataset as city_paths
 from .code_key import code_version, numerics
 from .experiment import Experiment
 from .results import Results
@@ -239,6 +240,34 @@ def check_store(root: Path | None = None) -> list[DamagedEntry]:
     for meta_path in sorted(root.glob("*.json")):
         try:
             StoredRun(meta_path.with_suffix(".npz"), read_entry_meta(meta_path)).check()
+        except DamagedEntry as err:
+            found.append(err)
+    return found + damaged_cities(root)
+
+
+def damaged_cities(root: Path) -> list[DamagedEntry]:
+    """The traced cities of the store (``city.dataset``) that are not whole, each with what is wrong, and their 3-D
+    views that do not match their checksums.
+
+    Parameters
+    ----------
+    root : Path
+        The store's folder.
+
+    Returns
+    -------
+    list of errors.DamagedEntry
+    """
+    found = []
+    folder = root / city_paths.CITY_FOLDER
+    names = {p.name.removesuffix(s) for s in (".npz", ".json", "_deployment.json") for p in folder.glob(f"*{s}")}
+    for name in sorted(n for n in names if not n.endswith(("_view", "_deployment", "-materials"))):
+        if (damage := city_paths.check_city(name, root)) is not None:
+            found.append(DamagedEntry(city_paths.city_file(name, root),
+                                      f"{damage}: dpe5g trace (make reproduce) traces the city again"))
+    for view in sorted(folder.glob("*_view.npz")):
+        try:
+            city_paths.load_view(view.name.removesuffix("_view.npz"), root)
         except DamagedEntry as err:
             found.append(err)
     return found

@@ -13,7 +13,6 @@ Units: metres, seconds.
 
 from __future__ import annotations
 
-import io
 import json
 import time
 from dataclasses import replace
@@ -21,8 +20,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..common import _checks
-from ..common._io import arrays_digest, atomic_write, jsonable
-from ..phy import deployment
+from ..common._io import arrays_digest, atomic_write
 from ..city import dataset as city_paths, ray_tracer, trace as city_trace
 from ..simulation import engine, store, traced_draw
 from ..simulation.experiment import OTDOA_DETECTORS
@@ -158,16 +156,9 @@ def save_variant(city: city_paths.TracedCity, key: str, traced: dict, provenance
         The subset's name in the store.
     """
     name = variant_name(city.name, key)
-    arrays = {k: np.asarray(traced[k]) for k in city_paths.ARRAYS}
-    buf = io.BytesIO()
-    np.savez_compressed(buf, **arrays)
-    meta = {"name": name, "spec": variant_spec(city, key).to_dict(), "label": VARIANTS[key][0],
-            "checksum": arrays_digest(arrays), "positions": positions_digest(city),
-            "provenance": {**provenance, "seconds": float(traced["seconds"]), "ues_per_call": traced["ues_per_call"]}}
-    path = city_paths.city_file(name)
-    atomic_write(path, buf.getvalue())
-    atomic_write(path.with_suffix(".json"), json.dumps(jsonable(meta), indent=1).encode())
-    city_paths.write_deployment(name, arrays, meta["spec"], meta["checksum"])  # its experiments' deployment
+    city_paths.save_city(name, traced, variant_spec(city, key).to_dict(),
+                         {**provenance, "seconds": float(traced["seconds"]), "ues_per_call": traced["ues_per_call"]},
+                         extra={"label": VARIANTS[key][0], "positions": positions_digest(city)})
     return name
 
 
@@ -184,17 +175,16 @@ def is_current(city: city_paths.TracedCity, key: str) -> bool:
     Returns
     -------
     bool
-        Its files (paths, record, deployment) exist, and its record names this variant's settings (``variant_spec``)
+        Its files (paths, record, deployment) whole (``city_paths.check_city``), and its record names this variant's
+        settings (``variant_spec``)
         and the positions of today's city (``positions_digest``): a city traced again with other solver settings at the
         same positions leaves them current.
     """
     path = city_paths.city_file(variant_name(city.name, key))
-    try:
-        meta = json.loads(path.with_suffix(".json").read_text())
-    except (OSError, ValueError):
+    if city_paths.check_city(path.stem) is not None:  # a damaged or missing part: traced again
         return False
-    return (path.exists() and meta.get("spec") == variant_spec(city, key).to_dict()
-            and meta.get("positions") == positions_digest(city) and deployment.builtin(path.stem) is not None)
+    meta = json.loads(path.with_suffix(".json").read_text())
+    return meta.get("spec") == variant_spec(city, key).to_dict() and meta.get("positions") == positions_digest(city)
 
 
 def load_variant(city: str, key: str) -> tuple[city_paths.TracedCity, dict]:

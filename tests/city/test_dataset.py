@@ -1,0 +1,133 @@
+"""The traced city as one verified unit (issue 55): every kind of damage to its arrays, its record or its deployment
+file is found and named in one line, makes the city stale for ``dpe5g trace`` (the repair) and is reported by the
+store's check (``dpe5g verify``); a stop while a city is written never leaves one that reads as whole."""
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dpe5g.city import dataset, trace
+from dpe5g.common.errors import DamagedEntry
+from dpe5g.common.locations import STORE_DIR
+from dpe5g.simulation import store
+
+NAME = "munich"
+
+
+@pytest.fixture
+def root(tmp_path):
+    """A store holding a copy of the traced city (its paths, record, deployment and 3-D view)."""
+    (tmp_path / dataset.CITY_FOLDER).mkdir()
+    for suffix in (".npz", ".json", "_deployment.json", "_view.npz", "_view.json"):
+        shutil.copy(STORE_DIR / dataset.CITY_FOLDER / f"{NAME}{suffix}", tmp_path / dataset.CITY_FOLDER)
+    return tmp_path
+
+
+def edit_json(path, change):
+    doc = json.loads(path.read_text())
+    path.write_text(json.dumps(change(doc), indent=1))
+
+
+def flip_a_bit(path):
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0x10
+    path.write_bytes(bytes(data))
+
+
+def move_a_bs(doc):
+    doc["base_stations"][3]["x_m"] += 30.0
+    return doc
+
+
+DAMAGE = {
+    "a bit of the arrays": (lambda d: flip_a_bit(d / f"{NAME}.npz"), "cannot be read|do not match the checksum"),
+    "the arrays missing": (lambda d: (d / f"{NAME}.npz").unlink(), f"{NAME}.npz is missing"),
+    "the record missing": (lambda d: (d / f"{NAME}.json").unlink(), f"{NAME}.json is missing"),
+    "the deployment missing": (lambda d: (d / f"{NAME}_deployment.json").unlink(), "deployment.json is missing"),
+    "the arrays cut short": (lambda d: (d / f"{NAME}.npz").write_bytes((d / f"{NAME}.npz").read_bytes()[:5000]),
+                             "cannot be read"),
+    "a record of another scene": (lambda d: edit_json(d / f"{NAME}.json",
+                                                      lambda m: {**m, "spec": {**m["spec"], "scene": "etoile"}}),
+                                  "is not what was traced"),
+    "a record that is a list": (lambda d: (d / f"{NAME}.json").write_text("[]"), "is not a city's record"),
+    "a record without settings": (lambda d: edit_json(d / f"{NAME}.json", lambda m: {k: v for k, v in m.items()
+                                                                                       if k != "spec"}),
+                                  "does not name this city and its settings"),
+    "a BS moved 30 m": (lambda d: edit_json(d / f"{NAME}_deployment.json", move_a_bs),
+                        "base stations are not the traced ones"),
+    "a BS fewer": (lambda d: edit_json(d / f"{NAME}_deployment.json",
+                                       lambda doc: {**doc, "base_stations": doc["base_stations"][:-1]}),
+                   "base stations are not the traced ones"),
+}
+
+
+def test_the_copy_is_whole_and_current(root):
+    assert dataset.check_city(NAME, root) is None
+    assert dataset.is_current(NAME, trace.CitySpec().to_dict(), trace.code_digest(), root)
+    assert dataset.load_city(NAME, root).n_ue == 5000 and store.check_store(root) == []
+
+
+@pytest.mark.parametrize("kind", DAMAGE)
+def test_damage_is_named_stale_and_reported(root, kind):
+    damage, needle = DAMAGE[kind]
+    damage(root / dataset.CITY_FOLDER)
+    found = dataset.check_city(NAME, root)
+    assert found is not None and "\n" not in found
+    with pytest.raises(DamagedEntry, match=rf"({needle}).*: dpe5g trace \(make reproduce\) traces the city again"):
+        dataset.load_city(NAME, root)
+    assert not dataset.is_current(NAME, trace.CitySpec().to_dict(), trace.code_digest(), root)  # trace repairs it
+    assert [Path(d.path).name for d in store.check_store(root)] == [f"{NAME}.npz"]
+
+
+def test_a_damaged_view_is_reported(root):
+    flip_a_bit(root / dataset.CITY_FOLDER / f"{NAME}_view.npz")
+    assert [Path(d.path).name for d in store.check_store(root)] == [f"{NAME}_view.npz"]
+
+
+@pytest.mark.parametrize("stop_at", [1, 2, 3])
+def test_a_stop_while_writing_never_leaves_a_city_that_reads_whole(root, monkeypatch, stop_at):
+    """``save_city`` writes the arrays, the deployment file, then the sealed record: stopped before any of them, the
+    old city stays whole, or the city is found damaged (and traced again); never a mix that reads as whole."""
+    old = dataset.load_city(NAME, root)
+    new = {k: getattr(old, k) for k in dataset.ARRAYS}
+    new["power_db"] = new["power_db"] + 1.0
+    new["bs_xyz"] = new["bs_xyz"] + np.array([1.0, 0.0, 0.0])
+    real, calls = dataset.atomic_write, []
+
+    def stopping(path, data, **kw):
+        calls.append(path)
+        if len(calls) == stop_at:
+            raise KeyboardInterrupt
+        return real(path, data, **kw)
+
+    monkeypatch.setattr(dataset, "atomic_write", stopping)
+    with pytest.raises(KeyboardInterrupt):
+        dataset.save_city(NAME, new, old.spec, {"code": "x"}, root)
+    found = dataset.check_city(NAME, root)
+    assert found is None if stop_at == 1 else found is not None, found
+    if found is None:
+        assert np.array_equal(dataset.load_city(NAME, root).power_db, old.power_db)
+
+
+def test_trace_leaves_a_current_city_untouched(monkeypatch, capsys):
+    """``dpe5g trace`` on the stored city, current and whole: nothing traced, every file of ``cities/`` the same bytes
+    and times; stopped, it says that nothing of the trace is kept."""
+    from dpe5g.cli import main as cli
+    from dpe5g.studies import city_sensitivity
+
+    def refuse(*a, **k):
+        raise AssertionError("the stored city is current: nothing may be traced")
+
+    digest = trace.code_digest()  # (of the code before the stand-in below, which it reads)
+    monkeypatch.setattr(trace, "code_digest", lambda: digest)
+    monkeypatch.setattr(trace, "trace_city", refuse)
+    monkeypatch.setattr(city_sensitivity, "trace_variant", refuse)
+    folder = STORE_DIR / dataset.CITY_FOLDER
+    before = {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in sorted(folder.iterdir())}
+    assert cli.main(["trace"]) == 0
+    assert {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in sorted(folder.iterdir())} == before
+    assert "is whole and was traced with today's settings and code" in capsys.readouterr().out
+    assert "nothing of this trace is kept" in cli.kept_on_stop("dpe5g trace")
