@@ -25,7 +25,7 @@ import numpy as np
 from ..common import _checks
 from ..common._io import arrays_digest, atomic_write, jsonable, read_npz
 from ..common.errors import DamagedEntry
-from ..common.locations import STORE_DIR
+from ..common.locations import cities_dir
 from ..phy import deployment
 from ..phy.nr import C
 from . import trace as city_trace
@@ -166,13 +166,14 @@ def city_file(name: str, root: Path | None = None) -> Path:
     name : str
         The city's name.
     root : Path or None
-        The store's folder; None: ``STORE_DIR``.
+        The store's folder; None: the one in use (``locations.cities_dir``).
 
     Returns
     -------
     Path
     """
-    return (STORE_DIR if root is None else root) / CITY_FOLDER / f"{_checks.name('name', name)}.npz"
+    folder = cities_dir() if root is None else root / CITY_FOLDER
+    return folder / f"{_checks.name('name', name)}.npz"
 
 
 def save_city(name: str, traced: dict, spec: dict, provenance: dict, root: Path | None = None,
@@ -193,7 +194,7 @@ def save_city(name: str, traced: dict, spec: dict, provenance: dict, root: Path 
     provenance : dict
         What traced it: commit, library versions, seconds.
     root : Path or None
-        The store's folder; None: ``STORE_DIR``.
+        The store's folder; None: the one in use (``locations.cities_dir``).
     extra : dict or None
         More fields of the record (a subset's label and the positions it was traced at).
 
@@ -251,7 +252,7 @@ def write_deployment(name: str, arrays: dict, spec: dict, checksum: str, root: P
     checksum : str
         The dataset's checksum (``_io.arrays_digest``).
     root : Path or None
-        The store's folder; None: ``STORE_DIR``.
+        The store's folder; None: the one in use (``locations.cities_dir``).
 
     Returns
     -------
@@ -279,7 +280,7 @@ def view_file(name: str, root: Path | None = None) -> Path:
     name : str
         The city's name.
     root : Path or None
-        The store's folder; None: ``STORE_DIR``.
+        The store's folder; None: the one in use (``locations.cities_dir``).
 
     Returns
     -------
@@ -299,7 +300,7 @@ def save_view(name: str, view: dict, root: Path | None = None) -> Path:
     view : dict
         "triangles", "ue" (the UE's index), "ue_bs" (its BSs) and ``city_view.example_paths``'s arrays.
     root : Path or None
-        The store's folder; None: ``STORE_DIR``.
+        The store's folder; None: the one in use (``locations.cities_dir``).
 
     Returns
     -------
@@ -322,7 +323,7 @@ def load_view(name: str, root: Path | None = None) -> dict:
     name : str
         The city's name.
     root : Path or None
-        The store's folder; None: ``STORE_DIR``.
+        The store's folder; None: the one in use (``locations.cities_dir``).
 
     Returns
     -------
@@ -357,7 +358,7 @@ def is_current(name: str, spec: dict, code_digest: str, root: Path | None = None
     code_digest : str
         ``city_trace.code_digest()`` of today's tracing code.
     root : Path or None
-        The store's folder; None: ``STORE_DIR``.
+        The store's folder; None: the one in use (``locations.cities_dir``).
 
     Returns
     -------
@@ -379,7 +380,7 @@ def check_city(name: str, root: Path | None = None) -> str | None:
     name : str
         The city's name.
     root : Path or None
-        The store's folder; None: ``STORE_DIR``.
+        The store's folder; None: the one in use (``locations.cities_dir``).
 
     Returns
     -------
@@ -447,7 +448,7 @@ def deployment_file(name: str, root: Path | None = None) -> Path:
     name : str
         The city's name.
     root : Path or None
-        The store's folder; None: ``STORE_DIR``.
+        The store's folder; None: the one in use (``locations.cities_dir``).
 
     Returns
     -------
@@ -464,7 +465,7 @@ def load_city(name: str, root: Path | None = None) -> TracedCity:
     name : str
         The city's name.
     root : Path or None
-        The store's folder; None: ``STORE_DIR``.
+        The store's folder; None: the one in use (``locations.cities_dir``).
 
     Returns
     -------

@@ -23,7 +23,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from ..common._io import output_file, writable_dir
-from ..common.locations import BASELINE_DIR, STORE_DIR, store_root
+from ..common.locations import BASELINE_DIR, store_root
 from .parser import UsageError, build_parser, numbers_as_values
 
 
@@ -283,7 +283,11 @@ def _trace(args) -> int:
     from ..simulation import store
     from ..studies import city as city_study, city_sensitivity
 
-    writable_dir("DPE5G_STORE", STORE_DIR)
+    root = store_root()
+    if root is None:
+        raise ValueError("DPE5G_STORE is 'off': dpe5g trace writes the traced city to a results store (unset it, or "
+                         "name a folder)")
+    writable_dir("DPE5G_STORE", root)  # the city goes to the store in use (locations.cities_dir)
     ray_tracer.llvm_library()  # the tracer's packages and its LLVM, checked before anything is traced or written
     spec, name = city_trace.CitySpec(), city_study.CITY
     retraced = args.force or not city_paths.is_current(name, spec.to_dict(), city_trace.code_digest())

@@ -41,3 +41,19 @@ def store_root() -> Path | None:
     if env and Path(env).exists() and not Path(env).is_dir():
         raise ValueError(f"DPE5G_STORE={env}: is not a folder (name a results store's folder, or 'off')")
     return Path(env) if env else STORE_DIR
+
+
+def cities_dir() -> Path:
+    """The traced cities' folder: ``cities/`` of the results store in use (DPE5G_STORE, else ``STORE_DIR``); with
+    DPE5G_STORE "off", the committed store's (a city is never computed on the fly: only ``dpe5g trace`` traces one).
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    ValueError
+        When DPE5G_STORE names something that is not a folder.
+    """
+    return (store_root() or STORE_DIR) / "cities"

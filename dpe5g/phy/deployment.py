@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ..common import _checks
+from ..common.locations import cities_dir
 from .propagation import N_PRS_IDS, prs_plan
 
 DATA_DIR = Path(__file__).resolve().parents[1] / "data"
@@ -30,9 +31,8 @@ TST_FILE = DATA_DIR / "tst_deployment.json"
 #: the DPE chapter's studies (8 BSs on a 150 m circle, the UE in a 10 m or a 100 m square at its centre), made by
 #: ``scripts/make_ring.py``; and the ray-traced city "munich", written beside its paths in the results store
 #: (``city_paths.save_city``; ``builtin`` finds every traced dataset's there, its subsets' too)
-TRACED_DIR = DATA_DIR.parent.parent / "figures" / "trials" / "cities"
 BUILTIN = {"tst": TST_FILE, "ring": DATA_DIR / "ring_deployment.json",
-           "ring-wide": DATA_DIR / "ring_wide_deployment.json", "munich": TRACED_DIR / "munich_deployment.json"}
+           "ring-wide": DATA_DIR / "ring_wide_deployment.json"}
 
 #: allowed ranges for a deployment's numbers
 BS_HEIGHT_RANGE_M = (1.5, 150.0)  # TR 38.901 UMi: 10 m; the formulas need h_BS > h_E = 1 m
@@ -436,7 +436,8 @@ def _rectangle(src, key, reg) -> tuple[float, float, float, float]:
 
 
 def builtin(name: str) -> Path | None:
-    """The file of the packaged deployment ``name`` (``BUILTIN``, or a traced dataset's in ``TRACED_DIR``), or None.
+    """The file of the packaged deployment ``name`` (``BUILTIN``), or of a traced city's ("munich" and its subsets, in
+    ``locations.cities_dir``), or None.
 
     Parameters
     ----------
@@ -447,8 +448,10 @@ def builtin(name: str) -> Path | None:
     -------
     pathlib.Path or None
     """
-    traced = TRACED_DIR / f"{name}_deployment.json"
-    return BUILTIN.get(name) or (traced if "/" not in name and traced.exists() else None)
+    if name in BUILTIN:
+        return BUILTIN[name]
+    traced = cities_dir() / f"{name}_deployment.json"  # (a traced city's, in the results store in use)
+    return traced if "/" not in name and traced.exists() else None
 
 
 def named(name: str) -> Deployment:

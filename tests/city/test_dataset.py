@@ -131,3 +131,33 @@ def test_trace_leaves_a_current_city_untouched(monkeypatch, capsys):
     assert {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in sorted(folder.iterdir())} == before
     assert "is whole and was traced with today's settings and code" in capsys.readouterr().out
     assert "nothing of this trace is kept" in cli.kept_on_stop("dpe5g trace")
+
+
+def test_trace_honours_dpe5g_store(tmp_path, monkeypatch, capsys):
+    """With DPE5G_STORE naming another store, ``dpe5g trace`` reads and writes the cities there: a copy of the current
+    city is found current there, and an empty store is one to trace (here refused by a stand-in), whatever the
+    checkout's store holds; the checkout's files stay as they are."""
+    from dpe5g.cli import main as cli
+
+    class Traces(Exception):
+        pass
+
+    def refuse(*a, **k):
+        raise Traces
+
+    digest = trace.code_digest()
+    monkeypatch.setattr(trace, "code_digest", lambda: digest)
+    monkeypatch.setattr(trace, "trace_city", refuse)
+    folder = STORE_DIR / dataset.CITY_FOLDER
+    before = {p: p.stat().st_mtime_ns for p in folder.iterdir()}
+    shutil.copytree(folder, tmp_path / "copy" / dataset.CITY_FOLDER)
+    monkeypatch.setenv("DPE5G_STORE", str(tmp_path / "copy"))
+    assert cli.main(["trace"]) == 0
+    assert f"{tmp_path / 'copy'}" in capsys.readouterr().out
+    (tmp_path / "empty").mkdir()
+    monkeypatch.setenv("DPE5G_STORE", str(tmp_path / "empty"))
+    with pytest.raises(Traces):
+        cli.main(["trace"])
+    monkeypatch.setenv("DPE5G_STORE", "off")
+    assert cli.main(["trace"]) == 2 and "DPE5G_STORE is 'off'" in capsys.readouterr().err
+    assert {p: p.stat().st_mtime_ns for p in folder.iterdir()} == before

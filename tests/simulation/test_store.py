@@ -316,7 +316,9 @@ def test_reproduce_refuses_changed_code_unless_told(tmp_path, monkeypatch, capsy
     (exit 2) before computing anything; with --allow-dirty it runs."""
     from dpe5g.cli import main as cli
 
-    (tmp_path / "store").mkdir()
+    import shutil
+
+    shutil.copytree(locations.STORE_DIR / "cities", tmp_path / "store" / "cities")  # (a store holds its cities)
     monkeypatch.setenv("DPE5G_STORE", str(tmp_path / "store"))
     monkeypatch.setattr(store, "code_changes", lambda root=None: ["dpe5g/receivers/cost.py"])
     ran = []
