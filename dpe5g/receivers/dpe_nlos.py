@@ -41,6 +41,9 @@ from . import otdoa_nlos
 from .search_config import SearchConfig
 from .spline_boxes import slice_cells, spline_window
 
+#: the narrowest log-normal the NLoS-aware DPE integrates over: its median (s) and σ of lg Δτ (decades)
+MIN_MEDIAN_S, MIN_SIGMA_LG = 1e-12, 1e-3
+
 #: the percentile of c·Δτ that the "clock_nlos" window adds to the clock model's support (``Experiment.receiver_search``)
 CLOCK_NLOS_QUANTILE = 0.99
 
@@ -68,8 +71,8 @@ def excess_log_masses(p_los, median_s: float, sigma_lg: float, quantile: float, 
     float (..., J)
         log(π_j / π_0), 0 at j = 0 (−inf where P_m = 1 and j > 0).
     """
-    _checks.in_range("median_s", median_s, 1e-12, 1e-6, "s (31.6 ns is 3.16e-8)")
-    _checks.in_range("sigma_lg", sigma_lg, 1e-3, 1.0, "decades")
+    _checks.in_range("median_s", median_s, MIN_MEDIAN_S, 1e-6, "s (31.6 ns is 3.16e-8)")
+    _checks.in_range("sigma_lg", sigma_lg, MIN_SIGMA_LG, 1.0, "decades")
     _checks.in_range("knot_s", knot_s, 1e-12, 1e-6, "s")
     _checks.values_in_range("p_los", p_los, 0.0, 1.0)
     n_lags = int(np.ceil(propagation.excess_quantile_s(median_s, sigma_lg, quantile) / knot_s)) + 1

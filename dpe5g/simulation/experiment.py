@@ -21,7 +21,7 @@ from ..common import _checks
 from ..phy import channel, deployment, nr, propagation as scenario, signal
 from ..phy.nr import C
 from ..receivers import otdoa, search_config
-from ..receivers.dpe_nlos import CLOCK_NLOS_QUANTILE
+from ..receivers.dpe_nlos import CLOCK_NLOS_QUANTILE, MIN_MEDIAN_S, MIN_SIGMA_LG
 from .code_key import code_version
 
 #: settings added after the results store was first filled, with their defaults: at its default such a setting is
@@ -342,6 +342,10 @@ class Experiment:
             raise ValueError("dpe_nlos integrates the NLoS excess delay out in the certified search: it needs "
                              f"search.method 'bnb' and clock_window 'clock_nlos', got {rx.search.method!r}, "
                              f"{rx.clock_window!r}")
+        if rx.dpe_nlos and not (self.excess_law()[0] >= MIN_MEDIAN_S and self.excess_law()[1] >= MIN_SIGMA_LG):
+            raise ValueError(f"dpe_nlos integrates over the log-normal excess delay it assumes: nlos_excess_median_s "
+                             f"must be at least {MIN_MEDIAN_S:g} s and nlos_excess_sigma_lg at least {MIN_SIGMA_LG:g} "
+                             f"decades (or nlos_prior 'umi'), got {self.excess_law()}")
         if sc.los_mode in ("two_of_four", "nearest_two_los") and max(rx.m_values) != 4:
             raise ValueError(f"los_mode {sc.los_mode!r} fixes the LoS state of the four nearest links; m_values must "
                              f"end in 4, got {rx.m_values!r}")

@@ -104,6 +104,8 @@ def test_dpe_nlos_rejects_what_it_cannot_run():
         e.replace(dpe_nlos=True, clock_window="clock")
     with pytest.raises(ValueError, match="clock_nlos.*nlos_prior 'umi'"):  # no delay assumed: nothing to integrate
         e.replace(dpe_nlos=True, nlos_excess_median_s=0.0)
+    with pytest.raises(ValueError, match="nlos_excess_sigma_lg at least 0.001 decades"):  # failed inside the run
+        e.replace(dpe_nlos=True, nlos_excess_sigma_lg=0.0)
     umi = e.replace(dpe_nlos=True, nlos_excess_median_s=0.0, nlos_prior="umi")  # the standard's law instead
     assert umi.excess_law() == (nlos_study.UMI.median_s, nlos_study.UMI.sigma_lg) == e.excess_law()
     assert umi.receiver_search() == e.receiver_search()
