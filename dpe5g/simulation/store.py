@@ -221,7 +221,7 @@ def orphans(root: Path, pattern: str) -> list[DamagedEntry]:
 
 
 def check_store(root: Path | None = None) -> list[DamagedEntry]:
-    """Every entry of the store, read and checked (``read_entry_meta``, ``StoredRun.check``).
+    """Every entry of the store and every traced city, read and checked (``damaged_entries``, ``damaged_cities``).
 
     Parameters
     ----------
@@ -231,18 +231,35 @@ def check_store(root: Path | None = None) -> list[DamagedEntry]:
     Returns
     -------
     list of errors.DamagedEntry
-        The damaged entries and any ``.npz`` without its ``.json``; empty when there is no store.
+        The damaged entries, any ``.npz`` without its ``.json``, and the damaged cities and views; empty when there
+        is no store.
     """
     root = store_root() if root is None else root
     if root is None or not root.is_dir():
         return []
+    return damaged_entries(root) + damaged_cities(root)
+
+
+def damaged_entries(root: Path) -> list[DamagedEntry]:
+    """The Monte Carlo entries of the store that are damaged (``read_entry_meta``, ``StoredRun.check``), and any
+    ``.npz`` without its ``.json``; the traced cities are ``damaged_cities``'.
+
+    Parameters
+    ----------
+    root : Path
+        The store's folder.
+
+    Returns
+    -------
+    list of errors.DamagedEntry
+    """
     found = orphans(root, "*.npz")
     for meta_path in sorted(root.glob("*.json")):
         try:
             StoredRun(meta_path.with_suffix(".npz"), read_entry_meta(meta_path)).check()
         except DamagedEntry as err:
             found.append(err)
-    return found + damaged_cities(root)
+    return found
 
 
 def damaged_cities(root: Path) -> list[DamagedEntry]:

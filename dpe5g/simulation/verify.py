@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ..common.errors import DamagedEntry
+from ..common.locations import store_root
 from ..receivers import otdoa
 from . import engine, store, trials
 from .experiment import Experiment
@@ -350,7 +351,9 @@ def reproduce(experiments, progress: bool = True, client=None, log=sys.stdout) -
         for d in diffs[:5]:
             print(f"    {d.experiment} trial {d.trial} {d.field}: stored {d.stored}, computed {d.computed}", file=log)
     known = {f"{e.run.name}-{e.config_key()}" for e in exps}
-    for err in store.check_store():  # damaged files of no experiment (a stray or stale entry): nothing could read them
+    root = store_root()
+    strays = store.damaged_entries(root) if root is not None and root.is_dir() else []
+    for err in strays:  # damaged entries of no experiment (stray or stale): nothing could read them; cities: trace
         path = Path(err.path)
         if path.name[: -len(path.suffix)] in known:
             continue

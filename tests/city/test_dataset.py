@@ -2,6 +2,7 @@
 file is found and named in one line, makes the city stale for ``dpe5g trace`` (the repair) and is reported by the
 store's check (``dpe5g verify``); a stop while a city is written never leaves one that reads as whole."""
 
+import io
 import json
 import shutil
 from pathlib import Path
@@ -161,3 +162,15 @@ def test_trace_honours_dpe5g_store(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("DPE5G_STORE", "off")
     assert cli.main(["trace"]) == 2 and "DPE5G_STORE is 'off'" in capsys.readouterr().err
     assert {p: p.stat().st_mtime_ns for p in folder.iterdir()} == before
+
+
+def test_reproduce_removes_no_city(root, monkeypatch):
+    """``dpe5g reproduce`` removes damaged Monte Carlo entries of no experiment, never a city (``dpe5g trace`` repairs
+    those): a damaged city's files are all still there after it."""
+    from dpe5g.simulation import verify
+
+    flip_a_bit(root / dataset.CITY_FOLDER / f"{NAME}.npz")
+    files = sorted(p.name for p in (root / dataset.CITY_FOLDER).iterdir())
+    monkeypatch.setenv("DPE5G_STORE", str(root))
+    verify.reproduce([], progress=False, log=io.StringIO())
+    assert sorted(p.name for p in (root / dataset.CITY_FOLDER).iterdir()) == files
