@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..common import _checks
-from ..common._io import arrays_digest, atomic_write, jsonable, read_npz
+from ..common._io import arrays_digest, jsonable, publish, published, read_npz
 from ..common.errors import DamagedEntry
 from ..common.locations import cities_dir
 from ..phy import deployment
@@ -49,6 +49,9 @@ VERIFY_MEDIAN_POWER_DB = 0.1
 #: links weaker than this path gain (dB) in both traces are not compared: 20 dB below the weakest link a UE hears
 #: (``simulation.traced_draw.DETECTION_SNR_DB`` at 24 dBm is about −121 dB), where a path more or fewer decides whether one exists
 VERIFY_FLOOR_DB = -140.0
+#: the files of a traced city (``save_city``, one unit) and of its 3-D view (``save_view``, another): their suffixes
+PARTS = (".npz", ".json", "_deployment.json")
+VIEW_PARTS = ("_view.npz", "_view.json")
 
 
 @dataclass(frozen=True, eq=False)
@@ -158,8 +161,45 @@ class TracedCity:
         return self.excess_s[np.arange(len(p)), np.argmax(above, axis=1)].astype(float)
 
 
-def city_file(name: str, root: Path | None = None) -> Path:
-    """The ``.npz`` of the traced city ``name`` in the results store.
+def city_folder(root: Path | None = None) -> Path:
+    """The store's folder of traced cities.
+
+    Parameters
+    ----------
+    root : Path or None
+        The store's folder; None: the one in use (``locations.cities_dir``).
+
+    Returns
+    -------
+    Path
+    """
+    return cities_dir() if root is None else root / CITY_FOLDER
+
+
+def city_file(name: str, root: Path | None = None, part: str = ".npz") -> Path:
+    """A file of the traced city ``name`` in the results store: its paths (``.npz``), its record (``.json``), its
+    deployment file (``_deployment.json``) or its 3-D view (``_view.npz``, ``_view.json``), where a reader finds it
+    (``_io.published``: the city's pending publication while ``save_city`` moves it into place).
+
+    Parameters
+    ----------
+    name : str
+        The city's name.
+    root : Path or None
+        The store's folder; None: the one in use (``locations.cities_dir``).
+    part : str
+        The file's suffix, one of ``PARTS`` and ``VIEW_PARTS``.
+
+    Returns
+    -------
+    Path
+    """
+    unit = f"{name}_view" if _checks.name("name", name) and part.startswith("_view") else name
+    return published(city_folder(root), unit, f"{name}{_checks.one_of('part', part, PARTS + VIEW_PARTS)}")
+
+
+def read_record(name: str, root: Path | None = None) -> dict:
+    """The record of the traced city ``name`` (its ``.json``: settings, checksums, provenance), as stored.
 
     Parameters
     ----------
@@ -170,18 +210,16 @@ def city_file(name: str, root: Path | None = None) -> Path:
 
     Returns
     -------
-    Path
+    dict
     """
-    folder = cities_dir() if root is None else root / CITY_FOLDER
-    return folder / f"{_checks.name('name', name)}.npz"
+    return json.loads(city_file(name, root, ".json").read_text())
 
 
 def save_city(name: str, traced: dict, spec: dict, provenance: dict, root: Path | None = None,
               extra: dict | None = None) -> Path:
-    """Write a traced city to the store: its arrays (``.npz``), its deployment file (``write_deployment``), then its
-    record (``.json``: name, settings, the arrays' checksum, provenance, ``extra``) sealed by ``record_checksum``, last.
-
-    A stop between the files leaves a city that ``check_city`` finds damaged, never one that reads as whole.
+    """Publish a traced city in the store, all its files or none (``_io.publish``): its arrays (``.npz``), its
+    deployment file (``deployment_doc``) and its record (``.json``: name, settings, the arrays' checksum, provenance,
+    ``extra``) sealed by ``record_checksum``.  Stopped at any point, the store holds the old city or the new one.
 
     Parameters
     ----------
@@ -203,18 +241,17 @@ def save_city(name: str, traced: dict, spec: dict, provenance: dict, root: Path 
     Path
         The ``.npz`` written.
     """
-    path = city_file(name, root)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    _checks.name("name", name)
     arrays = {k: np.asarray(traced[k]) for k in ARRAYS}
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)
     meta = jsonable({"name": name, "spec": spec, **(extra or {}), "checksum": arrays_digest(arrays),
                      "provenance": provenance})
-    atomic_write(path, buf.getvalue())
-    dep = write_deployment(name, arrays, spec, meta["checksum"], root)
-    meta["record_checksum"] = record_checksum(meta, dep.read_bytes())
-    atomic_write(path.with_suffix(".json"), json.dumps(meta, indent=1).encode())
-    return path
+    dep = deployment_doc(name, arrays, spec, meta["checksum"])
+    meta["record_checksum"] = record_checksum(meta, dep)
+    publish(city_folder(root), name, {f"{name}.npz": buf.getvalue(), f"{name}_deployment.json": dep,
+                                      f"{name}.json": json.dumps(meta, indent=1).encode()})
+    return city_file(name, root)
 
 
 def record_checksum(meta: dict, deployment_bytes: bytes) -> str:
@@ -237,7 +274,7 @@ def record_checksum(meta: dict, deployment_bytes: bytes) -> str:
     return hashlib.sha256(record.encode() + b"\0" + deployment_bytes).hexdigest()
 
 
-def write_deployment(name: str, arrays: dict, spec: dict, checksum: str, root: Path | None = None) -> Path:
+def deployment_doc(name: str, arrays: dict, spec: dict, checksum: str) -> bytes:
     """The city's deployment file (``deployment_file``, beside its paths; ``deployment.builtin`` finds it): its BSs,
     region and UE height, and the paths' checksum.
 
@@ -251,12 +288,11 @@ def write_deployment(name: str, arrays: dict, spec: dict, checksum: str, root: P
         Its ``CitySpec`` (power, UE height, scene).
     checksum : str
         The dataset's checksum (``_io.arrays_digest``).
-    root : Path or None
-        The store's folder; None: the one in use (``locations.cities_dir``).
 
     Returns
     -------
-    Path
+    bytes
+        The file's JSON.
     """
     x0, y0, x1, y1 = (float(v) for v in arrays["region"])
     doc = {"name": name,
@@ -267,9 +303,7 @@ def write_deployment(name: str, arrays: dict, spec: dict, checksum: str, root: P
            "ue_height_m": float(spec["ue_height_m"]),
            "base_stations": [{"id": f"C{b + 1:02d}", "x_m": float(p[0]), "y_m": float(p[1]), "height_m": float(p[2]),
                               "power_dbm": float(spec["power_dbm"])} for b, p in enumerate(arrays["bs_xyz"])]}
-    path = deployment_file(name, root)
-    atomic_write(path, (json.dumps(doc, indent=1) + "\n").encode())
-    return path
+    return (json.dumps(doc, indent=1) + "\n").encode()
 
 
 def view_file(name: str, root: Path | None = None) -> Path:
@@ -286,12 +320,13 @@ def view_file(name: str, root: Path | None = None) -> Path:
     -------
     Path
     """
-    return city_file(name, root).with_name(f"{name}_view.npz")
+    return city_file(name, root, "_view.npz")
 
 
 def save_view(name: str, view: dict, root: Path | None = None) -> Path:
-    """Write the city's 3-D view: the buildings' triangles and one UE's traced paths (``city_view.scene_triangles``,
-    ``city_view.example_paths``), with the checksum of its arrays in a ``.json`` beside it.
+    """Publish the city's 3-D view, both files or neither (``_io.publish``): the buildings' triangles and one UE's
+    traced paths (``city_view.scene_triangles``, ``city_view.example_paths``), with the checksum of its arrays in a
+    ``.json`` beside it.
 
     Parameters
     ----------
@@ -306,13 +341,13 @@ def save_view(name: str, view: dict, root: Path | None = None) -> Path:
     -------
     Path
     """
-    path = view_file(name, root)
     arrays = {k: np.asarray(v) for k, v in view.items()}
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)
-    atomic_write(path, buf.getvalue())
-    atomic_write(path.with_suffix(".json"), json.dumps({"checksum": arrays_digest(arrays)}).encode())
-    return path
+    publish(city_folder(root), f"{_checks.name('name', name)}_view",
+            {f"{name}_view.npz": buf.getvalue(),
+             f"{name}_view.json": json.dumps({"checksum": arrays_digest(arrays)}).encode()})
+    return view_file(name, root)
 
 
 def load_view(name: str, root: Path | None = None) -> dict:
@@ -337,7 +372,7 @@ def load_view(name: str, root: Path | None = None) -> dict:
     path = view_file(name, root)
     try:
         arrays = read_npz(path)
-        ok = arrays_digest(arrays) == json.loads(path.with_suffix(".json").read_text())["checksum"]
+        ok = arrays_digest(arrays) == json.loads(city_file(name, root, "_view.json").read_text())["checksum"]
     except (OSError, ValueError, KeyError, TypeError) as err:
         raise DamagedEntry(path, f"cannot be read ({err}): dpe5g trace makes it again") from err
     if not ok:
@@ -371,7 +406,7 @@ def is_current(name: str, spec: dict, code_digest: str, root: Path | None = None
 def check_city(name: str, root: Path | None = None) -> str | None:
     """What is wrong with the stored city ``name``, in a few words, or None when it is whole: its ``.npz``, its
     ``.json`` and its deployment file present and readable; the arrays those of ``ARRAYS`` and equal to the recorded
-    checksum; the record naming this city and a valid ``CitySpec``; the deployment file (``write_deployment``) the
+    checksum; the record naming this city and a valid ``CitySpec``; the deployment file (``deployment_doc``) the
     arrays' base stations, in number and place, their power and the region; and the record and the deployment file
     equal to their ``record_checksum``.
 
@@ -391,13 +426,12 @@ def check_city(name: str, root: Path | None = None) -> str | None:
 
 def _read_city(name: str, root: Path | None) -> tuple[str | None, dict, dict]:
     """(``check_city``'s answer, the record, the arrays): one read of the files for the check and the load."""
-    path = city_file(name, root)
-    dep = deployment_file(name, root)
-    for part in (path, path.with_suffix(".json"), dep):
+    path, record, dep = (city_file(name, root, part) for part in PARTS)
+    for part in (path, record, dep):
         if not part.is_file():
             return f"{part.name} is missing", {}, {}
     try:
-        meta = json.loads(path.with_suffix(".json").read_text())
+        meta = json.loads(record.read_text())
         arrays = read_npz(path)
         dep_bytes = dep.read_bytes()
         doc = json.loads(dep_bytes)
@@ -441,7 +475,7 @@ def _deployment_damage(doc, arrays: dict, spec: dict) -> str | None:
 
 
 def deployment_file(name: str, root: Path | None = None) -> Path:
-    """The deployment file of the traced city ``name`` (``write_deployment``), beside its paths.
+    """The deployment file of the traced city ``name`` (``deployment_doc``), beside its paths.
 
     Parameters
     ----------
@@ -454,7 +488,7 @@ def deployment_file(name: str, root: Path | None = None) -> Path:
     -------
     Path
     """
-    return city_file(name, root).with_name(f"{name}_deployment.json")
+    return city_file(name, root, "_deployment.json")
 
 
 def load_city(name: str, root: Path | None = None) -> TracedCity:

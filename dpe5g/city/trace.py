@@ -25,6 +25,14 @@ from .ray_tracer import llvm_library, solve_paths
 
 #: the city scenes of Sionna RT this module knows
 SCENES = ("munich", "etoile", "florence", "san_francisco")
+#: carriers a city is traced at, Hz: 3GPP's FR1 and FR2 (410 MHz to 52.6 GHz), where the ITU materials Sionna RT
+#: loads are defined (ITU-R P.2040: 1 to 100 GHz, some from 1 MHz)
+MIN_FC_HZ, MAX_FC_HZ = 0.41e9, 52.6e9
+#: the largest ``clearance_m``, metres: half a street of 10 m each side of a point
+MAX_CLEARANCE_M = 10.0
+#: ``outdoor_points`` gives up after this many rounds of 4n draws with fewer than n outdoor points (an outdoor share
+#: of the region below 1 / (4 · 50) = 0.5 %: a clearance no point of the region meets, or a region without streets)
+MAX_DRAW_ROUNDS = 50
 
 
 @dataclass(frozen=True)
@@ -91,6 +99,7 @@ class CitySpec:
     seed: int = 20261205
 
     def __post_init__(self):
+        _checks.plain_fields(self)  # booleans True or False, ints given as floats (9.0) the same settings as 9
         _checks.one_of("scene", self.scene, SCENES)
         _checks.in_range("side_m", self.side_m, 50.0, 2000.0, "m")
         _checks.integer("n_bs", self.n_bs, 3, 200)
@@ -101,6 +110,11 @@ class CitySpec:
         _checks.integer("n_paths", self.n_paths, 1, 256)
         _checks.integer("samples_per_src", self.samples_per_src, 1000, 10_000_000)
         _checks.in_range("scattering_coefficient", self.scattering_coefficient, 0.0, 1.0, "")
+        _checks.in_range("power_dbm", self.power_dbm, -30.0, 60.0, "dBm")
+        _checks.in_range("fc_hz", self.fc_hz, MIN_FC_HZ, MAX_FC_HZ, "Hz")
+        _checks.in_range("bandwidth_hz", self.bandwidth_hz, 1e6, 2e9, "Hz")
+        _checks.in_range("clearance_m", self.clearance_m, 0.0, MAX_CLEARANCE_M, "m")
+        _checks.integer("seed", self.seed, 0, 2**32 - 1)
         if (self.scattering_coefficient > 0) != self.diffuse_reflection:
             raise ValueError("scattering_coefficient must be > 0 exactly when diffuse_reflection is on (with S = 0 "
                              f"diffuse reflection adds nothing), got {self.scattering_coefficient!r} and "
@@ -124,9 +138,10 @@ TRACING_CODE = ("CitySpec", "load_scene", "ground_open", "outdoors", "densest_sq
 def code_digest() -> str:
     """SHA-256 (16 hex digits) of the code of ``TRACING_CODE``: the tracing code a stored city records.
 
-    Each function's or class's syntax tree, without docstrings and with each ``from … import`` reduced to the names
-    it imports: prose and the folder a name is imported from are not the code that traces (the same names, moved
-    between modules, trace the same city), while any change of the code is.
+    Each function's or class's syntax tree less what cannot change a traced city: docstrings, the checks that refuse
+    settings (``__post_init__``, and each ``if …: raise …``: code that only stops a trace never changes one that ran
+    to its end), and the folder each ``from … import`` names (the same names, moved between modules, trace the same
+    city).  Any other change of the code changes the digest.
 
     Returns
     -------
@@ -134,16 +149,47 @@ def code_digest() -> str:
     """
     h = hashlib.sha256()
     for name in TRACING_CODE:
-        tree = ast.parse(textwrap.dedent(inspect.getsource(getattr(sys.modules[__name__], name))))
-        for node in ast.walk(tree):
-            body = getattr(node, "body", None)
-            if (isinstance(node, (ast.ClassDef, ast.FunctionDef)) and body and isinstance(body[0], ast.Expr)
-                    and isinstance(body[0].value, ast.Constant) and isinstance(body[0].value.value, str)):
-                node.body = body[1:] or [ast.Pass()]
-            if isinstance(node, ast.ImportFrom):
-                node.module, node.level = None, 0
-        h.update(ast.dump(tree).encode())
+        h.update(tracing_code(textwrap.dedent(inspect.getsource(getattr(sys.modules[__name__], name)))).encode())
     return h.hexdigest()[:16]
+
+
+def tracing_code(source: str) -> str:
+    """What ``code_digest`` reads of Python ``source``: its syntax tree less docstrings, refusals and import folders.
+
+    Parameters
+    ----------
+    source : str
+        A function's or class's code.
+
+    Returns
+    -------
+    str
+        The reduced tree (``ast.dump``).
+    """
+    return ast.dump(_TracingCode().visit(ast.parse(source)))
+
+
+class _TracingCode(ast.NodeTransformer):
+    """``code_digest``'s reading of a syntax tree: docstrings, refusals and import folders taken out."""
+
+    def generic_visit(self, node):
+        node = super().generic_visit(node)
+        body = getattr(node, "body", None)
+        if (isinstance(node, (ast.ClassDef, ast.FunctionDef)) and body and isinstance(body[0], ast.Expr)
+                and isinstance(body[0].value, ast.Constant) and isinstance(body[0].value.value, str)):
+            node.body = body[1:] or [ast.Pass()]
+        return node
+
+    def visit_FunctionDef(self, node):
+        return None if node.name == "__post_init__" else self.generic_visit(node)
+
+    def visit_If(self, node):
+        refusal = not node.orelse and all(isinstance(s, ast.Raise) for s in node.body)
+        return None if refusal else self.generic_visit(node)
+
+    def visit_ImportFrom(self, node):
+        node.module, node.level = None, 0
+        return node
 
 
 def load_scene(spec: CitySpec):
@@ -271,6 +317,10 @@ def outdoor_points(scene, region, n: int, clearance_m: float, rng: np.random.Gen
     x0, y0, x1, y1 = region
     kept = []
     while sum(len(k) for k in kept) < n:
+        if len(kept) == MAX_DRAW_ROUNDS:
+            raise ValueError(f"clearance_m {clearance_m} m: {sum(len(k) for k in kept)} of {MAX_DRAW_ROUNDS * 4 * n} "
+                             f"points drawn in the region {tuple(round(v, 1) for v in region)} are outdoors, fewer "
+                             f"than the {n} wanted; a smaller clearance_m or another region (side_m, scene)")
         p = np.column_stack([rng.uniform(x0, x1, 4 * n), rng.uniform(y0, y1, 4 * n)])
         kept.append(p[outdoors(scene, p, clearance_m)])
     return np.concatenate(kept)[:n]

@@ -457,8 +457,8 @@ STOP_SIGNALS = {os_signal.SIGINT: (130, "interrupted"), os_signal.SIGTERM: (143,
 
 
 #: what a stopped command leaves, by command; the others keep their finished Monte Carlo chunks
-KEPT_ON_STOP = {"trace": "nothing of this trace is kept; the same command starts it again, and traces a city left "
-                         "half-written",
+KEPT_ON_STOP = {"trace": "nothing of this trace is kept, and each stored city is the old one or the new one whole "
+                         "(published as one unit); the same command starts it again",
                 "profile": "nothing was written", "deployment": "nothing was written",
                 "scene": "nothing was written"}
 

@@ -1,5 +1,6 @@
-"""Files on disk: atomic writes shared by the figure build, the Monte Carlo cache and the CLI, checked reads of the
-stores' arrays (``read_npz``, ``arrays_digest``), and the CLI's checks of an output file or folder before any work."""
+"""Files on disk: atomic writes shared by the figure build, the Monte Carlo cache and the CLI, files published as one
+unit (a traced city: ``publish``), checked reads of the stores' arrays (``read_npz``, ``arrays_digest``), and the
+CLI's checks of an output file or folder before any work."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import errno
 import hashlib
 import json
 import os
+import shutil
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
@@ -150,6 +152,88 @@ def atomic_write(path, data: bytes, exclusive: bool = False) -> None:
     """Write ``data`` to ``path`` atomically (``atomic_target``)."""
     with atomic_target(path, exclusive) as tmp:
         tmp.write_bytes(data)
+
+
+def publish(folder, unit: str, files: dict[str, bytes]) -> None:
+    """Put ``files`` (file name → bytes) in ``folder`` as one unit: all of them new or all of them as they were,
+    wherever the process stops (an interrupt, a kill, a power loss).
+
+    They are written whole to a staging folder (``.<unit>.<pid>.staging``), which one rename makes the unit's pending
+    publication (``.<unit>.publish``): the one step that publishes.  Its files are then moved into ``folder`` one by
+    one and the pending folder removed.  A reader takes each file where ``published`` finds it, so before the rename
+    it reads the old files, from it on the new ones; a publication stopped after the rename is finished by the next
+    ``publish`` of the unit (``finish_publish``).
+
+    Parameters
+    ----------
+    folder : path
+        Where the files go.
+    unit : str
+        The unit's name (a city's), which names its staging and pending folders.
+    files : dict
+        The files' names (no folders) and bytes.
+    """
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    finish_publish(folder, unit)
+    for old in folder.glob(f".{unit}.*.staging"):  # a killed writer's (its process gone)
+        pid = old.name[len(unit) + 2:].split(".")[0]
+        if pid.isdigit() and not _alive(int(pid)):
+            shutil.rmtree(old, ignore_errors=True)
+    staging = Path(tempfile.mkdtemp(dir=folder, prefix=f".{unit}.{os.getpid()}.", suffix=".staging"))
+    try:
+        for name, data in files.items():
+            (staging / name).write_bytes(data)
+            os.chmod(staging / name, 0o666 & ~umask())
+            fsync(staging / name)
+        os.chmod(staging, 0o777 & ~umask())
+        fsync(staging)
+        os.rename(staging, folder / f".{unit}.publish")
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    fsync(folder)
+    finish_publish(folder, unit)
+
+
+def finish_publish(folder, unit: str) -> None:
+    """Move the files of ``unit``'s pending publication (``publish``), if there is one, into ``folder`` and remove it.
+
+    Parameters
+    ----------
+    folder : path
+        The unit's folder.
+    unit : str
+        The unit's name.
+    """
+    pending = Path(folder) / f".{unit}.publish"
+    if not pending.is_dir():
+        return
+    for part in sorted(pending.iterdir()):
+        os.replace(part, Path(folder) / part.name)
+    fsync(folder)
+    pending.rmdir()
+
+
+def published(folder, unit: str, name: str) -> Path:
+    """Where a reader finds the file ``name`` of ``unit`` (``publish``): in its pending publication while one is being
+    moved into place (or was stopped on the way), else in ``folder``.
+
+    Parameters
+    ----------
+    folder : path
+        The unit's folder.
+    unit : str
+        The unit's name.
+    name : str
+        The file's name.
+
+    Returns
+    -------
+    Path
+    """
+    pending = Path(folder) / f".{unit}.publish" / name
+    return pending if pending.exists() else Path(folder) / name
 
 
 def _alive(pid: int) -> bool:

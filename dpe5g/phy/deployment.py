@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ..common import _checks
+from ..common._io import published
 from ..common.locations import cities_dir
 from .propagation import N_PRS_IDS, prs_plan
 
@@ -450,8 +451,10 @@ def builtin(name: str) -> Path | None:
     """
     if name in BUILTIN:
         return BUILTIN[name]
-    traced = cities_dir() / f"{name}_deployment.json"  # (a traced city's, in the results store in use)
-    return traced if "/" not in name and traced.exists() else None
+    if "/" in name or name.startswith("."):
+        return None
+    traced = published(cities_dir(), name, f"{name}_deployment.json")  # (a traced city's, in the store in use)
+    return traced if traced.exists() else None
 
 
 def named(name: str) -> Deployment:

@@ -276,15 +276,16 @@ def damaged_cities(root: Path) -> list[DamagedEntry]:
     list of errors.DamagedEntry
     """
     found = []
-    folder = root / city_paths.CITY_FOLDER
-    names = {p.name.removesuffix(s) for s in (".npz", ".json", "_deployment.json") for p in folder.glob(f"*{s}")}
+    folder = city_paths.city_folder(root)
+    names = {p.name.removesuffix(s) for s in city_paths.PARTS for p in folder.glob(f"*{s}")}
+    names |= {p.name[1:].removesuffix(".publish") for p in folder.glob(".*.publish")}  # (a publication stopped early)
     for name in sorted(n for n in names if not n.endswith(("_view", "_deployment", "-materials"))):
         if (damage := city_paths.check_city(name, root)) is not None:
             found.append(DamagedEntry(city_paths.city_file(name, root),
                                       f"{damage}: dpe5g trace (make reproduce) traces the city again"))
-    for view in sorted(folder.glob("*_view.npz")):
+    for view in sorted(n.removesuffix("_view") for n in names if n.endswith("_view")):
         try:
-            city_paths.load_view(view.name.removesuffix("_view.npz"), root)
+            city_paths.load_view(view, root)
         except DamagedEntry as err:
             found.append(err)
     return found

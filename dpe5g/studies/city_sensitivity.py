@@ -180,10 +180,10 @@ def is_current(city: city_paths.TracedCity, key: str) -> bool:
         and the positions of today's city (``positions_digest``): a city traced again with other solver settings at the
         same positions leaves them current.
     """
-    path = city_paths.city_file(variant_name(city.name, key))
-    if city_paths.check_city(path.stem) is not None:  # a damaged or missing part: traced again
+    name = variant_name(city.name, key)
+    if city_paths.check_city(name) is not None:  # a damaged or missing part: traced again
         return False
-    meta = json.loads(path.with_suffix(".json").read_text())
+    meta = city_paths.read_record(name)
     return meta.get("spec") == variant_spec(city, key).to_dict() and meta.get("positions") == positions_digest(city)
 
 
@@ -204,7 +204,7 @@ def load_variant(city: str, key: str) -> tuple[city_paths.TracedCity, dict]:
     """
     name = variant_name(city, key)
     sub = city_paths.load_city(name)
-    return sub, json.loads(city_paths.city_file(name).with_suffix(".json").read_text())
+    return sub, city_paths.read_record(name)
 
 
 def materials_file(city: str):

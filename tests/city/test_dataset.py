@@ -4,6 +4,7 @@ store's check (``dpe5g verify``); a stop while a city is written never leaves on
 
 import io
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -88,29 +89,69 @@ def test_a_damaged_view_is_reported(root):
     assert [Path(d.path).name for d in store.check_store(root)] == [f"{NAME}_view.npz"]
 
 
-@pytest.mark.parametrize("stop_at", [1, 2, 3])
-def test_a_stop_while_writing_never_leaves_a_city_that_reads_whole(root, monkeypatch, stop_at):
-    """``save_city`` writes the arrays, the deployment file, then the sealed record: stopped before any of them, the
-    old city stays whole, or the city is found damaged (and traced again); never a mix that reads as whole."""
-    old = dataset.load_city(NAME, root)
-    new = {k: getattr(old, k) for k in dataset.ARRAYS}
-    new["power_db"] = new["power_db"] + 1.0
-    new["bs_xyz"] = new["bs_xyz"] + np.array([1.0, 0.0, 0.0])
-    real, calls = dataset.atomic_write, []
+class Killed(BaseException):
+    """A kill: nothing after it runs (the writer's clean-up included)."""
 
-    def stopping(path, data, **kw):
-        calls.append(path)
-        if len(calls) == stop_at:
-            raise KeyboardInterrupt
-        return real(path, data, **kw)
 
-    monkeypatch.setattr(dataset, "atomic_write", stopping)
-    with pytest.raises(KeyboardInterrupt):
-        dataset.save_city(NAME, new, old.spec, {"code": "x"}, root)
-    found = dataset.check_city(NAME, root)
-    assert found is None if stop_at == 1 else found is not None, found
-    if found is None:
-        assert np.array_equal(dataset.load_city(NAME, root).power_db, old.power_db)
+def tiny(root, shift_m: float = 0.0) -> dict:
+    """The arrays of a small city: the stored city's first 20 UEs, its BSs moved ``shift_m`` east."""
+    city = dataset.load_city(NAME, root)
+    keep = city.link_ue < 20
+    out = {k: getattr(city, k)[keep] if k.startswith("link_") or getattr(city, k).shape[:1] == keep.shape
+           else getattr(city, k) for k in dataset.ARRAYS}
+    out["ue_xyz"] = city.ue_xyz[:20]
+    out["bs_xyz"] = city.bs_xyz + np.array([shift_m, 0.0, 0.0])
+    return out
+
+
+def steps(monkeypatch, kill_at: int | None) -> list:
+    """Count ``_io.publish``'s steps (each file flushed, each rename): a ``Killed`` at step ``kill_at``."""
+    from dpe5g.common import _io
+
+    done = []
+
+    def step(real):
+        def counted(*a, **k):
+            done.append(real.__name__)
+            if len(done) == kill_at:
+                raise Killed
+            return real(*a, **k)
+        return counted
+
+    monkeypatch.setattr(_io, "fsync", step(_io.fsync))
+    monkeypatch.setattr(_io.os, "rename", step(os.rename))
+    monkeypatch.setattr(_io.os, "replace", step(os.replace))
+    monkeypatch.setattr(_io.shutil, "rmtree", lambda *a, **k: None)  # (a kill cleans nothing up)
+    return done
+
+
+def test_a_kill_at_any_step_of_a_publication_leaves_the_old_city_or_the_new(root, monkeypatch):
+    """``save_city`` publishes the paths, the deployment and the record as one unit (``_io.publish``): killed at any of
+    its steps, the store holds the old city whole or the new one whole, never a mix, never damage; and the next
+    publication of the city finishes or replaces the stopped one."""
+    spec = dataset.load_city(NAME, root).spec
+    old, new = tiny(root), tiny(root, shift_m=1.0)
+    dataset.save_city("tiny", old, spec, {"code": "x"}, root)
+    seen = set()
+    for kill_at in range(1, 30):
+        store_k = root / f"k{kill_at}"
+        shutil.copytree(root / dataset.CITY_FOLDER, store_k / dataset.CITY_FOLDER)
+        with monkeypatch.context() as m:
+            done = steps(m, kill_at)
+            try:
+                dataset.save_city("tiny", new, spec, {"code": "x"}, store_k)
+            except Killed:
+                pass
+        assert dataset.check_city("tiny", store_k) is None, (kill_at, done)
+        bs = dataset.load_city("tiny", store_k).bs_xyz
+        seen.add("new" if np.array_equal(bs, new["bs_xyz"]) else "old" if np.array_equal(bs, old["bs_xyz"]) else "?")
+        assert store.damaged_cities(store_k) == []
+        dataset.save_city("tiny", old, spec, {"code": "x"}, store_k)
+        assert np.array_equal(dataset.load_city("tiny", store_k).bs_xyz, old["bs_xyz"])
+        assert [p.name for p in (store_k / dataset.CITY_FOLDER).glob(".tiny.publish")] == []
+        if len(done) < kill_at:  # it ran to its end: every step was tried
+            break
+    assert seen == {"old", "new"} and kill_at > 5
 
 
 def test_trace_leaves_a_current_city_untouched(monkeypatch, capsys):
