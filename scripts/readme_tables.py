@@ -276,16 +276,26 @@ def found_text(book: bool = False) -> str:
         + (" (unresolved: it holds 0)." if diff[1] <= 0 <= diff[2] else "."),
         city_line(ref),
         f"- **Claims**: of the paper's {s['n_claims']} claims about Figs. 9–10, judged by the 95 % interval of our "
-        f"value: {report.verdict_text(s['verdicts']['as_read'])} under our reading of its set-up, "
-        f"{report.verdict_text(s['verdicts']['honest'])} with the honest receiver (one that never sees the true "
-        f"position); none of the {len(s['counts'])} set-ups of our readings table (readings of its unstated details, "
-        f"and our NLoS variants) reproduces more than {s['best']}.",
+        f"value: {claims_verdicts(s['verdicts'])}; none of the {len(s['counts'])} set-ups of our readings table "
+        f"(readings of its unstated details, and our NLoS variants) reproduces more than {s['best']}.",
         f"- **Errata**: {n_errata} errata and gaps in the paper, from swapped channel profiles in Table I to an "
         "undefined SNR.",
         ("- **Where**: the claim-by-claim comparison and the errata are "
          + ("{numref}`Chapter %s <chapter-reproduction>`, *Reproduction summary and errata*." if book else
             "the book's chapter *Reproduction summary and errata* (`chapters/07_reproduction.md`; "
             "`book/_build/html/chapters/07_reproduction.html` after `make book`)."))])
+
+
+def claims_verdicts(verdicts: dict) -> str:
+    """The claims' verdicts under our reading of the paper's set-up and with the honest receiver, said once where
+    they agree."""
+    from dpe5g.figures import tables as report
+
+    as_read, honest = (report.verdict_text(verdicts[k]) for k in ("as_read", "honest"))
+    honest_words = "with the honest receiver (one that never sees the true position)"
+    if as_read == honest:
+        return f"{as_read}, both under our reading of its set-up and {honest_words}"
+    return f"{as_read} under our reading of its set-up, {honest} {honest_words}"
 
 
 @functools.lru_cache(maxsize=1)

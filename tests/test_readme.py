@@ -140,3 +140,21 @@ def test_readme_python_quick_start_runs():
                      r.stdout)
     assert m, r.stdout
     assert abs(float(m[1]) - 120.0) < 0.5 and abs(float(m[2]) - 80.0) < 0.5 and abs(float(m[4]) - 3.0) < 1.0
+
+
+def test_the_licence_and_the_citation_agree_with_the_project():
+    """LICENSE is the licence pyproject.toml and CITATION.cff state; CITATION.cff cites the software and, as its
+    preferred citation, the paper README links."""
+    import tomllib
+
+    import yaml
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    cff = yaml.safe_load((ROOT / "CITATION.cff").read_text())
+    assert (ROOT / "LICENSE").read_text().startswith(f"{project['license']['text']} License\n")
+    assert cff["license"] == project["license"]["text"] and cff["version"] == project["version"]
+    assert cff["type"] == "software" and cff["authors"] == [{"name": project["authors"][0]["name"]}]
+    paper = cff["preferred-citation"]
+    arxiv = paper["identifiers"][0]["value"].removeprefix("arXiv:")
+    assert f"arxiv.org/abs/{arxiv}" in (ROOT / "README.md").read_text() and paper["url"].endswith(arxiv)
+    assert [a["family-names"] for a in paper["authors"]] == ["Li", "Vicenzo", "Xu"]
