@@ -136,7 +136,8 @@ def test_readme_python_quick_start_runs():
     assert len(code.strip().splitlines()) <= 15
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
-    m = re.fullmatch(r"fix \[\s*([-\d.]+)\s+([-\d.]+)\s+([-\d.]+)\s*\] m, clock bias ([-\d.]+) ns, certified True\n",
+    m = re.fullmatch(r"fix \[\s*([-\d.]+)\s+([-\d.]+)\s+([-\d.]+)\s*\] m, clock bias ([-\d.]+) ns, certified True, "
+                     r"on the window's edge False\n",
                      r.stdout)
     assert m, r.stdout
     assert abs(float(m[1]) - 120.0) < 0.5 and abs(float(m[2]) - 80.0) < 0.5 and abs(float(m[4]) - 3.0) < 1.0

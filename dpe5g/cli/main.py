@@ -30,7 +30,8 @@ from .parser import UsageError, build_parser, numbers_as_values
 #: library parameter → the ``dpe5g run`` option that sets it, so an error raised by the library names the option
 RUN_OPTIONS = {"n_trials": "--trials", "snr_db": "--snr", "snrs_db": "--snr", "m_values": "--m", "n_taps": "--taps",
                "delay_spread_s": "--delay-spread", "centring": "--centring", "prior_scale_m": "--prior-sigma",
-               "seed": "--seed", "deployment file": "--deployment", "prs_reuse": "--reuse"}
+               "seed": "--seed", "deployment file": "--deployment", "prs_reuse": "--reuse", "los_mode": "--los-mode",
+               "nlos_excess_median_s": "--nlos-excess", "dpe_nlos": "--dpe-nlos", "otdoa_nlos": "--otdoa-nlos"}
 
 
 # ---- shared checks --------------------------------------------------------------------------------------------------
@@ -129,6 +130,7 @@ def run_experiment(args):
             kw.update(prs_reuse=args.reuse, snr_mode="nearest")
         elif args.reuse:
             kw.update(prs_reuse=args.reuse)
+        kw.update(nlos_settings(args))
         e = Experiment.build(name="run", otdoa=args.centring == "otdoa", **kw)
         e.load_deployment()  # the file, and M against its BS count
     except ValueError as err:
@@ -138,6 +140,44 @@ def run_experiment(args):
         if e.replace(name=known.run.name) == known:
             return known
     return e
+
+
+def nlos_settings(args) -> dict:
+    """The experiment settings of ``dpe5g run``'s LoS and NLoS options (``parser.add_nlos_options``).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed options.
+
+    Returns
+    -------
+    dict
+        Settings of ``Experiment.build``: los_mode; the excess-delay law of the row --nlos-excess names; with
+        --dpe-nlos the NLoS-aware DPE, its clock window widened by the law it assumes (the scenario's, else UMi's);
+        with --otdoa-nlos the NLoS-aware OTDoA.
+    """
+    from ..phy.propagation import TR38901_EXCESS_DELAY
+
+    out = {"los_mode": args.los_mode}
+    if args.nlos_excess != "none":
+        row = TR38901_EXCESS_DELAY.get(args.nlos_excess)
+        if row is None:
+            raise ValueError(f"--nlos-excess must be one of none, {', '.join(TR38901_EXCESS_DELAY)}; got "
+                             f"{args.nlos_excess!r}")
+        out.update(nlos_excess_median_s=row.median_s, nlos_excess_sigma_lg=row.sigma_lg)
+    if args.dpe_nlos:
+        if args.centring == "truth":
+            raise ValueError("--dpe-nlos searches the certified window of an honest receiver: use --centring prior "
+                             "or --centring otdoa, not truth")
+        out.update(dpe_nlos=True, clock_window="clock_nlos",
+                   nlos_prior="scenario" if args.nlos_excess != "none" else "umi")
+    if args.otdoa_nlos:
+        if args.centring != "otdoa":
+            raise ValueError(f"--otdoa-nlos runs the NLoS-aware OTDoA on the OTDoA receiver's ToAs: use --centring "
+                             f"otdoa (got {args.centring})")
+        out.update(otdoa_nlos=True)
+    return out
 
 
 def _check_run_options(args) -> str:
@@ -166,6 +206,8 @@ def _run(args) -> int:
 
     e = run_experiment(args)
     out = output_file("--out", args.out, (".csv",), force=args.force)
+    for line in e.load_deployment().assumed:  # what reading the deployment file filled in
+        print(f"deployment: {line}", flush=True)
     sidecar = out.with_suffix(".json")
     if sidecar.exists() and not args.force:
         raise ValueError(f"--out {args.out}: {sidecar.name} beside it (where its provenance goes) exists; pass --force "
@@ -410,7 +452,12 @@ def _deployment(args) -> int:
 
     from ..phy import deployment
 
+    if args.example is not None:
+        print(deployment.EXAMPLES[args.example], end="")
+        return 0
     dep = deployment.named(args.path)
+    for line in dep.assumed:
+        print(f"{dep.name}: {line}")
     x0, y0, x1, y1 = dep.region
     nearest = deployment.nearest_neighbours(dep.bs_xyz[:, :2])[0]
     print(f"{dep.name}: {dep.n_bs} BSs, region {x1 - x0:.1f} m x {y1 - y0:.1f} m = {dep.area_m2:,.0f} m2, "

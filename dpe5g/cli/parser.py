@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import re
+import textwrap
 from pathlib import Path
 
 from ..common.locations import BASELINE_DIR  # noqa: F401  (cli reads it from here too)
@@ -133,8 +134,34 @@ def add_run(sub) -> None:
                         "received alone; 2, 4, 6 or 12 (Table I: 6) the TS 38.211 comb R over R symbols with every BS "
                         "of the deployment transmitting and co-channel interference; --snr is then the SNR of the "
                         "nearest link, every other BS at its power from the path loss (the Fig. 9 chapter)")
+    add_nlos_options(r)
     add_cluster_options(r)
     r
+
+
+def add_nlos_options(r) -> None:
+    """``dpe5g run``'s options of the LoS model, the NLoS excess delay and the NLoS-aware receivers (the book's
+    chapter on the paper's central claim under an NLoS bias, ``chapters/09_nlos_bias.md``)."""
+    from ..phy.propagation import TR38901_EXCESS_DELAY
+    from ..simulation.experiment import LOS_MODES
+
+    rows = ", ".join(f"{k} (median {row.median_s * 1e9:.0f} ns, σ {row.sigma_lg:g} decades)"
+                     for k, row in TR38901_EXCESS_DELAY.items())
+    r.add_argument("--los-mode", default="pr_los", metavar="{" + ",".join(LOS_MODES) + "}",
+                   help="which links are LoS: 'pr_los' (default; each with eq. (11)'s probability, the paper's), "
+                        "'two_of_four' (Fig. 10's case: 2 of the 4 nearest at random; --m 4), 'nearest_two_los' (the "
+                        "2 nearest of 4; --m 4), 'all_los', 'all_nlos', 'free_space' (one LoS path, no multipath); "
+                        "chapters 4 (eq. (11)) and 6 (Fig. 10)")
+    r.add_argument("--nlos-excess", default="none", metavar="{none," + ",".join(TR38901_EXCESS_DELAY) + "}",
+                   help="NLoS excess delay (not in the paper's model; chapter 9): 'none' (default) or a row of TR "
+                        f"38.901 Table 7.6.9-1, every path of an NLoS link late by a log-normal delay: {rows}")
+    r.add_argument("--dpe-nlos", action="store_true",
+                   help="the NLoS-aware DPE (chapter 9, eq. (D1)): each link's excess delay integrated out under the "
+                        "--nlos-excess law (UMi's where none is given) and eq. (11)'s LoS probability, its clock "
+                        "window widened by that law; not with --centring truth")
+    r.add_argument("--otdoa-nlos", action="store_true",
+                   help="also the NLoS-aware OTDoA (chapter 9): each link's ToA weighted by its variance, a residual "
+                        "test flags and excludes NLoS links; needs --centring otdoa")
 
 
 def add_other_commands(sub) -> None:
@@ -217,9 +244,17 @@ def add_info_commands(sub) -> None:
     t.add_argument("--k-factor-db", type=float, default=None, help="K-factor override for D/E, dB")
     t
 
-    d = sub.add_parser("deployment", help="check a deployment file (JSON or CSV) and print a summary")
+    from ..phy.deployment import EXAMPLES, FORMAT
+
+    d = sub.add_parser("deployment", help="check a deployment file (JSON or CSV) and print a summary",
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       description=textwrap.fill(FORMAT, 100),
+                       epilog="\n".join(f"A {k.upper()} example (dpe5g deployment --example {k} > mine.{k}):\n\n"
+                                         + textwrap.indent(v, "  ") for k, v in EXAMPLES.items()))
     d.add_argument("path", nargs="?", default="tst",
                    help="path, or a packaged deployment: 'tst' (default), 'ring', 'ring-wide'")
+    d.add_argument("--example", choices=sorted(EXAMPLES), default=None,
+                   help="print an example deployment file in this format (the same BSs and region in each) and exit")
     d
 
     s = sub.add_parser("scene", help="export the meshcat 3-D scene of the urban example as a static HTML file",

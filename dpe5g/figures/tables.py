@@ -11,18 +11,25 @@ import os
 import random
 from dataclasses import dataclass
 
+import numpy as np
+
 from ..simulation import verify
+from ..simulation.experiment import OTDOA_DETECTORS
 from ..simulation.results import Results
 from ..simulation.store import stored
 from ..studies import readings
+from ..studies.intervals import quantile_difference
 from . import result_plots
 
 
 def run_summary(res: Results) -> str:
-    """A run's summary as text: the study in one line, then its RMSE tables and shares.
+    """A run's summary as text: the study in one line, each receiver's errors, and each OTDoA receiver against the DPE
+    on the same trials.
 
-    The RMSE (metres) per SNR (rows) and M (columns) of the DPE (and of the OTDoA fix that centres it, for centring
-    "otdoa"), and for the honest centrings the edge-flag and certified shares.
+    Per receiver (``receiver_errors``), per SNR (rows) and M (columns): the median, 90 % point and RMSE of the
+    horizontal error, metres.  Where an OTDoA receiver ran, the DPE's median and 90 % point less its, per (SNR, M),
+    with the 95 % paired interval (``intervals.quantile_difference``) and its verdict: "DPE better" or "OTDoA better"
+    where the interval excludes 0, else "unresolved".  For the honest centrings, the edge-flag and certified shares.
 
     Parameters
     ----------
@@ -36,20 +43,59 @@ def run_summary(res: Results) -> str:
     """
     e = res.experiment
     prior = f" (σ = {e.receiver.prior_scale_m:g} m)" if e.receiver.centring == "prior" else ""
-    lines = [f"{e.run.n_trials} trials, seed {e.run.seed}, deployment {e.scenario.deployment}, delay spread "
-             f"{e.scenario.delay_spread_s * 1e9:g} ns, L = {e.receiver_search().n_taps}, centring {e.receiver.centring}{prior}"]
-    tables = [("DPE", res.rmse_m())]
-    if res.otdoa_error_m is not None:
-        tables.append((f"OTDoA, {e.receiver.toa_method} ToA", res.otdoa_rmse_m(e.receiver.toa_method)))
-    budget = e.links.snr_mode == "link_budget"  # one row: each link's SNR from its BS's power and the path loss
-    snrs = ["link budget"] if budget else [f"{snr:g}" for snr in e.links.snrs_db]
-    for label, rmse in tables:
-        lines += [f"RMSE (m), {label}:", f"{'SNR (dB)':>11} " + " ".join(f"{f'M = {m}':>9}" for m in e.receiver.m_values)]
-        lines += [f"{snr:>11} " + " ".join(f"{v:9.3f}" for v in row) for snr, row in zip(snrs, rmse)]
+    sc = e.scenario
+    excess = (f", NLoS excess delay median {sc.nlos_excess_median_s * 1e9:.1f} ns, σ {sc.nlos_excess_sigma_lg:g} "
+              f"decades" if sc.nlos_excess_median_s else "")
+    lines = [f"{e.run.n_trials} trials, seed {e.run.seed}, deployment {sc.deployment}, delay spread "
+             f"{sc.delay_spread_s * 1e9:g} ns, LoS {sc.los_mode}{excess}, L = {e.receiver_search().n_taps}, "
+             f"centring {e.receiver.centring}{prior}"]
+    snrs = ["link budget"] if e.links.snr_mode == "link_budget" else [f"{snr:g}" for snr in e.links.snrs_db]
+    head = f"{'SNR (dB)':>11} " + " ".join(f"{f'M = {m}':>21}" for m in e.receiver.m_values)
+    errors = receiver_errors(res)
+    for label, err in errors.items():
+        lines += [f"{label}: median / 90 % / RMSE of the error (m)", head]
+        lines += [f"{snr:>11} " + " ".join(f"{np.median(x):6.2f} /{np.quantile(x, 0.9):6.2f} /{np.sqrt(np.mean(x**2)):6.2f}"
+                                           for x in np.moveaxis(err[:, s], 0, -1)) for s, snr in enumerate(snrs)]
+    (dpe_label, dpe), *others = errors.items()
+    for label, err in others:
+        lines.append(f"{dpe_label} less {label} on the same trials, m (95 % paired interval):")
+        for s, snr in enumerate(snrs):
+            for j, m in enumerate(e.receiver.m_values):
+                said = []
+                for q, word in ((0.5, "median"), (0.9, "90 %")):
+                    d = quantile_difference(dpe[:, s, j], err[:, s, j], q)
+                    verdict = "DPE better" if d.hi < 0 else "OTDoA better" if d.lo > 0 else "unresolved"
+                    said.append(f"{word} {d.value:+.2f} [{d.lo:+.2f}, {d.hi:+.2f}] {verdict}")
+                lines.append(f"  SNR {snr}, M = {m}: " + "; ".join(said))
     if e.receiver.centring != "truth":
         lines.append(f"DPE fixes on the window's edge (flagged): {100 * res.edge.mean():.1f} %; certified: "
-                     f"{100 * res.certified.mean():.1f} %")
+                     f"{100 * res.certified.mean():.1f} % (the best point inside the search window proved found; not "
+                     f"that the window holds the UE)")
     return "\n".join(lines)
+
+
+def receiver_errors(res: Results) -> dict[str, np.ndarray]:
+    """Each receiver's horizontal errors in a run: the DPE, and where they ran, the OTDoA fix of the receiver's ToA
+    method and the NLoS-aware OTDoA.
+
+    Parameters
+    ----------
+    res : Results
+        The run's results.
+
+    Returns
+    -------
+    dict
+        Label → float (T, S, J), metres; the DPE first.
+    """
+    e = res.experiment
+    out = {"NLoS-aware DPE" if e.receiver.dpe_nlos else "DPE": res.error_m}
+    if res.otdoa_error_m is not None:
+        k = OTDOA_DETECTORS.index(e.receiver.toa_method)
+        out[f"OTDoA ({e.receiver.toa_method} ToA)"] = res.otdoa_error_m[:, :, k]
+    if res.otdoa_nlos_error_m is not None:
+        out["NLoS-aware OTDoA"] = res.otdoa_nlos_error_m
+    return out
 
 
 def readings_summary(p: dict) -> dict:

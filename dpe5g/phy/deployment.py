@@ -41,6 +41,14 @@ BS_HEIGHT_RANGE_M = (1.5, 150.0)  # TR 38.901 UMi: 10 m; the formulas need h_BS 
 #: below 10 is most likely in watts (24 dBm is 0.25 W)
 POWER_RANGE_DBM = (10.0, 60.0)
 MIN_BS = 3  # (x, y, c δt) has three unknowns
+#: a BS's transmit power where its file gives none, dBm: the paper's 24 dBm (Section III).  Only the link-budget
+#: studies (Fig. 10's set-up) use a BS's power; reading a file without it says so (``Deployment.assumed``)
+DEFAULT_POWER_DBM = 24.0
+#: a CSV deployment's optional region columns (the same values on every row that gives them)
+CSV_REGION = ("region_x_min_m", "region_y_min_m", "region_x_max_m", "region_y_max_m")
+#: the region of a CSV deployment that gives none: the BSs' bounding box grown on each side by this share of its
+#: larger side
+CSV_REGION_PAD = 0.1
 #: the largest deployment file read (bytes) and the most base stations and buildings it may hold: a city's
 #: deployment is far below these; a larger file is most likely not a deployment
 MAX_FILE_BYTES = 20_000_000
@@ -48,6 +56,44 @@ MAX_BS = N_PRS_IDS  # (without PRS reuse, each BS needs a PRS ID of its own)
 MAX_BUILDINGS = 100_000
 #: base stations must stand at least this far apart (m), and off one line by at least this much (RMS, m)
 MIN_SPACING_M = 0.5
+
+
+#: a deployment file's format, one paragraph, as ``dpe5g deployment --help`` prints it
+FORMAT = " ".join(f"""
+A deployment file is JSON or CSV; positions in metres in a local frame (x east, y north, z up, the ground at 0).
+Each base station: x_m, y_m, height_m ({BS_HEIGHT_RANGE_M[0]:g} to {BS_HEIGHT_RANGE_M[1]:g} m), and optional id
+(default BS01, BS02, ...) and power_dbm ({POWER_RANGE_DBM[0]:g} to {POWER_RANGE_DBM[1]:g} dBm; default
+{DEFAULT_POWER_DBM:g} dBm, the paper's; only --snr-mode link-budget uses it).  At least {MIN_BS} and at most
+{MAX_BS} BSs, {MIN_SPACING_M:g} m apart or more.  The region (x_min_m, y_min_m, x_max_m, y_max_m) is where the UE is
+drawn and must hold every BS: JSON's "region" (required); a CSV's region_x_min_m, ... columns, or, without them, the
+BSs' bounding box grown by {CSV_REGION_PAD:.0%} of its larger side on each side (a line says so).  JSON may also
+give ue_height_m (default 2), ue_region, buildings, streets, anchor, name and description
+(dpe5g/data/tst_deployment.json has them all).""".split())
+
+#: a small deployment in each format, the same BSs and region (``dpe5g deployment --example json|csv``)
+EXAMPLES = {
+    "json": """\
+{
+ "name": "mine",
+ "region": {"x_min_m": -50, "y_min_m": -50, "x_max_m": 350, "y_max_m": 350},
+ "base_stations": [
+  {"id": "A", "x_m": 0, "y_m": 0, "height_m": 10, "power_dbm": 24},
+  {"id": "B", "x_m": 300, "y_m": 0, "height_m": 10, "power_dbm": 24},
+  {"id": "C", "x_m": 0, "y_m": 300, "height_m": 10, "power_dbm": 24},
+  {"id": "D", "x_m": 300, "y_m": 300, "height_m": 10, "power_dbm": 24},
+  {"id": "E", "x_m": 150, "y_m": 150, "height_m": 25, "power_dbm": 30}
+ ]
+}
+""",
+    "csv": """\
+id,x_m,y_m,height_m,power_dbm,region_x_min_m,region_y_min_m,region_x_max_m,region_y_max_m
+A,0,0,10,24,-50,-50,350,350
+B,300,0,10,24,,,,
+C,0,300,10,24,,,,
+D,300,300,10,24,,,,
+E,150,150,25,30,,,,
+""",
+}
 
 
 @dataclass(frozen=True, eq=False)
@@ -77,6 +123,9 @@ class Deployment:
     ue_region : tuple of 4 float or None
         (x_min, y_min, x_max, y_max) metres, inside ``region``: where the UE is drawn, or None for the whole region
         (``ue_bounds``).
+    assumed : tuple of str
+        What reading the file filled in, one sentence each: a CSV's region inferred from its BSs, a power not given
+        (``DEFAULT_POWER_DBM``).  The command line prints them.
     """
 
     name: str
@@ -91,6 +140,7 @@ class Deployment:
     anchor_lon_deg: float | None = None
     description: str = ""
     ue_region: tuple[float, float, float, float] | None = None
+    assumed: tuple[str, ...] = ()
 
     @property
     def ue_bounds(self) -> tuple[float, float, float, float]:
@@ -212,7 +262,8 @@ def _power(source, where, value, text: bool = False):
 
 
 def _base_stations(source, rows, text: bool = False):
-    """Validate BS rows (dicts with id, x_m, y_m, height_m, power_dbm; ``text``: CSV cells) → ids, xyz, power."""
+    """Validate BS rows (dicts with id, x_m, y_m, height_m, optional power_dbm; ``text``: CSV cells) → ids, xyz,
+    power (``DEFAULT_POWER_DBM`` where not given), and the sentence saying so (``Deployment.assumed``)."""
     if not isinstance(rows, list) or len(rows) < MIN_BS:
         n = len(rows) if isinstance(rows, list) else 0
         _fail(source, f"needs at least {MIN_BS} base stations (x, y and the clock bias are unknown), got {n}")
@@ -223,7 +274,7 @@ def _base_stations(source, rows, text: bool = False):
         where = f"base station {i + 1}"
         if not isinstance(r, dict):
             _fail(source, f"{where} must be an object with id, x_m, y_m, height_m, power_dbm")
-        missing = [k for k in ("x_m", "y_m", "height_m", "power_dbm") if k not in r or r[k] in ("", None)]
+        missing = [k for k in ("x_m", "y_m", "height_m") if k not in r or r[k] in ("", None)]
         if missing:
             _fail(source, f"{where}: missing {', '.join(missing)}")
         bid = str(r.get("id") or f"BS{i + 1:02d}")
@@ -234,10 +285,16 @@ def _base_stations(source, rows, text: bool = False):
         xyz.append([_number(source, where, "x_m", r["x_m"], -1e5, 1e5, "m", text),
                     _number(source, where, "y_m", r["y_m"], -1e5, 1e5, "m", text),
                     _number(source, where, "height_m", r["height_m"], *BS_HEIGHT_RANGE_M, "m", text)])
-        pw.append(_power(source, f"{where} ({bid})", r["power_dbm"], text))
+        given = r.get("power_dbm") not in ("", None)
+        pw.append(_power(source, f"{where} ({bid})", r["power_dbm"], text) if given else math.nan)
     xyz = np.array(xyz)
     _check_geometry(source, tuple(ids), xyz[:, :2])
-    return tuple(ids), xyz, np.array(pw)
+    pw = np.array(pw)
+    unstated = [b for b, p in zip(ids, pw) if math.isnan(p)]
+    assumed = () if not unstated else (
+        f"power_dbm not given for {len(unstated)} of {len(ids)} BSs ({', '.join(unstated[:3])}"
+        f"{', …' if len(unstated) > 3 else ''}): {DEFAULT_POWER_DBM:g} dBm (the paper's) where a study uses it",)
+    return tuple(ids), xyz, np.where(np.isnan(pw), DEFAULT_POWER_DBM, pw), assumed
 
 
 def nearest_neighbours(xy) -> tuple[np.ndarray, np.ndarray]:
@@ -277,14 +334,18 @@ def _check_geometry(source, ids, xy) -> None:
 
 
 def load_deployment(path) -> Deployment:
-    """Read a deployment from JSON (our schema, see ``dpe5g/data/tst_deployment.json``) or CSV.
+    """Read a deployment from JSON (our schema, see ``dpe5g/data/tst_deployment.json``) or CSV (``FORMAT``,
+    ``EXAMPLES``).
 
-    * CSV: a header row with columns id, x_m, y_m, height_m, power_dbm (id optional), one BS per row; the region is
-      then the BSs' bounding box grown by 10 % on each side and the UE height 2 m.
+    * CSV: a header row with columns x_m, y_m, height_m and optional id, power_dbm and region columns
+      (``CSV_REGION``, the same on every row that gives them), one BS per row; without region columns the region is
+      the BSs' bounding box grown by ``CSV_REGION_PAD`` of its larger side on each side (``Deployment.assumed`` says
+      so); the UE height 2 m.
     * JSON: ``{"base_stations": [{id, x_m, y_m, height_m, power_dbm}, ...], "region": {x_min_m, y_min_m, x_max_m,
       y_max_m}``, optional ``"ue_region"`` (the same keys, inside the region: where the UE is drawn),
       ``"ue_height_m"``, ``"buildings" [{x_min_m, y_min_m, x_max_m, y_max_m, height_m}]``, ``"streets" [{name, axis,
       centre_m, width_m}]``, ``"anchor" {lat_deg, lon_deg}``, ``"name"``, ``"description"}``; JSON numbers.
+    * Either: a BS's id and power_dbm are optional (BS01, BS02, …; ``DEFAULT_POWER_DBM``).
 
     Parameters
     ----------
@@ -330,11 +391,36 @@ def _from_csv(src: str, stem: str, data: bytes) -> Deployment:
     for i, r in enumerate(rows):
         if None in r:
             _fail(src, f"row {i + 2} has more fields than the header")
-    ids, xyz, pw = _base_stations(src, rows, text=True)
-    lo, hi = xyz[:, :2].min(0), xyz[:, :2].max(0)
-    pad = 0.1 * max(float(np.max(hi - lo)), 1.0)
-    region = (lo[0] - pad, lo[1] - pad, hi[0] + pad, hi[1] + pad)
-    return Deployment(stem, ids, xyz, pw, tuple(float(v) for v in region))
+    ids, xyz, pw, assumed = _base_stations(src, rows, text=True)
+    region = _csv_region(src, rows)
+    if region is None:
+        lo, hi = xyz[:, :2].min(0), xyz[:, :2].max(0)
+        pad = CSV_REGION_PAD * max(float(np.max(hi - lo)), 1.0)
+        region = tuple(float(v) for v in (lo[0] - pad, lo[1] - pad, hi[0] + pad, hi[1] + pad))
+        assumed += (f"region not given (columns {', '.join(CSV_REGION)}): the BSs' bounding box grown by "
+                    f"{CSV_REGION_PAD:.0%} of its larger side ({pad:.1f} m) on each side, "
+                    f"({', '.join(f'{v:.1f}' for v in region)}) m",)
+    _inside(src, ids, xyz, region)
+    return Deployment(stem, ids, xyz, pw, region, assumed=assumed)
+
+
+def _csv_region(src: str, rows: list) -> tuple[float, float, float, float] | None:
+    """A CSV deployment's region from its ``CSV_REGION`` columns (the same on every row that gives them), or None."""
+    given = [tuple(r.get(k) or "" for k in CSV_REGION) for r in rows]
+    given = {g for g in given if any(g)}
+    if not given:
+        return None
+    if len(given) > 1:
+        _fail(src, f"the region columns {', '.join(CSV_REGION)} differ between rows ({sorted(given)[:2]})")
+    return _rectangle(src, "region", {k.removeprefix("region_"): _number(src, "region", k, v, -1e5, 1e5, "m", True)
+                                      for k, v in zip(CSV_REGION, given.pop())})
+
+
+def _inside(src: str, ids, xyz, region) -> None:
+    """Every BS inside the region."""
+    outside = [b for b, p in zip(ids, xyz) if not (region[0] <= p[0] <= region[2] and region[1] <= p[1] <= region[3])]
+    if outside:
+        _fail(src, f"base station {outside[0]} lies outside the region {region}")
 
 
 def _from_json(src: str, stem: str, data: bytes) -> Deployment:
@@ -349,13 +435,11 @@ def _from_json(src: str, stem: str, data: bytes) -> Deployment:
         _fail(src, "must hold a JSON object with base_stations and region")
     if "base_stations" not in doc:
         _fail(src, "missing base_stations" + (f" (it has {', '.join(map(repr, list(doc)[:8]))})" if doc else ""))
-    ids, xyz, pw = _base_stations(src, doc["base_stations"])
+    ids, xyz, pw, assumed = _base_stations(src, doc["base_stations"])
     if not isinstance(doc.get("region"), dict):
         _fail(src, "needs a region {x_min_m, y_min_m, x_max_m, y_max_m}")
     region = _rectangle(src, "region", doc["region"])
-    outside = [b for b, p in zip(ids, xyz) if not (region[0] <= p[0] <= region[2] and region[1] <= p[1] <= region[3])]
-    if outside:
-        _fail(src, f"base station {outside[0]} lies outside the region {region}")
+    _inside(src, ids, xyz, region)
     ue_region = None
     if doc.get("ue_region") is not None:
         ue_region = _rectangle(src, "ue_region", doc["ue_region"])
@@ -365,7 +449,7 @@ def _from_json(src: str, stem: str, data: bytes) -> Deployment:
     lat, lon = _anchor(src, doc.get("anchor"))
     return Deployment(_text(src, "name", doc.get("name", stem)), ids, xyz, pw, region, ue_h,
                       _buildings(src, doc.get("buildings")), _streets(src, doc.get("streets")), lat, lon,
-                      _text(src, "description", doc.get("description", "")), ue_region)
+                      _text(src, "description", doc.get("description", "")), ue_region, assumed)
 
 
 def _text(src, key, value) -> str:

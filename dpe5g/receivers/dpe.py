@@ -46,9 +46,13 @@ class Fix:
     gap : float (...)
         Relative certified gap of the branch and bound; NaN for the grid search.
     certified : bool (...)
-        The branch and bound proved the fix the window's maximum within ``gap``.
+        The branch and bound proved the fix the window's maximum within ``gap``: the best point inside the search
+        window, found.  It says nothing of where the UE is: a window centred on a prior far off holds a certified
+        maximum metres from the truth (a multipath peak, or the window's edge).
     edge : bool (...)
-        The fix lies on the window's boundary (flagged: the maximum may lie outside).
+        The fix lies on the window's boundary (flagged: the likelihood still rises outside, so the maximum may lie
+        outside the window; a certified fix on the edge is the window's best point, not the likelihood's).  Widen or
+        re-centre the window there.
     """
 
     xyz: np.ndarray

@@ -384,6 +384,8 @@ class Experiment:
         if unknown:
             raise ValueError(f"unknown experiment setting(s) {', '.join(unknown)}; the settings are "
                              f"{', '.join(SETTINGS)}")
+        if settings.get("snr_mode") == "link_budget" and "snrs_db" not in settings:
+            settings = {**settings, "snrs_db": ()}  # (its SNRs come from the path loss: no list to give)
         parts = {}
         for part in PARTS:
             mine = {k: v for k, v in settings.items() if SETTINGS[k] == part}

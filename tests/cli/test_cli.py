@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from dpe5g.receivers import search_config
@@ -155,6 +156,11 @@ BAD = [
     (RUN + ("--m", "2", "6"), "--m: m_values entry must be an integer in [3,"),
     (RUN + ("--m", "6", "--deployment", "four.csv"), "--m: m_values must not exceed the deployment's 4"),
     (RUN + ("--taps", "0"), "--taps: n_taps must be an integer in [1, 4096]"),
+    (RUN + ("--otdoa-nlos",), "--otdoa-nlos runs the NLoS-aware OTDoA on the OTDoA receiver's ToAs: use --centring otdoa"),
+    (RUN + ("--dpe-nlos", "--centring", "truth"), "--dpe-nlos searches the certified window of an honest receiver"),
+    (RUN + ("--nlos-excess", "InH"), "--nlos-excess must be one of none, UMi, UMa, RMa, SMa; got 'InH'"),
+    (RUN + ("--los-mode", "half"), "--los-mode: los_mode must be one of"),
+    (RUN + ("--nlos-excess", "UMi", "--reuse", "6"), "--nlos-excess: nlos_excess_median_s > 0 is not modelled with"),
     (RUN + ("--taps", "4097"), "--taps: n_taps must be an integer in [1, 4096]"),
     (RUN + ("--centring", "oracle"), "--centring: centring must be one of truth, prior, otdoa"),
     (RUN + ("--delay-spread", "65"), "--delay-spread: delay_spread_s=65 s is outside"),
@@ -281,7 +287,7 @@ def test_run_writes_csv_and_its_provenance_and_refuses_to_overwrite(workdir, cap
     args = ["run", "--trials", "2", "--snr", "10", "30", "--m", "6", "--centring", "truth"]
     assert cli.main(args + ["--out", "r.csv"]) == 0
     out = capsys.readouterr().out
-    assert "RMSE (m), DPE:" in out and "M = 6" in out and "wrote r.csv (4 rows" in out and "r.json" in out
+    assert "DPE: median / 90 % / RMSE of the error (m)" in out and "M = 6" in out and "wrote r.csv (4 rows" in out and "r.json" in out
     rows = read_csv(workdir / "r.csv")
     links = [f"link{k}_{q}" for k in range(1, 7) for q in ("los", "snr_db", "sinr_db")]
     assert list(rows[0]) == TABLE_COLUMNS + links
@@ -311,7 +317,8 @@ def test_run_otdoa_centring_on_a_users_deployment(workdir, capsys):
     assert cli.main(["run", "--trials", "1", "--snr", "20", "--m", "4", "--centring", "otdoa",
                      "--deployment", "four.csv", "--out", "sub/o.csv"]) == 0
     out = capsys.readouterr().out
-    assert "RMSE (m), OTDoA, first_path ToA:" in out and "certified:" in out
+    assert "OTDoA (first_path ToA): median / 90 % / RMSE of the error (m)" in out and "certified:" in out
+    assert "DPE less OTDoA (first_path ToA) on the same trials, m (95 % paired interval):" in out
     cfg = csv_config(workdir / "sub" / "o.csv")
     assert cfg["deployment"] == str(workdir / "four.csv")
     assert cfg["otdoa"] is True and cfg["search"]["method"] == "bnb"
@@ -519,3 +526,69 @@ def test_help_describes_the_command_line(capsys):
         cli.main(["--help"])
     out = " ".join(capsys.readouterr().out.split())  # (argparse wraps the text to the terminal)
     assert "The command line of dpe5g" in out and "exit code 2" in out and "UsageError" not in out
+
+
+def test_the_deployment_format_is_where_the_user_looks(workdir, capsys):
+    """``dpe5g deployment --help`` gives the format and an example in each format; ``--example`` prints them; the
+    two examples read as the same BSs and region; power_dbm is optional (a line says what is assumed), and a CSV
+    without region columns says how its region was inferred."""
+    from dpe5g.phy import deployment
+
+    with pytest.raises(SystemExit):
+        cli.main(["deployment", "--help"])
+    text = capsys.readouterr().out
+    assert all(k in text for k in ("x_m", "height_m", "power_dbm", "region_x_min_m", '"base_stations"', "A,0,0,10,24"))
+    deps = {}
+    for fmt in ("json", "csv"):
+        assert cli.main(["deployment", "--example", fmt]) == 0
+        (workdir / f"mine.{fmt}").write_text(capsys.readouterr().out)
+        deps[fmt] = deployment.load_deployment(workdir / f"mine.{fmt}")
+        assert deps[fmt].assumed == ()
+    j, c = deps["json"], deps["csv"]
+    assert j.bs_ids == c.bs_ids and j.region == c.region and np.array_equal(j.bs_xyz, c.bs_xyz)
+    assert np.array_equal(j.power_dbm, c.power_dbm)
+    (workdir / "bare.csv").write_text("x_m,y_m,height_m\n0,0,10\n100,0,10\n0,100,10\n")
+    assert cli.main(["deployment", "bare.csv"]) == 0
+    out = capsys.readouterr().out
+    assert "power_dbm not given for 3 of 3 BSs (BS01, BS02, BS03): 24 dBm" in out
+    assert "region not given (columns region_x_min_m" in out and "(-10.0, -10.0, 110.0, 110.0) m" in out
+    assert np.all(deployment.load_deployment(workdir / "bare.csv").power_dbm == deployment.DEFAULT_POWER_DBM)
+    (workdir / "two.csv").write_text(FILES["four.csv"].replace("power_dbm\n", "power_dbm,region_x_min_m,"
+                                                               "region_y_min_m,region_x_max_m,region_y_max_m\n")
+                                     .replace("A,0,0,10,24", "A,0,0,10,24,-5,-5,105,105")
+                                     .replace("B,100,0,10,24", "B,100,0,10,24,-5,-5,110,105"))
+    assert cli.main(["deployment", "two.csv"]) == 2
+    assert "region columns region_x_min_m, region_y_min_m, region_x_max_m, region_y_max_m differ" in \
+        capsys.readouterr().err
+
+
+def test_json_and_csv_of_one_deployment_give_one_study(workdir, capsys):
+    """The two examples of ``dpe5g deployment --example`` (the same BSs and region): the same errors, trial by
+    trial, in the link-budget mode (which reads the region, the positions and the powers)."""
+    from dpe5g.phy import deployment
+
+    for fmt in ("json", "csv"):
+        (workdir / f"mine.{fmt}").write_text(deployment.EXAMPLES[fmt])
+    for mode in ("link-budget",):
+        tables = []
+        for fmt in ("json", "csv"):
+            assert cli.main(["run", "--trials", "3", "--m", "4", "--snr-mode", mode, "--deployment", f"mine.{fmt}",
+                             "--out", f"{mode}-{fmt}.csv"]) == 0
+            tables.append([(r["trial"], r["error_m"], r["est_x_m"]) for r in read_csv(workdir / f"{mode}-{fmt}.csv")])
+        assert tables[0] == tables[1] and len(tables[0]) >= 3
+    capsys.readouterr()
+
+
+def test_run_with_the_nlos_model_and_the_nlos_aware_receivers(workdir, capsys):
+    """``--nlos-excess``, ``--los-mode``, ``--dpe-nlos`` and ``--otdoa-nlos`` set the experiment the book's NLoS
+    chapter runs, and the summary shows every receiver with the paired differences."""
+    assert cli.main(["run", "--trials", "2", "--snr-mode", "link-budget", "--centring", "otdoa", "--los-mode",
+                     "two_of_four", "--nlos-excess", "UMa", "--dpe-nlos", "--otdoa-nlos", "--out", "n.csv"]) == 0
+    out = capsys.readouterr().out
+    cfg = csv_config(workdir / "n.csv")
+    assert cfg["los_mode"] == "two_of_four" and cfg["dpe_nlos"] and cfg["otdoa_nlos"]
+    assert cfg["clock_window"] == "clock_nlos" and cfg["nlos_prior"] == "scenario"
+    assert abs(cfg["nlos_excess_median_s"] - 10 ** -7.4) < 1e-15 and cfg["nlos_excess_sigma_lg"] == 0.2
+    assert "LoS two_of_four, NLoS excess delay median 39.8 ns" in out
+    assert "NLoS-aware DPE less NLoS-aware OTDoA on the same trials" in out
+    assert "NLoS-aware DPE less OTDoA (first_path ToA) on the same trials" in out

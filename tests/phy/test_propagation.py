@@ -89,7 +89,7 @@ def _write(tmp_path, name, text):
     ("d.csv", "id,x_m,y_m,height_m,power_dbm\nA,0,0,10,24\nB,100,0,10,24\n", "at least 3 base stations"),
     ("d.csv", "id,x_m,y_m,height_m,power_dbm\nA,0,0,10,24\nB,100,0,ten,24\nC,0,100,10,24\n", "height_m must be"),
     ("d.csv", "id,x_m,y_m,height_m,power_dbm\nA,0,0,10,24\nB,100,0,10,240\nC,0,100,10,24\n", "power_dbm must be"),
-    ("d.csv", "id,x_m,y_m,height_m\nA,0,0,10\nB,100,0,10\nC,0,100,10\n", "missing power_dbm"),
+    ("d.csv", "id,x_m,y_m,power_dbm\nA,0,0,24\nB,100,0,24\nC,0,100,24\n", "missing height_m"),
     ("d.csv", "id,x_m,y_m,height_m,power_dbm\nA,0,0,10,24\nA,100,0,10,24\nC,0,100,10,24\n", "duplicate id"),
     ("d.csv", "id,x_m,y_m,height_m,power_dbm\nA,0,0,10,24\nB,100,nan,10,24\nC,0,100,10,24\n", "y_m must be"),
     ("d.json", "{not json", "not valid JSON"),

@@ -190,7 +190,7 @@ def test_two_of_four_and_link_budget_modes(tmp_path):
     (dict(m_values=(12, 6)), "increasing"),
     (dict(m_values=(2,)), "m_values entry"),
     (dict(los_mode="two_of_four"), "must end in 4"),
-    (dict(snr_mode="link_budget"), "must be empty"),
+    (dict(snr_mode="link_budget", snrs_db=(10.0,)), "must be empty"),
     (dict(delay_spread_s=65.0), "nanoseconds"),
     (dict(los_mode="sometimes"), "los_mode must be one of"),
     (dict(n_trials=0), "n_trials"),
@@ -377,6 +377,12 @@ def test_settings_as_lists_and_numpy_values_key_as_plain_numbers():
         prior_scale_m=5.0).config_key()
     with pytest.raises(ValueError, match="seed must be an integer"):
         experiment.Experiment.build(seed=1.5)
+    # the link-budget mode takes its SNRs from the path loss: built without an SNR list, the same as with an empty one
+    budget = experiment.Experiment.build(snr_mode="link_budget", m_values=(4,))
+    assert budget == experiment.Experiment.build(snr_mode="link_budget", snrs_db=(), m_values=(4,))
+    assert budget.links.snrs_db == () and budget.links.snr_mode == "link_budget"
+    with pytest.raises(ValueError, match="snrs_db must be empty when snr_mode is 'link_budget'"):
+        experiment.Experiment.build(snr_mode="link_budget", snrs_db=(10.0,))
 
 
 def test_code_version_does_not_depend_on_the_locale():
