@@ -10,7 +10,7 @@ CHAPTERS := $(wildcard chapters/*.md)
 BOOK_SRC := $(wildcard book/*.md book/*.yml book/*.bib book/_static/* book/_ext/*.py) $(CHAPTERS)
 HTML := book/_build/html/index.html
 
-.PHONY: all setup reproduce figures book chapter test clean
+.PHONY: all setup reproduce figures book chapter lab test clean
 all: book
 
 setup: $(STAMP)
@@ -58,6 +58,19 @@ book: $(HTML)
 chapter: $(STAMP)
 	@test -n "$(CH)" || { echo "make chapter: say which, e.g. make chapter CH=05 (add SMOKE=1 for a quick run)" >&2; exit 2; }
 	$(BIN)/python scripts/run_chapter.py "$(CH)" $(if $(filter 1,$(SMOKE)),--smoke)
+
+# A chapter as a live notebook: make lab [CH=05] -> JupyterLab (pinned in environment-lab.txt, installed into .venv on
+# first use, about a minute) with the chapters opening as notebooks (jupytext); each cell runs in chapters/ as the book
+# runs it, and a number the prose glues shows in its cell's output (dpe5g.figures.registry.glue_value).
+LAB_STAMP := $(VENV)/.lab-installed
+$(LAB_STAMP): environment-lab.txt book/lab/overrides.json $(STAMP)
+	$(BIN)/python -m pip install --quiet --no-compile -r environment-lab.txt
+	mkdir -p $(VENV)/share/jupyter/lab/settings
+	cp book/lab/overrides.json $(VENV)/share/jupyter/lab/settings/overrides.json
+	touch $@
+
+lab: $(LAB_STAMP)
+	where=$$($(if $(CH),$(BIN)/python scripts/run_chapter.py --which "$(CH)",echo chapters)) && $(BIN)/jupyter lab "$$where"
 
 # Every test: unit + property tests, bad input, figure-diff against the committed baselines, browser test of the book.
 # The tests that need neither the book nor the figures' Monte Carlo results run at low priority while the book builds

@@ -2,11 +2,13 @@
 
     python scripts/run_chapter.py 05            # chapters/05_*.md -> book/_build/chapters/05_rmse_vs_snr.ipynb
     python scripts/run_chapter.py 05 --smoke    # DPE5G_SMOKE=1: fewer Monte Carlo trials, for a quick look
+    python scripts/run_chapter.py 05 --which    # chapters/05_rmse_vs_snr.md (what ``make lab CH=05`` opens)
 
 The chapter (a MyST-markdown notebook) is read with jupytext and executed with nbclient in the ``chapters/``
 folder, the same kernel the book uses; no network is needed.  The Monte Carlo results are shared with the book and
 ``make figures`` through the cache in ``.cache/montecarlo``, so a chapter whose experiments are cached runs in
-seconds.  Prints each cell's progress and the total run time; a failing cell prints its error and exits 1, a bad
+seconds.  A number the chapter's prose glues is shown in its cell's output (``registry.glue_value``: no book is
+building), and so is each figure.  Prints each cell's progress and the total run time; a failing cell prints its error and exits 1, a bad
 chapter name exits 2.
 """
 
@@ -69,6 +71,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("chapter", help="chapter number (05) or file stem (05_rmse_vs_snr)")
     ap.add_argument("--smoke", action="store_true", help="DPE5G_SMOKE=1: fewer Monte Carlo trials")
+    ap.add_argument("--which", action="store_true", help="print the chapter's file (make lab opens it) and exit")
     ap.add_argument("--out", type=Path, default=ROOT / "book" / "_build" / "chapters",
                     help="folder for the executed notebook (default: book/_build/chapters)")
     args = ap.parse_args(argv)
@@ -77,6 +80,9 @@ def main(argv=None) -> int:
     except ValueError as exc:
         print(f"run_chapter: {exc}", file=sys.stderr)
         return 2
+    if args.which:
+        print(path.relative_to(ROOT))
+        return 0
     from nbclient.exceptions import CellExecutionError
 
     try:

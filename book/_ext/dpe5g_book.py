@@ -256,6 +256,7 @@ def _author_year_style():
 
 
 def setup(app):
+    os.environ["DPE5G_BOOK_BUILD"] = "1"  # (dpe5g.figures.registry.BOOK_BUILD_ENV: the chapters' kernels glue for the book only)
     app.add_config_value("dpe5g_cache_sources", [], "env")
     _author_year_style()
     app.setup_extension("sphinx.ext.autodoc")  # (the API reference; its object descriptions below)

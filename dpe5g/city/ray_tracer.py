@@ -17,6 +17,7 @@ import subprocess
 import sys
 from functools import lru_cache
 from importlib.metadata import version
+from pathlib import Path
 
 import numpy as np
 
@@ -72,10 +73,21 @@ def check_packages() -> None:
     errors.Failure
         Naming the one to install (its pin is in environment.txt); everything that does not trace works without it.
     """
-    for module, package in (("sionna", "sionna-rt"), ("mitsuba", "sionna-rt"), ("drjit", "sionna-rt")):
-        if importlib.util.find_spec(module) is None:  # (top-level names: found without importing them)
+    for module, package in (("sionna", "sionna-rt"), ("mitsuba", "sionna-rt"), ("drjit", "sionna-rt"),
+                            ("sionna.rt", "sionna-rt")):
+        if not _installed(module):
             raise Failure(f"ray tracing needs {package} (its module {module} is missing): pip install the {package} "
                           "pinned in environment.txt; nothing else needs it")
+
+
+def _installed(module: str) -> bool:
+    """Whether ``module`` (a top-level name, or one subpackage of it) is installed, found without importing it
+    (``sionna``'s ``__init__`` imports Sionna RT, which loads Dr.Jit)."""
+    top, _, sub = module.partition(".")
+    spec = importlib.util.find_spec(top)
+    if spec is None or not sub:
+        return spec is not None
+    return any((Path(folder) / sub / "__init__.py").is_file() for folder in spec.submodule_search_locations or ())
 
 
 @lru_cache(maxsize=8)

@@ -36,6 +36,14 @@ RUN_OPTIONS = {"n_trials": "--trials", "snr_db": "--snr", "snrs_db": "--snr", "m
 
 # ---- shared checks --------------------------------------------------------------------------------------------------
 
+def show_progress(args) -> bool:
+    """Whether a command shows its progress (``parser.add_progress_options``): with --progress, never with --quiet,
+    else when stderr is a terminal."""
+    if getattr(args, "quiet", False):
+        return False
+    return bool(getattr(args, "progress", None)) or sys.stderr.isatty()
+
+
 def _in_baselines(folder: Path) -> bool:
     """Whether ``folder`` (resolved) is the committed baselines folder or inside it."""
     return folder.resolve().is_relative_to(BASELINE_DIR.resolve())
@@ -213,7 +221,7 @@ def _run(args) -> int:
         raise ValueError(f"--out {args.out}: {sidecar.name} beside it (where its provenance goes) exists; pass --force "
                          f"to overwrite both")
     with _cluster(args) as client:
-        res = engine.run(e, progress=True, client=client)
+        res = engine.run(e, progress=show_progress(args), client=client)
     try:  # an existing file is never left half-overwritten; without --force, never replaced
         with atomic_target(out, exclusive=not args.force) as tmp_csv:
             res.write_csv(tmp_csv)
@@ -272,7 +280,7 @@ def _figures(args) -> int:
     for fig_id in ids:
         t0 = time.perf_counter()
         trials = args.trials if args.trials is not None and figures.takes_trials(fig_id) else None
-        png, js = figures.write(fig_id, out, progress=True, trials=trials)
+        png, js = figures.write(fig_id, out, progress=show_progress(args), trials=trials)
         print(f"{fig_id}: {png} {js} ({time.perf_counter() - t0:.1f} s)", flush=True)
     return 0
 
@@ -289,7 +297,7 @@ def _warm(args) -> int:
     with _cluster(args) as client:
         for i, e in enumerate(order, 1):
             t = time.perf_counter()
-            engine.run(e, progress=args.progress, reverse=not args.forward, client=client)
+            engine.run(e, progress=show_progress(args), reverse=not args.forward, client=client)
             print(f"[{i}/{len(order)}] {e.run.name}: {e.run.n_trials} trials ({time.perf_counter() - t:.1f} s)",
                   flush=True)
     print(f"warm: {len(order)} experiments in the cache ({time.perf_counter() - t0:.1f} s)", flush=True)
@@ -312,7 +320,7 @@ def _reproduce(args) -> int:
                          f"entry records the commit that computed it, or pass --allow-dirty (make reproduce "
                          f"ALLOW_DIRTY=1): the entries then record the commit and a digest of the changes")
     with _cluster(args) as client:
-        found = verify.reproduce(catalog.store_experiments(), progress=args.progress, client=client)
+        found = verify.reproduce(catalog.store_experiments(), progress=show_progress(args), client=client)
     print(f"reproduce: {len(found)} stored (trial, field) values differed from today's code and were rewritten"
           if found else "reproduce: the store held what today's code computes", flush=True)
     return 0
@@ -338,7 +346,7 @@ def _trace(args) -> int:
               "(--force traces it again)", flush=True)
     else:
         start = time.perf_counter()
-        traced = city_trace.trace_city(spec, progress=args.progress)
+        traced = city_trace.trace_city(spec, progress=show_progress(args))
         provenance = {"commit": store.git_commit(), "code": city_trace.code_digest(),
                       "seconds": round(time.perf_counter() - start, 1), "ues_per_call": city_trace.ues_per_call(spec),
                       "libraries": ray_tracer.library_versions()}
@@ -390,18 +398,27 @@ def _verify(args) -> int:
     _checks.integer("--seed", seed, 0, 2**31 - 1)
     families = verify.SAMPLE_FAMILIES if args.families is None else args.families
     n_trials = _checks.integer("--trials", verify.SAMPLE_TRIALS if args.trials is None else args.trials, 1, 10_000)
-    exps = catalog.store_experiments()
-    n = len(exps) if args.all else _checks.integer("--families", families, 1, 10_000)
+    n = None if args.all else _checks.integer("--families", families, 1, 10_000)
     damaged = store.check_store()  # every entry's checksum and row count: cheap, unlike recomputing its trials
     for err in damaged:
         print(err, file=sys.stderr)
     print(f"verify: every entry of the results store read, {len(damaged)} damaged", flush=True)
+    try:
+        exps = catalog.store_experiments()
+    except ValueError as err:
+        if not damaged:
+            raise
+        print(f"verify: no trial recomputed: the stored experiments cannot be listed while the store is damaged "
+              f"({_one_line(err)})", file=sys.stderr, flush=True)
+        return 1
+    n = len(exps) if n is None else n
     print(f"verify: seed {seed} (dpe5g verify --seed {seed} repeats this sample)", flush=True)
     def report(m):  # each mismatch as soon as it is found; a damaged entry was named above
         if m.field != "entry" or m.stored != "damaged":
             print(m, file=sys.stderr, flush=True)
 
-    found, done = verify.verify_sample(seed, exps, n, n_trials, report=report)
+    found, done = verify.verify_sample(seed, exps, n, n_trials, report=report,
+                                       log=sys.stderr if show_progress(args) else None)
     total = sum(len(t) for _, t in done)
     print(f"verify: {total} trials of {len(done)} experiments recomputed, {len(found)} mismatches", flush=True)
     return 1 if found or damaged else 0
@@ -473,16 +490,23 @@ def _scene(args) -> int:
     from ..figures import registry as figures, scene3d
 
     out = output_file("--out", args.out, (".html", ".htm"), force=args.force)
+    step = (lambda text: print(f"scene: {text}", file=sys.stderr, flush=True)) if show_progress(args) else (
+        lambda text: None)
+    step("the deployment and its example UE (Fig. 7)")
     if args.deployment is None:  # ours: the figures' payloads, computed once and kept
-        p7, p8 = figures.compute("fig07_deployment_map"), figures.compute("fig08_urban_correlogram")
+        p7 = figures.compute("fig07_deployment_map")
+        step("the example UE's correlogram, eq. (10) on 101 x 101 points (Fig. 8; about 25 s)")
+        p8 = figures.compute("fig08_urban_correlogram")
     else:
         from ..figures import data as figure_data
 
         try:
-            p7, p8 = (figure_data.deployment_payload(args.deployment),
-                      figure_data.urban_correlogram_payload(args.deployment))
+            p7 = figure_data.deployment_payload(args.deployment)
+            step("the example UE's correlogram, eq. (10) on 101 x 101 points (Fig. 8; about 25 s)")
+            p8 = figure_data.urban_correlogram_payload(args.deployment)
         except ValueError as err:
             raise ValueError(f"--deployment: {err}") from None
+    step("the 3-D scene")
     try:
         path = scene3d.export(p7, p8, out, exclusive=not args.force)
     except FileExistsError:

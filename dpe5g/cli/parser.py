@@ -55,6 +55,15 @@ def numbers_as_values(argv: list[str]) -> list[str]:
     return out
 
 
+def add_progress_options(p, what: str) -> None:
+    """``--progress`` and ``--quiet``: ``what`` (a progress bar, the steps) is shown on stderr by default when stderr
+    is a terminal (``main.show_progress``)."""
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--progress", action="store_true", default=None,
+                   help=f"show {what} on stderr even when it is not a terminal (shown on a terminal by default)")
+    g.add_argument("--quiet", action="store_true", help=f"do not show {what}")
+
+
 def add_cluster_options(p) -> None:
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="run the Monte Carlo chunks as tasks on the Dask scheduler at ADDRESS (tcp://host:8786; "
@@ -135,6 +144,7 @@ def add_run(sub) -> None:
                         "of the deployment transmitting and co-channel interference; --snr is then the SNR of the "
                         "nearest link, every other BS at its power from the path loss (the Fig. 9 chapter)")
     add_nlos_options(r)
+    add_progress_options(r, "a progress bar over the trials")
     add_cluster_options(r)
     r
 
@@ -177,6 +187,7 @@ def add_other_commands(sub) -> None:
     f.add_argument("--trials", type=int, default=None, metavar="N",
                    help="Monte Carlo trials per experiment of Figs. 9-10 (default: the committed figures' counts); "
                         "not with --update-baselines")
+    add_progress_options(f, "a progress bar per Monte Carlo figure")
     f
 
     w = sub.add_parser("warm", help="fill the Monte Carlo cache with every experiment the book runs",
@@ -184,7 +195,7 @@ def add_other_commands(sub) -> None:
                                    "last first, so that a book build running at the same time meets it in the middle. "
                                    "The results are the book's own to the bit (trial t depends on the seed and t).")
     w.add_argument("--forward", action="store_true", help="run in the book's order instead")
-    w.add_argument("--progress", action="store_true", help="a progress bar per experiment on stderr")
+    add_progress_options(w, "a progress bar per experiment")
     add_cluster_options(w)
     w
     add_store_commands(sub)
@@ -200,7 +211,7 @@ def add_store_commands(sub) -> None:
                                     "the figure baselines.  Run it after a change that `make test`'s verification "
                                     "fails on, once that change is committed: each entry records the commit whose "
                                     "code computed it.")
-    rp.add_argument("--progress", action="store_true", help="a progress bar per experiment on stderr")
+    add_progress_options(rp, "a progress bar per experiment")
     rp.add_argument("--allow-dirty", action="store_true",
                     help="run although dpe5g/, environment.txt or pyproject.toml differ from the checkout's commit "
                          "(refused otherwise); every entry then records the commit and a digest of the changes")
@@ -217,7 +228,7 @@ def add_store_commands(sub) -> None:
                                     "`make reproduce` runs it first (from scratch about 20 minutes on 2 cores for the city and 40 for the "
                                     "subsets); it needs "
                                     "Debian's libllvm19.")
-    tc.add_argument("--progress", action="store_true", help="a progress bar over the UEs on stderr")
+    add_progress_options(tc, "a progress bar over the UEs")
     tc.add_argument("--force", action="store_true", help="trace again even if the stored city is current")
     tc
 
@@ -231,6 +242,7 @@ def add_store_commands(sub) -> None:
     v.add_argument("--trials", type=int, default=None, metavar="N",
                    help="trials per experiment (default: dpe5g.simulation.verify.SAMPLE_TRIALS)")
     v.add_argument("--all", action="store_true", help="every family (--trials of each stored experiment)")
+    add_progress_options(v, "a progress bar per experiment")
     v
 
 
@@ -267,4 +279,5 @@ def add_info_commands(sub) -> None:
     s.add_argument("--out", default="urban_scene.html", metavar="FILE.html",
                    help="output HTML file (default: urban_scene.html); an existing file is kept unless --force")
     s.add_argument("--force", action="store_true", help="overwrite --out if it exists")
+    add_progress_options(s, "the steps (about 30 s for ours)")
     s

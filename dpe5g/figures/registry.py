@@ -17,10 +17,12 @@ from __future__ import annotations
 import hashlib
 import inspect
 import json
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
+import numpy as np
 from matplotlib.figure import Figure
 
 from ..common._io import atomic_target, atomic_write, jsonable
@@ -174,6 +176,52 @@ def render(payload: dict):
     return get(payload["id"]).plot(payload)
 
 
+#: the environment variable the book build sets (``book/_ext/dpe5g_book.py``): a chapter's kernel then hands its
+#: numbers and figures to the book only; re-executed as a notebook (``make chapter``, ``make lab``) it shows them too
+BOOK_BUILD_ENV = "DPE5G_BOOK_BUILD"
+
+
+def in_book_build() -> bool:
+    """Whether this process runs inside the book build (``BOOK_BUILD_ENV``).
+
+    Returns
+    -------
+    bool
+    """
+    return os.environ.get(BOOK_BUILD_ENV) == "1"
+
+
+def glue_value(name: str, value, display: bool = False) -> None:
+    """Hand a number or a text to a chapter's prose (``{glue:text}``, MyST-NB glue); outside the book build also
+    show it in the cell's output as ``name = value``, where a notebook cannot fill the prose's placeholder.
+
+    Parameters
+    ----------
+    name : str
+        The glue name the chapter refers to.
+    value : int, float, str or object
+        What the prose shows (an object other than a number or a text is displayed as it is).
+    display : bool
+        Whether the book shows it where it is glued too (MyST-NB's ``display``).
+    """
+    from myst_nb import glue as _glue  # (the book's: loaded only in a chapter's kernel)
+
+    _glue(name, value, display=display)
+    if not (display or in_book_build()):
+        _show(name, value)
+
+
+def _show(name: str, value) -> None:
+    """``name = value`` for a number or a text, else the object, in the cell's output."""
+    from IPython.display import display as show
+
+    if isinstance(value, (int, float, str, np.number)):
+        print(f"{name} = {value}")
+    else:
+        print(f"{name}:")
+        show(value)
+
+
 def glue(name: str, fig) -> None:
     """Hand a drawn figure (or any displayable object, e.g. HTML) to a chapter's ``{glue:figure}`` directive
     (MyST-NB glue); a matplotlib Figure must pass ``plots.check_legible`` (text ≥ 9 pt, shown unshrunk).  The
@@ -196,6 +244,8 @@ def glue(name: str, fig) -> None:
     if isinstance(fig, Figure):
         plots.check_legible(fig)
     _glue(name, fig, display=False)
+    if not in_book_build():  # (a notebook: shown where the book's caption would be)
+        _show(name, fig)
 
 
 def write(fig_id: str, out_dir, progress: bool = False, trials: int | None = None) -> tuple[Path, Path]:

@@ -579,5 +579,18 @@ def digest(name: str) -> str:
     -------
     str
         Hex digest.
+
+    Raises
+    ------
+    ValueError
+        When ``name`` is none of these, or its file cannot be read.
     """
-    return hashlib.sha256((builtin(name) or Path(name)).read_bytes()).hexdigest()
+    path = builtin(name) or Path(name)
+    if path.suffix.lower() not in (".json", ".csv"):
+        raise ValueError(f"deployment {name!r} names no packaged deployment ({', '.join(BUILTIN)}), no traced city of "
+                         f"the results store in use (a city's deployment file missing: dpe5g trace traces it again), "
+                         f"and no .json or .csv file")
+    try:
+        return hashlib.sha256(path.read_bytes()).hexdigest()
+    except OSError as err:
+        raise ValueError(f"deployment file {name}: cannot be read ({err.strerror or err})") from None

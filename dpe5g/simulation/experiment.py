@@ -129,6 +129,8 @@ class Scenario:
         if self.channel == "traced" and (self.los_mode != "pr_los" or self.prs_reuse or self.nlos_excess_median_s):
             raise ValueError("channel 'traced' takes LoS and every delay from the traced paths: leave los_mode "
                              "'pr_los', prs_reuse 0 and nlos_excess_median_s 0")
+        if self.channel == "traced":  # a traced city of the store, by name (its paths are read from the store)
+            _checks.name("deployment", self.deployment)
 
 
 @dataclass(frozen=True)

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from dpe5g.common.errors import Failure
 from dpe5g.phy import signal
 from dpe5g.receivers import otdoa
 from dpe5g.city import dataset as city_paths, ray_tracer, trace as city_trace
@@ -279,3 +280,16 @@ def test_trace_without_its_stack_is_one_line_and_nothing_else_needs_it():
                         "traced_draw.population(city.city_fig10(4, 'otdoa', n_trials=2)); print(c.n_ue)"],
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0 and r.stdout.strip() == "5000", r.stderr
+
+
+def test_a_sionna_without_its_ray_tracer_is_one_line(tmp_path, monkeypatch):
+    """A ``sionna`` package without ``sionna.rt`` (another package of that name): refused before any import, naming
+    sionna-rt."""
+    import importlib.machinery
+
+    real = importlib.util.find_spec
+    bare = importlib.machinery.ModuleSpec("sionna", None, is_package=True)
+    bare.submodule_search_locations = [str(tmp_path)]
+    monkeypatch.setattr(ray_tracer.importlib.util, "find_spec", lambda name: bare if name == "sionna" else real(name))
+    with pytest.raises(Failure, match=r"ray tracing needs sionna-rt \(its module sionna.rt is missing\)"):
+        ray_tracer.check_packages()

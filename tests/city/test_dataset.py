@@ -215,3 +215,19 @@ def test_reproduce_removes_no_city(root, monkeypatch):
     monkeypatch.setenv("DPE5G_STORE", str(root))
     verify.reproduce([], progress=False, log=io.StringIO())
     assert sorted(p.name for p in (root / dataset.CITY_FOLDER).iterdir()) == files
+
+
+def test_verify_names_a_missing_deployment_file_and_fails(tmp_path, monkeypatch, capsys):
+    """``dpe5g verify`` on a store whose city lost its deployment file: the damage named and exit code 1 (it ended
+    in exit 2 with "No such file or directory: munich", or hashed a file of that name in the working folder)."""
+    from dpe5g.cli import main as cli
+
+    root = tmp_path
+    shutil.copytree(STORE_DIR / dataset.CITY_FOLDER, root / dataset.CITY_FOLDER)
+    (root / dataset.CITY_FOLDER / f"{NAME}_deployment.json").unlink()
+    monkeypatch.setenv("DPE5G_STORE", str(root))
+    monkeypatch.chdir(root)
+    (root / NAME).write_text("not a deployment")
+    assert cli.main(["verify", "--seed", "1", "--families", "1", "--trials", "1"]) == 1
+    err = capsys.readouterr().err
+    assert f"{NAME}_deployment.json is missing" in err and "cannot be listed while the store is damaged" in err

@@ -592,3 +592,18 @@ def test_run_with_the_nlos_model_and_the_nlos_aware_receivers(workdir, capsys):
     assert "LoS two_of_four, NLoS excess delay median 39.8 ns" in out
     assert "NLoS-aware DPE less NLoS-aware OTDoA on the same trials" in out
     assert "NLoS-aware DPE less OTDoA (first_path ToA) on the same trials" in out
+
+
+def test_progress_shows_on_a_terminal_or_when_asked_and_never_with_quiet(workdir, capsys, monkeypatch):
+    """A long command shows its progress on stderr when stderr is a terminal or with --progress, not otherwise and
+    never with --quiet (its result lines are printed either way)."""
+    args = ["run", "--trials", "2", "--snr", "20", "--m", "6", "--centring", "truth", "--force", "--out", "p.csv"]
+    for seed, (extra, shown) in enumerate((([], False), (["--progress"], True), (["--quiet"], False))):
+        assert cli.main(args + extra + ["--seed", str(seed)]) == 0  # (a new seed: computed, not read from the cache)
+        out, err = capsys.readouterr()
+        assert ("run trials" in err) is shown and "wrote p.csv" in out, (extra, err)
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)
+    assert cli.show_progress(cli.build_parser().parse_args(args))
+    assert not cli.show_progress(cli.build_parser().parse_args(args + ["--quiet"]))
+    assert cli.main(args + ["--progress", "--quiet"]) == 2
+    assert "not allowed with argument" in capsys.readouterr().err
