@@ -70,7 +70,7 @@ $(LAB_STAMP): environment-lab.txt book/lab/overrides.json $(STAMP)
 	touch $@
 
 lab: $(LAB_STAMP)
-	where=$$($(if $(CH),$(BIN)/python scripts/run_chapter.py --which "$(CH)",echo chapters)) && $(BIN)/jupyter lab "$$where"
+	where=$$($(if $(CH),$(BIN)/python scripts/run_chapter.py --which "$(CH)",echo chapters)) && $(BIN)/jupyter lab $(if $(filter 0,$(shell id -u)),--allow-root) "$$where"
 
 # Every test: unit + property tests, bad input, figure-diff against the committed baselines, browser test of the book.
 # The tests that need neither the book nor the figures' Monte Carlo results run at low priority while the book builds

@@ -391,7 +391,7 @@ def is_current(name: str, spec: dict, code_digest: str, root: Path | None = None
     spec : dict
         The ``CitySpec`` wanted.
     code_digest : str
-        ``city_trace.code_digest()`` of today's tracing code.
+        ``city_trace.code_digest()`` of today's tracing code (or the code it traces as, ``city_trace.SAME_TRACE_AS``).
     root : Path or None
         The store's folder; None: the one in use (``locations.cities_dir``).
 
@@ -400,7 +400,9 @@ def is_current(name: str, spec: dict, code_digest: str, root: Path | None = None
     bool
     """
     damage, meta, _ = _read_city(name, root)
-    return damage is None and meta.get("spec") == spec and meta.get("provenance", {}).get("code") == code_digest
+    traced_by = meta.get("provenance", {}).get("code")
+    same_code = traced_by == code_digest or traced_by == city_trace.SAME_TRACE_AS.get(code_digest)
+    return damage is None and meta.get("spec") == spec and same_code
 
 
 def check_city(name: str, root: Path | None = None) -> str | None:
@@ -489,6 +491,36 @@ def deployment_file(name: str, root: Path | None = None) -> Path:
     Path
     """
     return city_file(name, root, "_deployment.json")
+
+
+def city_at(named: str) -> tuple[str, Path | None]:
+    """The traced city a deployment names, as (name, store folder): a city of the store in use by its name, or the
+    deployment file of a city in a folder of one's own, ``<folder>/cities/<name>_deployment.json`` (what
+    ``dpe5g trace --out <folder>`` writes).
+
+    Parameters
+    ----------
+    named : str
+        ``Scenario.deployment`` of a traced channel.
+
+    Returns
+    -------
+    name : str
+    root : Path or None
+        The store's folder (``load_city``'s root); None: the one in use.
+
+    Raises
+    ------
+    ValueError
+        When ``named`` is neither.
+    """
+    path = Path(named)
+    if len(path.parts) == 1 and not named.endswith(".json"):
+        return _checks.name("deployment", named), None
+    if not path.name.endswith("_deployment.json") or path.parent.name != CITY_FOLDER:
+        raise ValueError(f"deployment {named}: a traced city is a city of the results store by name, or its "
+                         f"deployment file <folder>/{CITY_FOLDER}/<name>_deployment.json (dpe5g trace --out <folder>)")
+    return _checks.name("deployment", path.name.removesuffix("_deployment.json")), path.parent.parent
 
 
 def load_city(name: str, root: Path | None = None) -> TracedCity:

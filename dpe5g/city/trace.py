@@ -17,6 +17,7 @@ import math
 import sys
 import textwrap
 from dataclasses import asdict, dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -42,11 +43,12 @@ class CitySpec:
     Attributes
     ----------
     scene : str
-        A Sionna RT city scene (``SCENES``).
+        A Sionna RT city scene (``SCENES``), or the path of a Mitsuba XML scene file of one's own (``scene_file``).
     side_m : float
         Side of the square region, metres: the paper's 227,360 m² (476.8 m).
     n_bs : int
-        Base stations in the region: the paper's 26 (114 per km²).
+        Base stations in the region: the paper's 26 (114 per km²); ``place_bs`` places them, unless ``trace_city`` is
+        given their positions.
     bs_height_m, ue_height_m : float
         Heights above the ground, metres: the paper's 10 m (UMi) and 2 m.
     n_ue : int
@@ -100,7 +102,9 @@ class CitySpec:
 
     def __post_init__(self):
         _checks.plain_fields(self)  # booleans True or False, ints given as floats (9.0) the same settings as 9
-        _checks.one_of("scene", self.scene, SCENES)
+        if not (isinstance(self.scene, str) and (self.scene in SCENES or self.scene.lower().endswith(".xml"))):
+            raise ValueError(f"scene must be one of {', '.join(SCENES)} (Sionna RT's cities) or a Mitsuba XML scene "
+                             f"file (.xml), got {self.scene!r}")
         _checks.in_range("side_m", self.side_m, 50.0, 2000.0, "m")
         _checks.integer("n_bs", self.n_bs, 3, 200)
         _checks.in_range("bs_height_m", self.bs_height_m, 1.5, 150.0, "m")
@@ -131,8 +135,15 @@ class CitySpec:
 
 
 #: the functions whose code makes a traced city (``code_digest``)
-TRACING_CODE = ("CitySpec", "load_scene", "ground_open", "outdoors", "densest_square", "outdoor_points", "place_bs",
+TRACING_CODE = ("CitySpec", "scene_file", "load_scene", "ground_open", "outdoors", "densest_square", "outdoor_points", "place_bs",
                 "place_ues", "solve_paths", "trace_links", "compact_links", "trace_city")
+
+
+#: today's tracing code → the earlier one it traces as (``code_digest``s): a stored city that records the earlier is
+#: current.  8f0bae123f4e7ea6 (``scene_file``: a scene file of one's own; ``trace_city`` given a region and BSs)
+#: traces Sionna RT's scenes at its own placements as be5f1ddeef7b47d5 did: the stored city's links of 8 UEs traced
+#: again agreed with the stored ones (``dataset.verify_links``), as ``make test`` checks on a sample at every run
+SAME_TRACE_AS = {"8f0bae123f4e7ea6": "be5f1ddeef7b47d5"}
 
 
 def code_digest() -> str:
@@ -192,6 +203,33 @@ class _TracingCode(ast.NodeTransformer):
         return node
 
 
+def scene_file(scene: str) -> str:
+    """The Mitsuba XML file of ``scene``: Sionna RT's for one of ``SCENES``, else ``scene`` itself, a file of one's own.
+
+    Parameters
+    ----------
+    scene : str
+        ``CitySpec.scene``.
+
+    Returns
+    -------
+    str
+        The file's path.
+
+    Raises
+    ------
+    ValueError
+        When a scene file of one's own does not exist.
+    """
+    if scene in SCENES:
+        import sionna.rt as rt  # (Sionna RT: loaded only to trace)
+
+        return getattr(rt.scene, scene)
+    if not Path(scene).is_file():
+        raise ValueError(f"scene {scene}: no such Mitsuba XML scene file")
+    return str(Path(scene).resolve())
+
+
 def load_scene(spec: CitySpec):
     """The Sionna RT scene of ``spec``: its ITU materials with the scattering coefficient ``spec.scattering_coefficient``,
     isotropic vertically polarised antennas at both ends.
@@ -208,7 +246,7 @@ def load_scene(spec: CitySpec):
     llvm_library()
     import sionna.rt as rt  # (Sionna RT: loaded only to trace)
 
-    scene = rt.load_scene(getattr(rt.scene, spec.scene), merge_shapes=True)
+    scene = rt.load_scene(scene_file(spec.scene), merge_shapes=True)
     scene.frequency = spec.fc_hz
     scene.bandwidth = spec.bandwidth_hz
     scene.tx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern="iso", polarization="V")
@@ -494,7 +532,7 @@ def compact_links(a, tau, valid, direct, bs_xyz, ue_xyz, n_paths: int) -> dict:
     return out
 
 
-def trace_city(spec: CitySpec, progress: bool = True) -> dict:
+def trace_city(spec: CitySpec, progress: bool = True, region=None, bs_xyz=None) -> dict:
     """The whole city of ``spec``: its region, BS and UE placements and every link's kept paths.
 
     Parameters
@@ -503,6 +541,11 @@ def trace_city(spec: CitySpec, progress: bool = True) -> dict:
         What to trace.
     progress : bool
         Whether to show a progress bar over the UEs.
+    region : tuple of 4 float or None
+        (x_min, y_min, x_max, y_max), metres, in the scene's frame; None: the densest square of side ``spec.side_m``
+        (``densest_square``).
+    bs_xyz : float (B, 3) or None
+        The BSs, metres (B = ``spec.n_bs``); None: placed as a planned network would be (``place_bs``).
 
     Returns
     -------
@@ -511,9 +554,12 @@ def trace_city(spec: CitySpec, progress: bool = True) -> dict:
     """
     from tqdm import tqdm  # (here, as the stored city's tracing code was written: ``code_digest`` reads its imports)
 
+    if bs_xyz is not None and np.shape(bs_xyz) != (spec.n_bs, 3):
+        raise ValueError(f"bs_xyz must be ({spec.n_bs}, 3) metres (spec.n_bs BSs), got shape {np.shape(bs_xyz)}")
     scene = load_scene(spec)
-    region = densest_square(scene, spec.side_m)
-    bs, ue = place_bs(scene, region, spec), place_ues(scene, region, spec)
+    region = densest_square(scene, spec.side_m) if region is None else tuple(float(v) for v in region)
+    bs = place_bs(scene, region, spec) if bs_xyz is None else np.asarray(bs_xyz, dtype=float)
+    ue = place_ues(scene, region, spec)
     with tqdm(total=len(ue), desc=f"tracing {spec.scene}: {len(bs)} BSs", unit="UE", disable=not progress) as bar:
         links = trace_links(scene, bs, ue, spec, progress=bar.update)
     return {"region": np.asarray(region), "bs_xyz": bs, "ue_xyz": ue} | links

@@ -31,7 +31,8 @@ from .parser import UsageError, build_parser, numbers_as_values
 RUN_OPTIONS = {"n_trials": "--trials", "snr_db": "--snr", "snrs_db": "--snr", "m_values": "--m", "n_taps": "--taps",
                "delay_spread_s": "--delay-spread", "centring": "--centring", "prior_scale_m": "--prior-sigma",
                "seed": "--seed", "deployment file": "--deployment", "prs_reuse": "--reuse", "los_mode": "--los-mode",
-               "nlos_excess_median_s": "--nlos-excess", "dpe_nlos": "--dpe-nlos", "otdoa_nlos": "--otdoa-nlos"}
+               "nlos_excess_median_s": "--nlos-excess", "dpe_nlos": "--dpe-nlos", "otdoa_nlos": "--otdoa-nlos",
+               "channel 'traced'": "--channel traced"}
 
 
 # ---- shared checks --------------------------------------------------------------------------------------------------
@@ -118,11 +119,11 @@ def run_experiment(args):
     from ..studies import paper
     from ..simulation.experiment import Experiment
 
-    dep = args.deployment if deployment.builtin(args.deployment) else str(Path(args.deployment).resolve())
+    dep = run_deployment(args)
     snr_mode = _check_run_options(args)
     prior_sigma = paper.PRIOR_SIGMA_M if args.prior_sigma is None else args.prior_sigma
     try:
-        n_bs = deployment.named(args.deployment).n_bs
+        n_bs = deployment.named(dep).n_bs
         m_values = tuple(args.m) if args.m is not None else default_m_values(n_bs, snr_mode)
         snrs = () if snr_mode == "link_budget" else tuple(Experiment().links.snrs_db if args.snr is None
                                                             else args.snr)
@@ -131,7 +132,8 @@ def run_experiment(args):
         search = search_config.SearchConfig(n_taps=args.taps) if args.centring == "truth" else replace(paper.honest_search(),
                                                                                              n_taps=args.taps)
         kw = dict(n_trials=args.trials, seed=args.seed, snrs_db=snrs, m_values=m_values, snr_mode=snr_mode,
-                  delay_spread_s=args.delay_spread, centring=args.centring, search=search, deployment=dep)
+                  delay_spread_s=args.delay_spread, centring=args.centring, search=search, deployment=dep,
+                  channel=args.channel)
         if args.centring != "truth":
             kw.update(prior_kind="gaussian", prior_scale_m=prior_sigma)
         if args.reuse and snr_mode == "fixed":  # interference needs each BS's power: --snr is the nearest link's SNR
@@ -148,6 +150,69 @@ def run_experiment(args):
         if e.replace(name=known.run.name) == known:
             return known
     return e
+
+
+def run_deployment(args) -> str:
+    """``dpe5g run``'s deployment: --deployment (a packaged name, or a file's absolute path), or with --channel
+    traced the traced city of --city (``traced_city``).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed options.
+
+    Returns
+    -------
+    str
+        ``Scenario.deployment``.
+    """
+    from ..phy import deployment
+
+    if args.channel not in ("tdl", "traced"):
+        raise ValueError(f"--channel must be one of tdl, traced; got {args.channel!r}")
+    if args.channel == "traced":
+        if args.deployment is not None:
+            raise ValueError("--deployment does not apply to --channel traced: the city's BSs are its own (--city)")
+        if args.city is None:
+            raise ValueError("--channel traced needs --city: a folder `dpe5g trace --out DIR` wrote, or 'munich' "
+                             "(the book's city, in the results store)")
+        return traced_city(args.city)
+    if args.city is not None:
+        raise ValueError("--city applies to --channel traced")
+    name = args.deployment or "tst"
+    return name if deployment.builtin(name) else str(Path(name).resolve())
+
+
+def traced_city(city: str) -> str:
+    """The deployment of the traced city ``--city`` names (``city.dataset.city_at``): a city of the results store by
+    name; a city's deployment file; or a folder ``dpe5g trace --out`` wrote, holding one city.
+
+    Parameters
+    ----------
+    city : str
+        --city.
+
+    Returns
+    -------
+    str
+        A name, or the absolute path of the city's deployment file.
+    """
+    from ..city import dataset as city_paths
+
+    path = Path(city)
+    if path.is_dir():
+        found = sorted(p for p in (path / city_paths.CITY_FOLDER).glob("*_deployment.json"))
+        if len(found) != 1:
+            names = ", ".join(p.name.removesuffix("_deployment.json") for p in found) or "none"
+            raise ValueError(f"--city {city}: {city_paths.CITY_FOLDER}/ in it holds {len(found)} traced cities "
+                             f"({names}); give one city's deployment file, {city}/{city_paths.CITY_FOLDER}/"
+                             f"<name>_deployment.json, or trace one there (dpe5g trace --out {city})")
+        path = found[0]
+    dep = str(path.resolve()) if path.suffix == ".json" else city
+    name, root = city_paths.city_at(dep)
+    if (damage := city_paths.check_city(name, root)) is not None:
+        raise ValueError(f"--city {city}: {damage}")
+    return dep
 
 
 def nlos_settings(args) -> dict:
@@ -333,6 +398,8 @@ def _trace(args) -> int:
     from ..simulation import store
     from ..studies import city as city_study, city_sensitivity
 
+    if args.out is not None or own_city_options(args):
+        return _trace_own(args)
     root = store_root()
     if root is None:
         raise ValueError("DPE5G_STORE is 'off': dpe5g trace writes the traced city to a results store (unset it, or "
@@ -358,6 +425,87 @@ def _trace(args) -> int:
         print(f"trace: the 3-D view of its first trial's UE written to {path}", flush=True)
     for line in city_sensitivity.trace_stale(city_paths.load_city(name), args.force):  # the solver's settings tested
         print(f"trace: {line}", flush=True)
+    return 0
+
+
+#: ``dpe5g trace``'s options of a city of one's own (``parser.add_own_city_options``) → ``CitySpec`` fields
+OWN_CITY = {"scene": "scene", "ues": "n_ue", "max_depth": "max_depth", "samples": "samples_per_src",
+            "refraction": "refraction", "edge_diffraction": "edge_diffraction", "seed": "seed"}
+
+
+def own_city_options(args) -> list[str]:
+    """The options of a city of one's own given to ``dpe5g trace``, as typed."""
+    given = [k for k in (*OWN_CITY, "deployment", "density", "side", "scattering") if getattr(args, k) is not None]
+    return [f"--{k.replace('_', '-')}" for k in given] + (["--name"] if args.name != "mycity" else [])
+
+
+def own_city_spec(args):
+    """The ``CitySpec`` and the deployment (region, BS positions, or None: placed) of ``dpe5g trace``'s own city."""
+    from ..city.trace import CitySpec
+    from ..phy import deployment
+
+    book = CitySpec()
+    kw = {field: getattr(args, opt) for opt, field in OWN_CITY.items() if getattr(args, opt) is not None}
+    if args.scattering is not None:
+        kw.update(scattering_coefficient=args.scattering, diffuse_reflection=args.scattering > 0)
+    if args.deployment is not None:
+        if args.density is not None or args.side is not None:
+            raise ValueError("--density and --side place BSs: not with --deployment, which gives them")
+        dep = deployment.load_deployment(args.deployment)
+        if len(set(dep.power_dbm.tolist())) != 1:
+            raise ValueError(f"--deployment {args.deployment}: a traced city's BSs share one power_dbm (the traced "
+                             f"paths are gains; the link budget adds the power), got {sorted(set(dep.power_dbm))}")
+        x0, y0, x1, y1 = dep.region
+        kw.update(n_bs=dep.n_bs, power_dbm=float(dep.power_dbm[0]), ue_height_m=dep.ue_height_m,
+                  side_m=max(x1 - x0, y1 - y0))
+        return CitySpec(**kw), dep.region, dep.bs_xyz
+    side = book.side_m if args.side is None else args.side
+    density = book.n_bs / book.side_m ** 2 * 1e6 if args.density is None else args.density
+    if not (math.isfinite(density) and density > 0):
+        raise ValueError(f"--density must be a positive number of BSs per km2, got {density!r}")
+    kw.update(side_m=side, n_bs=round(density * side ** 2 / 1e6))
+    try:
+        return CitySpec(**kw), None, None
+    except ValueError as err:
+        if str(err).startswith("n_bs"):
+            raise ValueError(f"--density {density:g} per km2 on a square of {side:g} m places {kw['n_bs']} BSs: "
+                             f"{err}") from None
+        raise
+
+
+def _trace_own(args) -> int:
+    """``dpe5g trace --out DIR``: a city of one's own, traced into DIR unless it is current there."""
+    from ..city import dataset as city_paths, ray_tracer, trace as city_trace
+    from ..common import _checks
+    from ..common.locations import STORE_DIR
+    from ..simulation import store
+
+    if args.out is None:
+        raise ValueError(f"{own_city_options(args)[0]}: a city of your own needs --out DIR, its folder (the results "
+                         f"store holds the book's city only; make reproduce traces it)")
+    dest = Path(args.out).resolve()
+    if dest.is_relative_to(STORE_DIR.resolve()):
+        raise ValueError(f"--out {args.out} is in the results store ({STORE_DIR}); give a folder of your own")
+    spec, region, bs_xyz = own_city_spec(args)
+    name = _checks.name("--name", args.name)
+    writable_dir("--out", dest / city_paths.CITY_FOLDER, args.out)
+    if spec.scene not in city_trace.SCENES:
+        city_trace.scene_file(spec.scene)  # (the file exists: checked before the tracer loads)
+    ray_tracer.llvm_library()
+    if not args.force and city_paths.is_current(name, spec.to_dict(), city_trace.code_digest(), dest):
+        print(f"trace: {city_paths.city_file(name, dest)} is whole and was traced with these settings and today's "
+              "code (--force traces it again)", flush=True)
+    else:
+        start = time.perf_counter()
+        traced = city_trace.trace_city(spec, progress=show_progress(args), region=region, bs_xyz=bs_xyz)
+        provenance = {"commit": store.git_commit(), "code": city_trace.code_digest(),
+                      "seconds": round(time.perf_counter() - start, 1), "ues_per_call": city_trace.ues_per_call(spec),
+                      "libraries": ray_tracer.library_versions()}
+        path = city_paths.save_city(name, traced, spec.to_dict(), provenance, root=dest)
+        print(f"trace: {len(traced['link_ue'])} links of {spec.n_ue} UEs and {spec.n_bs} BSs traced in "
+              f"{provenance['seconds']:.0f} s, written to {path}", flush=True)
+    print(f"trace: run the receivers on it: dpe5g run --channel traced --city {args.out} --trials N --out study.csv",
+          flush=True)
     return 0
 
 

@@ -107,9 +107,16 @@ def add_run(sub) -> None:
                         "produced it (the experiment's settings, the deployment, the code's commit) and what each "
                         "column means; existing files are kept unless --force")
     r.add_argument("--force", action="store_true", help="overwrite --out if it exists")
-    r.add_argument("--deployment", default="tst", metavar="FILE",
+    r.add_argument("--deployment", default=None, metavar="FILE",
                    help="deployment file, JSON or CSV (see `dpe5g deployment`), or a packaged one: 'tst' (the "
                         "default; our Tsim Sha Tsui-like layout), 'ring' or 'ring-wide' (the DPE chapter's rings)")
+    r.add_argument("--channel", default="tdl", metavar="{tdl,traced}",
+                   help="'tdl' (default): TR 38.901's TDL channels, LoS from eq. (11); 'traced': the ray-traced "
+                        "paths of --city, LoS from its geometry (the city chapter, chapter 10)")
+    r.add_argument("--city", default=None, metavar="DIR|NAME",
+                   help="with --channel traced: the folder `dpe5g trace --out DIR` wrote (one city), a city's "
+                        "deployment file in it (DIR/cities/NAME_deployment.json), or a city of the results store "
+                        "by name ('munich', the book's)")
     r.add_argument("--snr-mode", default="fixed", metavar="{fixed,link-budget}",
                    help="'fixed' (default; Fig. 9): every link at each SNR of --snr, whatever the BSs' powers; "
                         "'link-budget' (Fig. 10): each link's SNR from its BS's power_dbm, the TR 38.901 UMi path "
@@ -230,6 +237,7 @@ def add_store_commands(sub) -> None:
                                     "Debian's libllvm19.")
     add_progress_options(tc, "a progress bar over the UEs")
     tc.add_argument("--force", action="store_true", help="trace again even if the stored city is current")
+    add_own_city_options(tc)
     tc
 
     v = sub.add_parser("verify", help="recompute a random sample of stored trials and compare them with the store",
@@ -245,6 +253,41 @@ def add_store_commands(sub) -> None:
     add_progress_options(v, "a progress bar per experiment")
     v
 
+
+def add_own_city_options(tc) -> None:
+    """``dpe5g trace``'s options of a city of one's own, traced into a folder of one's own (``--out``)."""
+    from ..city.trace import SCENES, CitySpec
+
+    book = CitySpec()
+    own = tc.add_argument_group(
+        "a city of your own", "Traced into --out DIR (DIR/cities/NAME.npz, NAME.json, NAME_deployment.json); then "
+        "`dpe5g run --channel traced --city DIR` runs the receivers on it.  Without these options: the book's city, "
+        "into the results store.")
+    own.add_argument("--out", default=None, metavar="DIR", help="the folder of your city (not the results store)")
+    own.add_argument("--name", default="mycity", help="its name (default: mycity)")
+    own.add_argument("--scene", default=None, metavar="NAME|FILE.xml",
+                     help=f"one of Sionna RT's cities ({', '.join(SCENES)}; default {book.scene}) or a Mitsuba XML "
+                          "scene file of yours (its materials Sionna RT's ITU radio materials)")
+    own.add_argument("--deployment", default=None, metavar="FILE",
+                     help="your BSs and region (see `dpe5g deployment --help`; one power_dbm for all BSs); default: "
+                          "--density BSs placed in the most built-up square of side --side, as the book places them")
+    own.add_argument("--density", type=float, default=None, metavar="PER_KM2",
+                     help=f"BSs per km2 placed (default: the paper's {book.n_bs / book.side_m ** 2 * 1e6:.0f})")
+    own.add_argument("--side", type=float, default=None, metavar="M",
+                     help=f"side of the square region, metres (default: the paper's {book.side_m:.1f})")
+    own.add_argument("--ues", type=int, default=None, metavar="N",
+                     help=f"outdoor UE positions traced (default {book.n_ue})")
+    own.add_argument("--max-depth", type=int, default=None, metavar="K",
+                     help=f"most interactions per path (default {book.max_depth})")
+    own.add_argument("--samples", type=int, default=None, metavar="N",
+                     help=f"rays shot per BS (default {book.samples_per_src})")
+    own.add_argument("--scattering", type=float, default=None, metavar="S",
+                     help=f"scattering coefficient of every material, 0 to 1; 0 traces no diffuse reflection "
+                          f"(default {book.scattering_coefficient:g}, the book's)")
+    own.add_argument("--refraction", action="store_true", default=None, help="trace transmission through walls")
+    own.add_argument("--edge-diffraction", action="store_true", default=None,
+                     help="Sionna RT's diffraction on free edges too")
+    own.add_argument("--seed", type=int, default=None, help=f"placements' and solver's seed (default {book.seed})")
 
 
 def add_info_commands(sub) -> None:

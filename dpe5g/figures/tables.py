@@ -46,8 +46,9 @@ def run_summary(res: Results) -> str:
     sc = e.scenario
     excess = (f", NLoS excess delay median {sc.nlos_excess_median_s * 1e9:.1f} ns, σ {sc.nlos_excess_sigma_lg:g} "
               f"decades" if sc.nlos_excess_median_s else "")
-    lines = [f"{e.run.n_trials} trials, seed {e.run.seed}, deployment {sc.deployment}, delay spread "
-             f"{sc.delay_spread_s * 1e9:g} ns, LoS {sc.los_mode}{excess}, L = {e.receiver_search().n_taps}, "
+    channel = (f"the traced paths of {sc.deployment}" if sc.channel == "traced" else
+               f"deployment {sc.deployment}, delay spread {sc.delay_spread_s * 1e9:g} ns, LoS {sc.los_mode}{excess}")
+    lines = [f"{e.run.n_trials} trials, seed {e.run.seed}, {channel}, L = {e.receiver_search().n_taps}, "
              f"centring {e.receiver.centring}{prior}"]
     snrs = ["link budget"] if e.links.snr_mode == "link_budget" else [f"{snr:g}" for snr in e.links.snrs_db]
     head = f"{'SNR (dB)':>11} " + " ".join(f"{f'M = {m}':>21}" for m in e.receiver.m_values)

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..city.dataset import city_at
 from ..common import _checks
 from ..phy import channel, deployment, nr, propagation as scenario, signal
 from ..phy.nr import C
@@ -92,8 +93,9 @@ class Scenario:
         deviation nlos_excess_sigma_lg (decades, in [0, 1]).  Off by default (median 0), when the first tap sits at the
         geometric delay as in TR 38.901's TDL models.
     channel : str
-        ``CHANNELS``: "tdl" (default) or "traced", the paths ray-traced in the city that ``deployment`` names
-        (``city_draw``: LoS from the geometry, so los_mode stays "pr_los"; no PRS reuse, no added excess delay).
+        ``CHANNELS``: "tdl" (default) or "traced", the paths ray-traced in the city that ``deployment`` names, by
+        its name in the results store or by its deployment file in a folder of one's own (``city.dataset.city_at``;
+        ``traced_draw``: LoS from the geometry, so los_mode stays "pr_los"; no PRS reuse, no added excess delay).
     """
 
     deployment: str = "tst"
@@ -129,8 +131,8 @@ class Scenario:
         if self.channel == "traced" and (self.los_mode != "pr_los" or self.prs_reuse or self.nlos_excess_median_s):
             raise ValueError("channel 'traced' takes LoS and every delay from the traced paths: leave los_mode "
                              "'pr_los', prs_reuse 0 and nlos_excess_median_s 0")
-        if self.channel == "traced":  # a traced city of the store, by name (its paths are read from the store)
-            _checks.name("deployment", self.deployment)
+        if self.channel == "traced":  # a traced city: by name in the store, or its deployment file in a folder
+            city_at(self.deployment)
 
 
 @dataclass(frozen=True)

@@ -110,7 +110,8 @@ def heard_links(e: Experiment, city: city_paths.TracedCity, dep: deployment.Depl
 
 
 def population(e: Experiment) -> tuple[city_paths.TracedCity, TracedLinks]:
-    """The traced city of ``e`` (its deployment's name) and its population for ``max(m_values)`` links.
+    """The traced city of ``e`` (its deployment: a name or a city's deployment file, ``city_paths.city_at``) and its
+    population for ``max(m_values)`` links.
 
     Parameters
     ----------
@@ -127,7 +128,7 @@ def population(e: Experiment) -> tuple[city_paths.TracedCity, TracedLinks]:
     ValueError
         When the experiment asks for more trials than the population has UEs.
     """
-    city = city_paths.load_city(e.scenario.deployment)
+    city = city_paths.load_city(*city_paths.city_at(e.scenario.deployment))
     links = traced_links(city, max(e.receiver.m_values), heard_links(e, city, e.load_deployment()))
     if e.run.n_trials > len(links.ue_index):
         raise ValueError(f"n_trials must be at most {len(links.ue_index)} on the traced city "
