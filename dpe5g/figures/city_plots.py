@@ -1,5 +1,6 @@
 """Drawing of the ray-traced city's results (``city_study``) in the style of ``plots``: the receivers' error CDFs,
-the NLoS first-path excess delay against TR 38.901's log-normal, and the LoS share against eq. (11)."""
+the NLoS first-path excess delay against TR 38.901's log-normal, the LoS share against eq. (11), and the map of where
+each receiver wins."""
 
 from __future__ import annotations
 
@@ -105,4 +106,63 @@ def plot_los_share(by_distance: dict) -> Figure:
         ax.set_ylabel("LoS probability")
         ax.set_ylim(0, 1)
         ax.legend(fontsize=9, loc="upper right", frameon=False)
+    return fig
+
+
+def plot_error_map(triangles, bs_xy, region, ue_xy, diff_m, n_los, m: int, limit_m: float) -> Figure:
+    """Plan views of the city: the buildings, the BSs and each trial UE coloured by its paired error difference
+    (DPE − OTDoA, diverging about 0), and beside it by the number of its m links that are LoS.
+
+    Parameters
+    ----------
+    triangles : float (K, 3, 3)
+        The buildings' triangles (``city_paths.load_view``), metres; those above the ground drawn from above.
+    bs_xy : float (B, 2)
+        The BSs, metres.
+    region : float (4,)
+        (x_min, y_min, x_max, y_max), metres: the panels' extent.
+    ue_xy : float (T, 2)
+        The trials' UEs, metres.
+    diff_m : float (T,)
+        DPE's error less OTDoA's on each trial, metres (negative: DPE the better).
+    n_los : int (T,)
+        LoS links among each trial's m.
+    m : int
+        The links per trial.
+    limit_m : float
+        The colour scale's end, metres: differences beyond ±limit_m take the end colours (the colour bar's arrows).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    from matplotlib.collections import PolyCollection
+    from matplotlib import colormaps
+    from matplotlib.colors import BoundaryNorm, Normalize
+
+    tri = np.asarray(triangles, float)
+    roofs = tri[(tri[..., 2] > 0.5).all(axis=1)][..., :2]
+    x0, y0, x1, y1 = (float(v) for v in region)
+    with style():
+        fig = Figure(figsize=(6.2, 10.6), layout="constrained")
+        axes = fig.subplots(2, 1)
+        los_cmap = colormaps["viridis"].resampled(m + 1)  # (sequential: not the upper panel's two sides)
+        for ax, values, cmap, norm in (
+                (axes[0], np.asarray(diff_m), "RdBu_r", Normalize(-limit_m, limit_m)),
+                (axes[1], np.asarray(n_los), los_cmap, BoundaryNorm(np.arange(-0.5, m + 1), m + 1))):
+            ax.add_collection(PolyCollection(roofs, facecolors="0.82", edgecolors="0.82", linewidths=0.2))
+            dots = ax.scatter(*np.asarray(ue_xy).T, c=values, cmap=cmap, norm=norm, s=9, linewidths=0)
+            ax.plot(*np.asarray(bs_xy).T, "k^", ms=6, label="BS")
+            ax.set_xlim(x0, x1)
+            ax.set_ylim(y0, y1)
+            ax.set_aspect("equal")
+            ax.set_xlabel("x, east (m)")
+            ax.set_ylabel("y, north (m)")
+            if ax is axes[0]:
+                bar = fig.colorbar(dots, ax=ax, extend="both", shrink=0.9)
+                bar.set_label("DPE − OTDoA error (m)\n< 0: DPE better")
+            else:
+                bar = fig.colorbar(dots, ax=ax, ticks=range(m + 1), shrink=0.9)
+                bar.set_label(f"LoS links of the {m}")
+        axes[0].legend(loc="upper left", bbox_to_anchor=(0.0, 1.0), fontsize=9, framealpha=0.9)
     return fig
