@@ -5,7 +5,8 @@
     python scripts/fresh_check_times.py /tmp/fresh.log /tmp/fresh-book.log COMMIT   # and a `fresh-check book` run
 
 Reads from the log: the total (``fresh-check test: passed in N s``), each chapter's execution time as MyST-NB logs
-it (``chapters/05_rmse_vs_snr.md: Executed notebook in N seconds``) and pytest's summaries (``N passed ... in N s``):
+it (``chapters/05_rmse_vs_snr.md: Executed notebook in N seconds``), pytest's summaries (``N passed ... in N s``) and
+its slowest test phases (``--durations``; the ``SLOWEST`` longest of both runs):
 Where a log holds more than one pytest run (``make test`` prints the log of the tests that need no book, then that of
 those marked "book"), the counts are summed and each run's time kept (``pytest_runs_s``, in that order).
 Records them with the commit and the machine; ``scripts/readme_tables.py`` renders README's timing paragraph from
@@ -24,6 +25,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "benchmarks" / "fresh_check.json"
+#: the slowest test phases recorded (pytest's ``--durations``, both runs of ``make test`` together)
+SLOWEST = 20
 
 
 def parse(log: str) -> dict:
@@ -34,8 +37,11 @@ def parse(log: str) -> dict:
     if not total or not chapters or not summary:
         raise ValueError("the log lacks the fresh-check total, the chapters' execution times or pytest's summary")
     runs = [float(secs) for _, _, secs in summary]
+    slowest = sorted(((float(secs), phase, test) for secs, phase, test in
+                      re.findall(r"^\s*([\d.]+)s (call|setup|teardown)\s+(\S+)", log, re.M)), reverse=True)
     rec = {"make_test_s": int(total[-1]), "chapters_s": chapters, "pytest_s": sum(runs),
-           "tests_passed": sum(int(p) for p, _, _ in summary), "tests_skipped": sum(int(s or 0) for _, s, _ in summary)}
+           "tests_passed": sum(int(p) for p, _, _ in summary), "tests_skipped": sum(int(s or 0) for _, s, _ in summary),
+           "slowest_tests": [list(t) for t in slowest[:SLOWEST]]}
     return {**rec, "pytest_runs_s": runs} if len(runs) > 1 else rec
 
 

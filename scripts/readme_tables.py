@@ -28,7 +28,7 @@ INTRO = ROOT / "book" / "intro.md"
 #: the generated blocks of each file
 README_BLOCKS = ("found", "chapters", "timing_short")
 INTRO_BLOCKS = ("found_book",)
-RUNNING_BLOCKS = ("timing", "fig9", "fig10", "readings", "gpu", "bench", "engine", "store", "coverage", "cluster")
+RUNNING_BLOCKS = ("timing", "durations", "fig9", "fig10", "readings", "gpu", "bench", "engine", "store", "coverage", "cluster")
 
 
 def _load(rel: str) -> dict:
@@ -224,6 +224,16 @@ def timing_text() -> str:
                f"({b['make_book_s'] // 60} min {b['make_book_s'] % 60} s), "
                f"{'within' if b['make_book_s'] <= 300 else 'above'} the 5-minute target.  " if "make_book_s" in b else "")
             + "`scripts/fresh_check_times.py` records these from the clean clone's logs.")
+
+
+def durations_table() -> str:
+    b = _load("benchmarks/fresh_check.json")
+    if "slowest_tests" not in b:
+        return f"Not recorded at {b['commit']} (`scripts/fresh_check_times.py` records them since 2026-12-07)."
+    rows = "\n".join(f"| {secs:.1f} | {phase} | `{test}` |" for secs, phase, test in b["slowest_tests"])
+    return (f"The {len(b['slowest_tests'])} slowest test phases of that `make test` (pytest's `--durations`, at "
+            f"{b['commit']}; the tests that need no book ran beside the book's build, at low priority):\n\n"
+            f"| s | phase | test |\n|---:|---|---|\n{rows}")
 
 
 def timing_short() -> str:
@@ -426,7 +436,7 @@ def chapters_text() -> str:
 TABLES = {"found": found_text, "chapters": chapters_text, "found_book": lambda: found_text(book=True), "timing_short": timing_short,
           "timing": timing_text, "fig9": fig9_table, "fig10": fig10_table, "bench": bench_table,
           "engine": engine_table, "readings": readings_table, "gpu": gpu_table, "store": store_text, "coverage": coverage_text,
-          "cluster": cluster_text}
+          "cluster": cluster_text, "durations": durations_table}
 
 
 def render(text: str, names, where: str = "README.md") -> str:

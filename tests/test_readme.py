@@ -56,11 +56,16 @@ def test_fresh_check_log_parsing():
     spec.loader.exec_module(mod)
     log = ("/tmp/x/chapters/05_rmse_vs_snr.md: Executed notebook in 512.5 seconds [mystnb]\n"
            "/tmp/x/chapters/01_tdl_channel.md: Executed notebook in 9.8 seconds [mystnb]\n"
+           "============================= slowest 40 durations =============================\n"
+           "12.50s call     tests/a/test_x.py::test_slow[1]\n"
+           "32.20s setup    tests/b/test_y.py::test_slower\n"
            "=============== 234 passed, 1 skipped in 197.30s (0:03:17) ===============\n"
            "fresh-check test: passed in 1234s on a clean clone\n")
     rec = mod.parse(log)
     assert rec == {"make_test_s": 1234, "chapters_s": {"05_rmse_vs_snr": 512.5, "01_tdl_channel": 9.8},
-                   "pytest_s": 197.3, "tests_passed": 234, "tests_skipped": 1}
+                   "pytest_s": 197.3, "tests_passed": 234, "tests_skipped": 1,
+                   "slowest_tests": [[32.2, "setup", "tests/b/test_y.py::test_slower"],
+                                     [12.5, "call", "tests/a/test_x.py::test_slow[1]"]]}
     with pytest.raises(ValueError, match="lacks"):
         mod.parse(log.replace("fresh-check test: passed", "fresh-check test: FAILED"))
     # make test's two pytest runs (the tests that need no book, then those marked "book"): counts summed
