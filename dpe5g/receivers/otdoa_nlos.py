@@ -197,6 +197,41 @@ def _toa_and_sigma(g, prs, upsample, threshold_db, max_lead_samples, ts, scs_hz)
     return first, sigma_of_spectrum(g, prs, first, peak, upsample, scs_hz)
 
 
+def check_links(bs_xyz, toa_s, sigma_m, ue_z: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Validate one fix's links: the BSs (``otdoa.check_geometry``), a finite ToA and a finite σ > 0 per BS, a
+    finite UE height.
+
+    Parameters
+    ----------
+    bs_xyz, toa_s, sigma_m, ue_z
+        As for ``wls_fix``.
+
+    Returns
+    -------
+    bs_xyz, toa_s, sigma_m : numpy.ndarray
+        As float64 arrays.
+
+    Raises
+    ------
+    ValueError
+        Naming the parameter that is not so.
+    """
+    b = otdoa.check_geometry(bs_xyz)
+    t, s = np.asarray(toa_s, dtype=np.float64), np.asarray(sigma_m, dtype=np.float64)
+    if t.shape != (len(b),) or s.shape != (len(b),):
+        raise ValueError(f"toa_s and sigma_m must be ({len(b)},) like bs_xyz, got {t.shape} and {s.shape}")
+    if not np.all(np.isfinite(t)):
+        raise ValueError("toa_s must be finite (seconds)")
+    _positive_sigma(s)
+    _checks.finite("ue_z", ue_z)
+    return b, t, s
+
+
+def _positive_sigma(s: np.ndarray) -> None:
+    if not (s.ndim == 1 and len(s) and np.all(np.isfinite(s)) and np.all(s > 0)):
+        raise ValueError(f"sigma_m must be a non-empty (M,) array, finite and > 0 (metres), got {s!r:.80}")
+
+
 def difference_weights(sigma_m) -> tuple[np.ndarray, np.ndarray]:
     """The weighted fit's reference link and the weights of its range differences (module docstring, step 2).
 
@@ -213,6 +248,7 @@ def difference_weights(sigma_m) -> tuple[np.ndarray, np.ndarray]:
         w_m = √(2 σ_ref² / (σ_ref² + σ_m²)) of the others, in that order: 1 to the bit where σ_m = σ_ref.
     """
     s = np.asarray(sigma_m, dtype=np.float64)
+    _positive_sigma(s)
     ref = int(np.argmin(s))
     order = np.r_[ref, np.delete(np.arange(len(s)), ref)]
     v = s[ref] ** 2
@@ -249,8 +285,7 @@ def wls_fix(bs_xyz, toa_s, sigma_m, ue_z: float, solver=None) -> tuple[np.ndarra
     fix : otdoa.Fix
         The fix as ``otdoa.Solver.solve`` returns it (``ok``, ``reason``, ``polish_rejected``).
     """
-    b, t = np.asarray(bs_xyz, dtype=np.float64), np.asarray(toa_s, dtype=np.float64)
-    s = np.asarray(sigma_m, dtype=np.float64)
+    b, t, s = check_links(bs_xyz, toa_s, sigma_m, ue_z)
     order, w = difference_weights(s)
     f = (otdoa.Solver(len(b)) if solver is None else solver).solve(b[order], t[order], ue_z, weights=w)
     if not np.all(np.isfinite(f.xyz)):
@@ -282,12 +317,14 @@ def gls_residuals(bs_xyz, toa_s, sigma_m, ue_z: float, xy) -> tuple[np.ndarray, 
     q_diag : float (M,)
         The diagonal of their covariance Q_e = Σ − J (Jᵀ Σ⁻¹ J)⁺ Jᵀ, m² (⁺: links left in a line leave it singular).
     """
-    b, s = np.asarray(bs_xyz, dtype=np.float64), np.asarray(sigma_m, dtype=np.float64)
+    b, t, s = check_links(bs_xyz, toa_s, sigma_m, ue_z)
+    if not np.all(np.isfinite(np.asarray(xy, dtype=np.float64)[:2])):
+        raise ValueError(f"xy must be a finite fix (x, y), metres, got {xy!r}")
     p = np.array([xy[0], xy[1], ue_z])
     u = (p - b)[:, :2] / np.maximum(np.linalg.norm(p - b, axis=1), 1e-9)[:, None]
     J = -np.column_stack([u, np.ones(len(b))])
     g = np.linalg.pinv((J / s[:, None]).T @ (J / s[:, None]))
-    e = C * np.asarray(toa_s, dtype=np.float64) - np.linalg.norm(p - b, axis=1)
+    e = C * t - np.linalg.norm(p - b, axis=1)
     return e - J @ (g @ (J.T @ (e / s**2))), s**2 - np.einsum("mi,ij,mj->m", J, g, J)
 
 
@@ -431,13 +468,7 @@ class NlosSolver:
         ValueError
             On degenerate geometry, shapes that differ, or a ToA, σ or height that is not finite (σ ≤ 0).
         """
-        b = otdoa.check_geometry(bs_xyz)
-        t, s = np.asarray(toa_s, dtype=np.float64), np.asarray(sigma_m, dtype=np.float64)
-        if t.shape != (len(b),) or s.shape != (len(b),):
-            raise ValueError(f"toa_s and sigma_m must be ({len(b)},) like bs_xyz, got {t.shape} and {s.shape}")
-        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(s)) and np.all(s > 0)):
-            raise ValueError("toa_s must be finite and sigma_m finite and > 0 (metres)")
-        _checks.finite("ue_z", ue_z)
+        b, t, s = check_links(bs_xyz, toa_s, sigma_m, ue_z)
         active, excluded = list(range(len(b))), []
         q, stat, f = wls_fix(b, t, s, ue_z, self.solver(len(b)))
         detected = len(b) > 3 and stat > threshold(len(b) - 3, self.false_alarm)  # False where the SOCP failed (NaN)

@@ -238,7 +238,8 @@ def test_one_nlos_link_is_excluded_with_six_links_and_only_detected_with_four():
 
 @pytest.mark.parametrize("kwargs, match", [
     ({"toa_s": np.full(5, 1e-6)}, "toa_s and sigma_m must be"),
-    ({"sigma_m": np.array([1.0, 1.0, 0.0, 1.0])}, "sigma_m finite and > 0"),
+    ({"sigma_m": np.array([1.0, 1.0, 0.0, 1.0])}, "sigma_m must be .* finite and > 0"),
+    ({"sigma_m": np.array([1.0, np.nan, 1.0, 1.0])}, "sigma_m must be .* finite and > 0"),
     ({"toa_s": np.array([1e-6, np.nan, 1e-6, 1e-6])}, "toa_s must be finite"),
     ({"ue_z": np.inf}, "ue_z"),
     ({"bs_xyz": np.zeros((2, 3))}, "at least 3 base stations"),
@@ -248,6 +249,14 @@ def test_bad_input_is_a_value_error_naming_it(kwargs, match):
     args = {"bs_xyz": ring(4, rng), "toa_s": np.full(4, 1e-6), "sigma_m": np.ones(4), "ue_z": 2.0, **kwargs}
     with pytest.raises(ValueError, match=match):
         otdoa_nlos.NlosSolver().fix(**args)
+    for public in (otdoa_nlos.wls_fix, otdoa_nlos.check_links):  # the fit and the residuals check alike
+        with pytest.raises(ValueError, match=match):
+            public(**args)
+    with pytest.raises(ValueError, match=match):
+        otdoa_nlos.normalised_residuals(**args, q=np.zeros(3))
+    if "sigma_m" in kwargs:
+        with pytest.raises(ValueError, match=match):
+            otdoa_nlos.difference_weights(kwargs["sigma_m"])
     with pytest.raises(ValueError, match="false_alarm"):
         otdoa_nlos.NlosSolver(false_alarm=0.9)
 
