@@ -215,6 +215,32 @@ def read_record(name: str, root: Path | None = None) -> dict:
     return json.loads(city_file(name, root, ".json").read_text())
 
 
+def check_city_name(param: str, name) -> str:
+    """A traced city's name: a name (``_checks.name``), not ending in "_deployment" or "_view" (its deployment
+    file's and its 3-D view's names end so).
+
+    Parameters
+    ----------
+    param : str
+        The parameter's name in the message.
+    name : str
+        The name.
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    ValueError
+        Naming ``param``.
+    """
+    if _checks.name(param, name).endswith(("_deployment", "_view")):
+        raise ValueError(f"{param} must not end in _deployment or _view (the names of a city's other files), "
+                         f"got {name!r}")
+    return name
+
+
 def save_city(name: str, traced: dict, spec: dict, provenance: dict, root: Path | None = None,
               extra: dict | None = None) -> Path:
     """Publish a traced city in the store, all its files or none (``_io.publish``): its arrays (``.npz``), its
@@ -241,7 +267,7 @@ def save_city(name: str, traced: dict, spec: dict, provenance: dict, root: Path 
     Path
         The ``.npz`` written.
     """
-    _checks.name("name", name)
+    check_city_name("name", name)
     arrays = {k: np.asarray(traced[k]) for k in ARRAYS}
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)

@@ -22,7 +22,7 @@ import time
 from contextlib import contextmanager
 from pathlib import Path
 
-from ..common._io import output_file, writable_dir
+from ..common._io import finish_publish, output_file, writable_dir
 from ..common.locations import BASELINE_DIR, store_root
 from .parser import UsageError, build_parser, numbers_as_values
 
@@ -201,13 +201,15 @@ def traced_city(city: str) -> str:
 
     path = Path(city)
     if path.is_dir():
-        found = sorted(p for p in (path / city_paths.CITY_FOLDER).glob("*_deployment.json"))
+        folder = path / city_paths.CITY_FOLDER
+        found = sorted({p.name.removesuffix("_deployment.json")  # (a city being published too: its pending file)
+                        for p in (*folder.glob("*_deployment.json"), *folder.glob(".*.publish/*_deployment.json"))})
         if len(found) != 1:
-            names = ", ".join(p.name.removesuffix("_deployment.json") for p in found) or "none"
             raise ValueError(f"--city {city}: {city_paths.CITY_FOLDER}/ in it holds {len(found)} traced cities "
-                             f"({names}); give one city's deployment file, {city}/{city_paths.CITY_FOLDER}/"
-                             f"<name>_deployment.json, or trace one there (dpe5g trace --out {city})")
-        path = found[0]
+                             f"({', '.join(found) or 'none'}); give one city's deployment file, {city}/"
+                             f"{city_paths.CITY_FOLDER}/<name>_deployment.json, or trace one there "
+                             f"(dpe5g trace --out {city})")
+        path = folder / f"{found[0]}_deployment.json"
     dep = str(path.resolve()) if path.suffix == ".json" else city
     name, root = city_paths.city_at(dep)
     if (damage := city_paths.check_city(name, root)) is not None:
@@ -407,6 +409,7 @@ def _trace(args) -> int:
     writable_dir("DPE5G_STORE", root)  # the city goes to the store in use (locations.cities_dir)
     ray_tracer.llvm_library()  # the tracer's packages and its LLVM, checked before anything is traced or written
     spec, name = city_trace.CitySpec(), city_study.CITY
+    finish_publish(city_paths.city_folder(), name)  # (a publication a stop cut short: finished first)
     retraced = args.force or not city_paths.is_current(name, spec.to_dict(), city_trace.code_digest())
     if not retraced:
         print(f"trace: {city_paths.city_file(name)} is whole and was traced with today's settings and code "
@@ -441,11 +444,13 @@ def own_city_options(args) -> list[str]:
 
 def own_city_spec(args):
     """The ``CitySpec`` and the deployment (region, BS positions, or None: placed) of ``dpe5g trace``'s own city."""
-    from ..city.trace import CitySpec
+    from ..city.trace import SCENES, CitySpec
     from ..phy import deployment
 
     book = CitySpec()
     kw = {field: getattr(args, opt) for opt, field in OWN_CITY.items() if getattr(args, opt) is not None}
+    if kw.get("scene") is not None and kw["scene"] not in SCENES:
+        kw["scene"] = str(Path(kw["scene"]).resolve())  # (recorded as an absolute path: the record says which file)
     if args.scattering is not None:
         kw.update(scattering_coefficient=args.scattering, diffuse_reflection=args.scattering > 0)
     if args.deployment is not None:
@@ -461,8 +466,10 @@ def own_city_spec(args):
         return CitySpec(**kw), dep.region, dep.bs_xyz
     side = book.side_m if args.side is None else args.side
     density = book.n_bs / book.side_m ** 2 * 1e6 if args.density is None else args.density
-    if not (math.isfinite(density) and density > 0):
-        raise ValueError(f"--density must be a positive number of BSs per km2, got {density!r}")
+    if not (math.isfinite(side) and 50.0 <= side <= 2000.0):
+        raise ValueError(f"--side must be in [50, 2000] m (side_m), got {side!r}")
+    if not (math.isfinite(density) and 0 < density <= 1e5):
+        raise ValueError(f"--density must be a positive number of BSs per km2 (at most 1e5), got {density!r}")
     kw.update(side_m=side, n_bs=round(density * side ** 2 / 1e6))
     try:
         return CitySpec(**kw), None, None
@@ -473,10 +480,26 @@ def own_city_spec(args):
         raise
 
 
+def own_city_inputs(spec, region, bs_xyz) -> str:
+    """SHA-256 of what traces an own city beyond its ``CitySpec``: the given region and BSs (None: placed) and the
+    bytes of a scene file of one's own (Sionna RT's scenes are the pinned package's), so that ``dpe5g trace --out``
+    traces it again when either changed."""
+    import hashlib
+
+    import numpy as np
+
+    from ..city import trace as city_trace
+
+    h = hashlib.sha256(repr((None if region is None else [float(v) for v in region],
+                             None if bs_xyz is None else np.asarray(bs_xyz, float).round(6).tolist())).encode())
+    if spec.scene not in city_trace.SCENES:
+        h.update(Path(city_trace.scene_file(spec.scene)).read_bytes())
+    return h.hexdigest()
+
+
 def _trace_own(args) -> int:
     """``dpe5g trace --out DIR``: a city of one's own, traced into DIR unless it is current there."""
     from ..city import dataset as city_paths, ray_tracer, trace as city_trace
-    from ..common import _checks
     from ..common.locations import STORE_DIR
     from ..simulation import store
 
@@ -484,24 +507,26 @@ def _trace_own(args) -> int:
         raise ValueError(f"{own_city_options(args)[0]}: a city of your own needs --out DIR, its folder (the results "
                          f"store holds the book's city only; make reproduce traces it)")
     dest = Path(args.out).resolve()
-    if dest.is_relative_to(STORE_DIR.resolve()):
-        raise ValueError(f"--out {args.out} is in the results store ({STORE_DIR}); give a folder of your own")
+    for kept in {STORE_DIR.resolve(), *([store_root().resolve()] if store_root() is not None else [])}:
+        if dest.is_relative_to(kept):
+            raise ValueError(f"--out {args.out} is in the results store ({kept}); give a folder of your own")
     spec, region, bs_xyz = own_city_spec(args)
-    name = _checks.name("--name", args.name)
+    name = city_paths.check_city_name("--name", args.name)
     writable_dir("--out", dest / city_paths.CITY_FOLDER, args.out)
-    if spec.scene not in city_trace.SCENES:
-        city_trace.scene_file(spec.scene)  # (the file exists: checked before the tracer loads)
+    inputs = own_city_inputs(spec, region, bs_xyz)  # (a scene file of one's own: read, so it exists)
     ray_tracer.llvm_library()
-    if not args.force and city_paths.is_current(name, spec.to_dict(), city_trace.code_digest(), dest):
-        print(f"trace: {city_paths.city_file(name, dest)} is whole and was traced with these settings and today's "
-              "code (--force traces it again)", flush=True)
+    finish_publish(dest / city_paths.CITY_FOLDER, name)  # (a publication a stop cut short: finished first)
+    if (not args.force and city_paths.is_current(name, spec.to_dict(), city_trace.code_digest(), dest)
+            and city_paths.read_record(name, dest).get("inputs") == inputs):
+        print(f"trace: {city_paths.city_file(name, dest)} is whole and was traced with these settings, scene, "
+              "deployment and today's code (--force traces it again)", flush=True)
     else:
         start = time.perf_counter()
         traced = city_trace.trace_city(spec, progress=show_progress(args), region=region, bs_xyz=bs_xyz)
         provenance = {"commit": store.git_commit(), "code": city_trace.code_digest(),
                       "seconds": round(time.perf_counter() - start, 1), "ues_per_call": city_trace.ues_per_call(spec),
                       "libraries": ray_tracer.library_versions()}
-        path = city_paths.save_city(name, traced, spec.to_dict(), provenance, root=dest)
+        path = city_paths.save_city(name, traced, spec.to_dict(), provenance, root=dest, extra={"inputs": inputs})
         print(f"trace: {len(traced['link_ue'])} links of {spec.n_ue} UEs and {spec.n_bs} BSs traced in "
               f"{provenance['seconds']:.0f} s, written to {path}", flush=True)
     print(f"trace: run the receivers on it: dpe5g run --channel traced --city {args.out} --trials N --out study.csv",

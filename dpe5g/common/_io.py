@@ -8,6 +8,7 @@ import errno
 import hashlib
 import json
 import os
+import re
 import shutil
 import tempfile
 from contextlib import contextmanager
@@ -162,7 +163,8 @@ def publish(folder, unit: str, files: dict[str, bytes]) -> None:
     publication (``.<unit>.publish``): the one step that publishes.  Its files are then moved into ``folder`` one by
     one and the pending folder removed.  A reader takes each file where ``published`` finds it, so before the rename
     it reads the old files, from it on the new ones; a publication stopped after the rename is finished by the next
-    ``publish`` of the unit (``finish_publish``).
+    ``publish`` of the unit, or by ``finish_publish`` (``dpe5g trace`` calls it first).  This guards against a stop,
+    not against two processes publishing or reading one unit at once (no lock is taken).
 
     Parameters
     ----------
@@ -176,9 +178,10 @@ def publish(folder, unit: str, files: dict[str, bytes]) -> None:
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     finish_publish(folder, unit)
+    mine = re.compile(rf"\.{re.escape(unit)}\.(\d+)\.[a-z0-9_]+\.staging")  # (not a unit "<unit>.<x>"'s)
     for old in folder.glob(f".{unit}.*.staging"):  # a killed writer's (its process gone)
-        pid = old.name[len(unit) + 2:].split(".")[0]
-        if pid.isdigit() and not _alive(int(pid)):
+        hit = mine.fullmatch(old.name)
+        if hit and not _alive(int(hit.group(1))):
             shutil.rmtree(old, ignore_errors=True)
     staging = Path(tempfile.mkdtemp(dir=folder, prefix=f".{unit}.{os.getpid()}.", suffix=".staging"))
     try:

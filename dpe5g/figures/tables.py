@@ -22,6 +22,11 @@ from ..studies.intervals import quantile_difference
 from . import result_plots
 
 
+#: the fewest trials on which ``run_summary`` gives a paired comparison a verdict: a bootstrap interval of fewer
+#: resamples nothing (of one trial it is that trial's value)
+MIN_PAIRED_TRIALS = 10
+
+
 def run_summary(res: Results) -> str:
     """A run's summary as text: the study in one line, each receiver's errors, and each OTDoA receiver against the DPE
     on the same trials.
@@ -29,7 +34,7 @@ def run_summary(res: Results) -> str:
     Per receiver (``receiver_errors``), per SNR (rows) and M (columns): the median, 90 % point and RMSE of the
     horizontal error, metres.  Where an OTDoA receiver ran, the DPE's median and 90 % point less its, per (SNR, M),
     with the 95 % paired interval (``intervals.quantile_difference``) and its verdict: "DPE better" or "OTDoA better"
-    where the interval excludes 0, else "unresolved".  For the honest centrings, the edge-flag and certified shares.
+    where the interval excludes 0, else "unresolved" (none below ``MIN_PAIRED_TRIALS`` trials).  For the honest centrings, the edge-flag and certified shares.
 
     Parameters
     ----------
@@ -51,7 +56,7 @@ def run_summary(res: Results) -> str:
     lines = [f"{e.run.n_trials} trials, seed {e.run.seed}, {channel}, L = {e.receiver_search().n_taps}, "
              f"centring {e.receiver.centring}{prior}"]
     snrs = ["link budget"] if e.links.snr_mode == "link_budget" else [f"{snr:g}" for snr in e.links.snrs_db]
-    head = f"{'SNR (dB)':>11} " + " ".join(f"{f'M = {m}':>21}" for m in e.receiver.m_values)
+    head = f"{'SNR (dB)':>11} " + " ".join(f"{f'M = {m}':>22}" for m in e.receiver.m_values)
     errors = receiver_errors(res)
     for label, err in errors.items():
         lines += [f"{label}: median / 90 % / RMSE of the error (m)", head]
@@ -65,7 +70,8 @@ def run_summary(res: Results) -> str:
                 said = []
                 for q, word in ((0.5, "median"), (0.9, "90 %")):
                     d = quantile_difference(dpe[:, s, j], err[:, s, j], q)
-                    verdict = "DPE better" if d.hi < 0 else "OTDoA better" if d.lo > 0 else "unresolved"
+                    verdict = ("too few trials for a verdict" if e.run.n_trials < MIN_PAIRED_TRIALS else
+                               "DPE better" if d.hi < 0 else "OTDoA better" if d.lo > 0 else "unresolved")
                     said.append(f"{word} {d.value:+.2f} [{d.lo:+.2f}, {d.hi:+.2f}] {verdict}")
                 lines.append(f"  SNR {snr}, M = {m}: " + "; ".join(said))
     if e.receiver.centring != "truth":

@@ -41,8 +41,9 @@ BS_HEIGHT_RANGE_M = (1.5, 150.0)  # TR 38.901 UMi: 10 m; the formulas need h_BS 
 #: below 10 is most likely in watts (24 dBm is 0.25 W)
 POWER_RANGE_DBM = (10.0, 60.0)
 MIN_BS = 3  # (x, y, c δt) has three unknowns
-#: a BS's transmit power where its file gives none, dBm: the paper's 24 dBm (Section III).  Only the link-budget
-#: studies (Fig. 10's set-up) use a BS's power; reading a file without it says so (``Deployment.assumed``)
+#: a BS's transmit power where its file gives none, dBm: the paper's 24 dBm (Section III).  The studies whose SNRs
+#: come from the powers use it: the link budget (Fig. 10's set-up), PRS reuse's co-channel BSs, and which links of a
+#: traced city are heard; reading a file without it says so (``Deployment.assumed``)
 DEFAULT_POWER_DBM = 24.0
 #: a CSV deployment's optional region columns (the same values on every row that gives them)
 CSV_REGION = ("region_x_min_m", "region_y_min_m", "region_x_max_m", "region_y_max_m")
@@ -63,7 +64,7 @@ FORMAT = " ".join(f"""
 A deployment file is JSON or CSV; positions in metres in a local frame (x east, y north, z up, the ground at 0).
 Each base station: x_m, y_m, height_m ({BS_HEIGHT_RANGE_M[0]:g} to {BS_HEIGHT_RANGE_M[1]:g} m), and optional id
 (default BS01, BS02, ...) and power_dbm ({POWER_RANGE_DBM[0]:g} to {POWER_RANGE_DBM[1]:g} dBm; default
-{DEFAULT_POWER_DBM:g} dBm, the paper's; only --snr-mode link-budget uses it).  At least {MIN_BS} and at most
+{DEFAULT_POWER_DBM:g} dBm, the paper's; used where the SNRs come from the powers: --snr-mode link-budget, --reuse).  At least {MIN_BS} and at most
 {MAX_BS} BSs, {MIN_SPACING_M:g} m apart or more.  The region (x_min_m, y_min_m, x_max_m, y_max_m) is where the UE is
 drawn and must hold every BS: JSON's "region" (required); a CSV's region_x_min_m, ... columns, or, without them, the
 BSs' bounding box grown by {CSV_REGION_PAD:.0%} of its larger side on each side (a line says so).  JSON may also
@@ -406,14 +407,13 @@ def _from_csv(src: str, stem: str, data: bytes) -> Deployment:
 
 def _csv_region(src: str, rows: list) -> tuple[float, float, float, float] | None:
     """A CSV deployment's region from its ``CSV_REGION`` columns (the same on every row that gives them), or None."""
-    given = [tuple(r.get(k) or "" for k in CSV_REGION) for r in rows]
-    given = {g for g in given if any(g)}
+    given = {tuple(_number(src, f"row {i + 2}", k, r.get(k), -1e5, 1e5, "m", True) for k in CSV_REGION)
+             for i, r in enumerate(rows) if any(r.get(k) not in ("", None) for k in CSV_REGION)}
     if not given:
         return None
     if len(given) > 1:
         _fail(src, f"the region columns {', '.join(CSV_REGION)} differ between rows ({sorted(given)[:2]})")
-    return _rectangle(src, "region", {k.removeprefix("region_"): _number(src, "region", k, v, -1e5, 1e5, "m", True)
-                                      for k, v in zip(CSV_REGION, given.pop())})
+    return _rectangle(src, "region", {k.removeprefix("region_"): v for k, v in zip(CSV_REGION, given.pop())})
 
 
 def _inside(src: str, ids, xyz, region) -> None:
@@ -554,7 +554,15 @@ def named(name: str) -> Deployment:
     Deployment
     """
     path = builtin(name)
-    return load_deployment(name if path is None else path)
+    return load_deployment(_published_file(Path(name)) if path is None else path)
+
+
+def _published_file(path: Path) -> Path:
+    """A traced city's deployment file (``<name>_deployment.json``) where a reader finds it while its city is being
+    published (``_io.published``); any other file as it is."""
+    if not path.name.endswith("_deployment.json"):
+        return path
+    return published(path.parent, path.name.removesuffix("_deployment.json"), path.name)
 
 
 def tst() -> Deployment:
@@ -585,7 +593,7 @@ def digest(name: str) -> str:
     ValueError
         When ``name`` is none of these, or its file cannot be read.
     """
-    path = builtin(name) or Path(name)
+    path = builtin(name) or _published_file(Path(name))
     if path.suffix.lower() not in (".json", ".csv"):
         raise ValueError(f"deployment {name!r} names no packaged deployment ({', '.join(BUILTIN)}), no traced city of "
                          f"the results store in use (a city's deployment file missing: dpe5g trace traces it again), "

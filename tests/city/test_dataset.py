@@ -14,6 +14,7 @@ import pytest
 from dpe5g.city import dataset, trace
 from dpe5g.common.errors import DamagedEntry
 from dpe5g.common.locations import STORE_DIR
+from dpe5g.phy import deployment
 from dpe5g.simulation import store
 
 NAME = "munich"
@@ -144,6 +145,8 @@ def test_a_kill_at_any_step_of_a_publication_leaves_the_old_city_or_the_new(root
                 pass
         assert dataset.check_city("tiny", store_k) is None, (kill_at, done)
         bs = dataset.load_city("tiny", store_k).bs_xyz
+        dep_file = store_k / dataset.CITY_FOLDER / "tiny_deployment.json"  # (as a city of one's own is named)
+        assert np.array_equal(deployment.named(str(dep_file)).bs_xyz, bs), kill_at  # the paths' BSs, whichever
         seen.add("new" if np.array_equal(bs, new["bs_xyz"]) else "old" if np.array_equal(bs, old["bs_xyz"]) else "?")
         assert store.damaged_cities(store_k) == []
         dataset.save_city("tiny", old, spec, {"code": "x"}, store_k)

@@ -3,6 +3,8 @@ into DIR, and ``dpe5g run --channel traced --city DIR`` runs Fig. 9's and Fig. 1
 receiver, through the command line, nothing of the repository's store touched and no module's globals patched."""
 
 import json
+import shutil
+from pathlib import Path
 
 import pytest
 
@@ -26,14 +28,19 @@ def test_trace_a_city_of_ones_own_and_run_the_receivers_on_it(tmp_path, scene_fi
     monkeypatch.setenv("DPE5G_CACHE", str(tmp_path / "cache"))
     monkeypatch.chdir(tmp_path)
     store_before = {p: p.stat().st_mtime_ns for p in (STORE_DIR / dataset.CITY_FOLDER).iterdir()}
-    trace = ["trace", "--out", "own", "--scene", scene_file, *TINY]
+    scene_copy = tmp_path / "scene" / Path(scene_file).name  # (a copy: the test edits it below)
+    shutil.copytree(Path(scene_file).parent, scene_copy.parent)
+    trace = ["trace", "--out", "own", "--scene", str(scene_copy), *TINY]
     assert cli.main(trace) == 0
     out = capsys.readouterr().out
     assert "links of 10 UEs and 4 BSs traced" in out and "dpe5g run --channel traced --city own" in out
     record = dataset.read_record("mycity", tmp_path / "own")
-    assert record["spec"]["scene"] == scene_file and record["spec"]["n_bs"] == 4 and record["spec"]["n_ue"] == 10
+    assert record["spec"]["scene"] == str(scene_copy) and record["spec"]["n_bs"] == 4 and record["spec"]["n_ue"] == 10
     assert not record["spec"]["diffuse_reflection"]
     assert cli.main(trace) == 0 and "is whole and was traced with these settings" in capsys.readouterr().out
+    edited = scene_copy.read_text().replace("<scene version", "<!-- edited -->\n<scene version", 1)
+    scene_copy.write_text(edited)  # the same settings, another scene file: traced again
+    assert cli.main(trace) == 0 and "links of 10 UEs and 4 BSs traced" in capsys.readouterr().out
 
     fig10 = ["run", "--channel", "traced", "--city", "own", "--trials", "3", "--snr-mode", "link-budget",
              "--centring", "otdoa", "--otdoa-nlos", "--out", "fig10.csv"]
@@ -51,11 +58,14 @@ def test_trace_a_city_of_ones_own_and_run_the_receivers_on_it(tmp_path, scene_fi
 
 BAD = [
     (["trace", "--density", "200"], "--density: a city of your own needs --out DIR"),
-    (["trace", "--out", "own", "--scene", "nothere.xml"], "scene nothere.xml: no such Mitsuba XML scene file"),
+    (["trace", "--out", "own", "--scene", "nothere.xml"], "nothere.xml: no such Mitsuba XML scene file"),
     (["trace", "--out", "own", "--scene", "paris"], "scene must be one of munich, etoile, florence, san_francisco"),
     (["trace", "--out", str(STORE_DIR / "mine")], "is in the results store"),
     (["trace", "--out", "own", "--density", "1"], "places 0 BSs: n_bs must be an integer in [3, 200]"),
     (["trace", "--out", "own", "--name", "../x"], "--name must be a name"),
+    (["trace", "--out", "own", "--name", "x_deployment"], "--name must not end in _deployment or _view"),
+    (["trace", "--out", "own", "--side", "inf"], "--side must be in [50, 2000] m"),
+    (["trace", "--out", "own", "--side", "1e200"], "--side must be in [50, 2000] m"),
     (["trace", "--out", "own", "--scattering", "1.5"], "scattering_coefficient"),
     (["run", "--trials", "2", "--channel", "traced", "--out", "r.csv"], "--channel traced needs --city"),
     (["run", "--trials", "2", "--city", "own", "--out", "r.csv"], "--city applies to --channel traced"),
