@@ -285,14 +285,18 @@ def wls_fix(bs_xyz, toa_s, sigma_m, ue_z: float, solver=None) -> tuple[np.ndarra
     fix : otdoa.Fix
         The fix as ``otdoa.Solver.solve`` returns it (``ok``, ``reason``, ``polish_rejected``).
     """
-    b, t, s = check_links(bs_xyz, toa_s, sigma_m, ue_z)
+    return _wls_fix(*check_links(bs_xyz, toa_s, sigma_m, ue_z), ue_z, solver)
+
+
+def _wls_fix(b, t, s, ue_z, solver):
+    """``wls_fix`` on links ``check_links`` has checked (the receiver checks them once per fix)."""
     order, w = difference_weights(s)
     f = (otdoa.Solver(len(b)) if solver is None else solver).solve(b[order], t[order], ue_z, weights=w)
     if not np.all(np.isfinite(f.xyz)):
         return np.full(3, np.nan), np.nan, f
     p = f.xyz
     e = C * t - np.linalg.norm(p - b, axis=1)
-    e_hat, _ = gls_residuals(b, t, s, ue_z, p[:2])
+    e_hat, _ = _gls_residuals(b, t, s, ue_z, p[:2])
     return np.array([p[0], p[1], np.sum(e / s**2) / np.sum(1 / s**2)]), float(np.sum((e_hat / s) ** 2)), f
 
 
@@ -320,6 +324,11 @@ def gls_residuals(bs_xyz, toa_s, sigma_m, ue_z: float, xy) -> tuple[np.ndarray, 
     b, t, s = check_links(bs_xyz, toa_s, sigma_m, ue_z)
     if not np.all(np.isfinite(np.asarray(xy, dtype=np.float64)[:2])):
         raise ValueError(f"xy must be a finite fix (x, y), metres, got {xy!r}")
+    return _gls_residuals(b, t, s, ue_z, xy)
+
+
+def _gls_residuals(b, t, s, ue_z, xy):
+    """``gls_residuals`` on checked links."""
     p = np.array([xy[0], xy[1], ue_z])
     u = (p - b)[:, :2] / np.maximum(np.linalg.norm(p - b, axis=1), 1e-9)[:, None]
     J = -np.column_stack([u, np.ones(len(b))])
@@ -343,7 +352,12 @@ def normalised_residuals(bs_xyz, toa_s, sigma_m, ue_z: float, q) -> np.ndarray:
     float (M,)
         Standard normal for each link when every ToA is unbiased with its σ.
     """
-    e_hat, q_diag = gls_residuals(bs_xyz, toa_s, sigma_m, ue_z, q[:2])
+    return _normalised(*check_links(bs_xyz, toa_s, sigma_m, ue_z), ue_z, q)
+
+
+def _normalised(b, t, s, ue_z, q):
+    """``normalised_residuals`` on checked links."""
+    e_hat, q_diag = _gls_residuals(b, t, s, ue_z, q[:2])
     return e_hat / np.sqrt(np.maximum(q_diag, 1e-300))
 
 
@@ -470,13 +484,13 @@ class NlosSolver:
         """
         b, t, s = check_links(bs_xyz, toa_s, sigma_m, ue_z)
         active, excluded = list(range(len(b))), []
-        q, stat, f = wls_fix(b, t, s, ue_z, self.solver(len(b)))
+        q, stat, f = _wls_fix(b, t, s, ue_z, self.solver(len(b)))  # (links checked above: once per fix)
         detected = len(b) > 3 and stat > threshold(len(b) - 3, self.false_alarm)  # False where the SOCP failed (NaN)
         while self.exclude and len(active) - 3 >= 2 and stat > threshold(len(active) - 3, self.false_alarm):
-            k = active[int(np.argmax(np.abs(normalised_residuals(b[active], t[active], s[active], ue_z, q))))]
+            k = active[int(np.argmax(np.abs(_normalised(b[active], t[active], s[active], ue_z, q))))]
             active.remove(k)
             excluded.append(k)
-            q, stat, f = wls_fix(b[active], t[active], s[active], ue_z, self.solver(len(active)))
+            q, stat, f = _wls_fix(b[active], t[active], s[active], ue_z, self.solver(len(active)))
         dof = len(active) - 3
         thr = threshold(dof, self.false_alarm)
         ok = bool(np.all(np.isfinite(q)))
