@@ -29,11 +29,12 @@ $(STAMP): environment.txt pyproject.toml
 # experiment of the results store (figures/trials) from its seeds, report every stored trial that
 # differs, rewrite the store; then the figure baselines (PNG + data JSON) and README's tables from it.  Run it after a
 # change that the store's verification in `make test` fails on.  SCHEDULER=tcp://host:8786 (or DPE5G_SCHEDULER) runs
-# the chunks on a Dask cluster, WORKERS=N on a LocalCluster of N processes.  It refuses to run while dpe5g/,
+# the chunks (the Monte Carlo's, and the city's batches of UEs: city.trace_chunks, which resumes a stopped trace
+# from .cache/trace) on a Dask cluster, WORKERS=N on a LocalCluster of N processes (tracing: about 15 GB each).  It refuses to run while dpe5g/,
 # environment.txt or pyproject.toml differ from the commit (each entry records the commit whose code computed it):
 # commit first, or ALLOW_DIRTY=1 (the entries then record a digest of the changes too).  `make figures` is the same.
 reproduce: $(STAMP)
-	$(BIN)/python -m dpe5g trace --progress
+	$(BIN)/python -m dpe5g trace --progress $(if $(SCHEDULER),--scheduler $(SCHEDULER)) $(if $(WORKERS),--workers $(WORKERS))
 	$(BIN)/python -m dpe5g reproduce $(if $(SCHEDULER),--scheduler $(SCHEDULER)) $(if $(WORKERS),--workers $(WORKERS)) $(if $(ALLOW_DIRTY),--allow-dirty)
 	$(BIN)/python -m dpe5g figures --update-baselines
 	$(BIN)/python scripts/readme_tables.py

@@ -30,7 +30,8 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 RUN = """
 import json, os, resource, sys, time
 import numpy as np
-from dpe5g.simulation import cluster, engine, store, verify
+from dpe5g.common import cluster
+from dpe5g.simulation import engine, store, verify
 from dpe5g.studies import catalog
 fraction, workers, only = float(sys.argv[1]), int(sys.argv[2]), sys.argv[3:]
 client = cluster.connect(workers=workers) if workers else None

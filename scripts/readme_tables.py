@@ -28,7 +28,8 @@ INTRO = ROOT / "book" / "intro.md"
 #: the generated blocks of each file
 README_BLOCKS = ("found", "chapters", "timing_short")
 INTRO_BLOCKS = ("found_book",)
-RUNNING_BLOCKS = ("timing", "durations", "fig9", "fig10", "readings", "gpu", "bench", "engine", "store", "coverage", "cluster")
+RUNNING_BLOCKS = ("timing", "durations", "fig9", "fig10", "readings", "gpu", "bench", "engine", "store", "coverage", "cluster",
+                  "trace")
 
 
 def _load(rel: str) -> dict:
@@ -407,6 +408,21 @@ def cluster_text() -> str:
     return "\n".join(lines)
 
 
+def trace_text() -> str:
+    path = ROOT / "benchmarks" / "bench_trace.json"
+    if not path.exists():
+        return "`benchmarks/bench_trace.py` has not been run on this machine yet."
+    b = json.loads(path.read_text())
+    lines = [f"`benchmarks/bench_trace.py` on {b['machine']['cpus']} CPUs: {b['ues']} UEs × {b['bs']} BSs of "
+             f"{b['scene']} at the book's settings, in calls of {b['batch']} UEs, from an empty trace cache (the scene "
+             f"loaded and the UEs and BSs placed in {b['layout_s']:.0f} s, not counted):", "",
+             "| set-up | wall (s) | links | links per second | the same bits as one thread |", "|---|---|---|---|---|"]
+    for r in b["rows"]:
+        same = {None: "–", True: "yes", False: "no"}[r["same_bits_as_one_thread"]]
+        lines.append(f"| {r['setup']} | {r['seconds']:.0f} | {r['links']} | {r['links_per_s']:.2f} | {same} |")
+    return "\n".join(lines)
+
+
 def toc_pages() -> list[tuple[str, str]]:
     """The book's pages in ``book/_toc.yml``'s order, each (path of its source from the repository root, its title: the
     first ``# `` heading of the file)."""
@@ -436,7 +452,7 @@ def chapters_text() -> str:
 TABLES = {"found": found_text, "chapters": chapters_text, "found_book": lambda: found_text(book=True), "timing_short": timing_short,
           "timing": timing_text, "fig9": fig9_table, "fig10": fig10_table, "bench": bench_table,
           "engine": engine_table, "readings": readings_table, "gpu": gpu_table, "store": store_text, "coverage": coverage_text,
-          "cluster": cluster_text, "durations": durations_table}
+          "cluster": cluster_text, "trace": trace_text, "durations": durations_table}
 
 
 def render(text: str, names, where: str = "README.md") -> str:

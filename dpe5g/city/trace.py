@@ -136,14 +136,16 @@ class CitySpec:
 
 #: the functions whose code makes a traced city (``code_digest``)
 TRACING_CODE = ("CitySpec", "scene_file", "load_scene", "ground_open", "outdoors", "densest_square", "outdoor_points", "place_bs",
-                "place_ues", "solve_paths", "trace_links", "compact_links", "trace_city")
+                "place_ues", "solve_paths", "trace_links", "compact_links", "layout", "trace_city")
 
 
 #: today's tracing code → the earlier one it traces as (``code_digest``s): a stored city that records the earlier is
 #: current.  8f0bae123f4e7ea6 (``scene_file``: a scene file of one's own; ``trace_city`` given a region and BSs)
 #: traces Sionna RT's scenes at its own placements as be5f1ddeef7b47d5 did: the stored city's links of 8 UEs traced
 #: again agreed with the stored ones (``dataset.verify_links``), as ``make test`` checks on a sample at every run
-SAME_TRACE_AS = {"8f0bae123f4e7ea6": "be5f1ddeef7b47d5"}
+#: ff41ab9fa78779a4 (``layout``: ``trace_city``'s placements as a function of their own, the same calls in the same
+#: order, so that ``trace_chunks`` places a city as ``trace_city`` does) traces as 8f0bae123f4e7ea6 did
+SAME_TRACE_AS = {"8f0bae123f4e7ea6": "be5f1ddeef7b47d5", "ff41ab9fa78779a4": "be5f1ddeef7b47d5"}
 
 
 def code_digest() -> str:
@@ -532,15 +534,13 @@ def compact_links(a, tau, valid, direct, bs_xyz, ue_xyz, n_paths: int) -> dict:
     return out
 
 
-def trace_city(spec: CitySpec, progress: bool = True, region=None, bs_xyz=None) -> dict:
-    """The whole city of ``spec``: its region, BS and UE placements and every link's kept paths.
+def layout(spec: CitySpec, region=None, bs_xyz=None):
+    """The scene of ``spec`` with its region, BSs and UEs: everything ``trace_city`` traces the links of.
 
     Parameters
     ----------
     spec : CitySpec
         What to trace.
-    progress : bool
-        Whether to show a progress bar over the UEs.
     region : tuple of 4 float or None
         (x_min, y_min, x_max, y_max), metres, in the scene's frame; None: the densest square of side ``spec.side_m``
         (``densest_square``).
@@ -549,18 +549,46 @@ def trace_city(spec: CitySpec, progress: bool = True, region=None, bs_xyz=None) 
 
     Returns
     -------
-    dict
-        "region" float (4,) metres, "bs_xyz" (B, 3), "ue_xyz" (U, 3), and ``trace_links``'s arrays.
+    scene : sionna.rt.Scene
+    region : tuple of 4 float
+        Metres.
+    bs : float (B, 3)
+        Metres.
+    ue : float (U, 3)
+        Metres.
     """
-    from tqdm import tqdm  # (here, as the stored city's tracing code was written: ``code_digest`` reads its imports)
-
     if bs_xyz is not None and np.shape(bs_xyz) != (spec.n_bs, 3):
         raise ValueError(f"bs_xyz must be ({spec.n_bs}, 3) metres (spec.n_bs BSs), got shape {np.shape(bs_xyz)}")
     scene = load_scene(spec)
     region = densest_square(scene, spec.side_m) if region is None else tuple(float(v) for v in region)
     bs = place_bs(scene, region, spec) if bs_xyz is None else np.asarray(bs_xyz, dtype=float)
-    ue = place_ues(scene, region, spec)
+    return scene, region, bs, place_ues(scene, region, spec)
+
+
+def trace_city(spec: CitySpec, progress: bool = True, region=None, bs_xyz=None) -> dict:
+    """The whole city of ``spec``: its region, BS and UE placements and every link's kept paths, in this process on
+    Dr.Jit's threads.
+
+    ``dpe5g trace`` traces with ``trace_chunks.trace_city``: the same batches, each on one thread (the same bits at every
+    run), cached as they are traced and run in chunks, here or on a Dask cluster.
+
+    Parameters
+    ----------
+    spec : CitySpec
+        What to trace.
+    progress : bool
+        Whether to show a progress bar over the UEs.
+    region, bs_xyz
+        As in ``layout``.
+
+    Returns
+    -------
+    dict
+        "region" float (4,) metres, "bs_xyz" (B, 3), "ue_xyz" (U, 3), and ``trace_links``'s arrays.
+    """
+    from tqdm import tqdm  # (here, as the stored city's tracing code was written: ``code_digest`` reads its imports)
+
+    scene, region, bs, ue = layout(spec, region, bs_xyz)
     with tqdm(total=len(ue), desc=f"tracing {spec.scene}: {len(bs)} BSs", unit="UE", disable=not progress) as bar:
         links = trace_links(scene, bs, ue, spec, progress=bar.update)
     return {"region": np.asarray(region), "bs_xyz": bs, "ue_xyz": ue} | links
-

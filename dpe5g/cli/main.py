@@ -400,6 +400,11 @@ def _trace(args) -> int:
     from ..simulation import store
     from ..studies import city as city_study, city_sensitivity
 
+    from ..common import _checks
+
+    _checks.integer("--chunk-batches", args.chunk_batches, 1, 10_000)  # (checked even where nothing is traced)
+    if args.workers is not None:
+        _checks.integer("--workers", args.workers, 1, 256)
     if args.out is not None or own_city_options(args):
         return _trace_own(args)
     root = store_root()
@@ -416,10 +421,10 @@ def _trace(args) -> int:
               "(--force traces it again)", flush=True)
     else:
         start = time.perf_counter()
-        traced = city_trace.trace_city(spec, progress=show_progress(args))
+        traced = _trace_chunks(args, spec)
         provenance = {"commit": store.git_commit(), "code": city_trace.code_digest(),
                       "seconds": round(time.perf_counter() - start, 1), "ues_per_call": city_trace.ues_per_call(spec),
-                      "libraries": ray_tracer.library_versions()}
+                      "solver_threads": 1, "libraries": ray_tracer.library_versions()}
         path = city_paths.save_city(name, traced, spec.to_dict(), provenance)
         print(f"trace: {len(traced['link_ue'])} links of {spec.n_ue} UEs and {spec.n_bs} BSs traced, written to "
               f"{path} in {provenance['seconds']:.0f} s", flush=True)
@@ -429,6 +434,16 @@ def _trace(args) -> int:
     for line in city_sensitivity.trace_stale(city_paths.load_city(name), args.force):  # the solver's settings tested
         print(f"trace: {line}", flush=True)
     return 0
+
+
+def _trace_chunks(args, spec, region=None, bs_xyz=None) -> dict:
+    """``trace_chunks.trace_city`` of ``spec``: in this process, or on the cluster of --scheduler / --workers; its
+    batches cached as they are traced (.cache/trace), so that the same command resumes a stopped trace."""
+    from ..city import trace_chunks
+
+    with _cluster(args) as client:
+        return trace_chunks.trace_city(spec, progress=show_progress(args), region=region, bs_xyz=bs_xyz, client=client,
+                                       chunk_batches=args.chunk_batches)
 
 
 #: ``dpe5g trace``'s options of a city of one's own (``parser.add_own_city_options``) → ``CitySpec`` fields
@@ -522,10 +537,10 @@ def _trace_own(args) -> int:
               "deployment and today's code (--force traces it again)", flush=True)
     else:
         start = time.perf_counter()
-        traced = city_trace.trace_city(spec, progress=show_progress(args), region=region, bs_xyz=bs_xyz)
+        traced = _trace_chunks(args, spec, region, bs_xyz)
         provenance = {"commit": store.git_commit(), "code": city_trace.code_digest(),
                       "seconds": round(time.perf_counter() - start, 1), "ues_per_call": city_trace.ues_per_call(spec),
-                      "libraries": ray_tracer.library_versions()}
+                      "solver_threads": 1, "libraries": ray_tracer.library_versions()}
         path = city_paths.save_city(name, traced, spec.to_dict(), provenance, root=dest, extra={"inputs": inputs})
         print(f"trace: {len(traced['link_ue'])} links of {spec.n_ue} UEs and {spec.n_bs} BSs traced in "
               f"{provenance['seconds']:.0f} s, written to {path}", flush=True)
@@ -604,7 +619,7 @@ def _cluster(args):
     is told in the command's one line (``cluster.gather``), not also in the client's traceback of its reconnect."""
     import logging
 
-    from ..simulation import cluster
+    from ..common import cluster
 
     client = cluster.connect(args.scheduler, args.workers)
     log = logging.getLogger("distributed.client")

@@ -16,7 +16,7 @@ DESCRIPTION = (
     "in Dense Urban Area': run (a Monte Carlo DPE study on your deployment), figures (the figure build script), warm "
     "(fill the Monte Carlo cache), reproduce and verify (rewrite the results store from today's code, or check a "
     "sample of it), profile (print a scaled TDL table), deployment (check and summarise a deployment file) and "
-    "scene (export the 3-D scene as HTML); run, warm and reproduce take --scheduler or --workers to run on a Dask "
+    "scene (export the 3-D scene as HTML); run, warm, reproduce and trace take --scheduler or --workers to run on a Dask "
     "cluster.  Bad input ends with one line naming the parameter and exit code 2; a failure that is not the "
     "input's (a damaged results store, a Dask cluster that lost work or runs other code) with one line and exit "
     "code 1; Ctrl-C and SIGTERM with one line and exit codes 130 and 143.")
@@ -64,9 +64,9 @@ def add_progress_options(p, what: str) -> None:
     g.add_argument("--quiet", action="store_true", help=f"do not show {what}")
 
 
-def add_cluster_options(p) -> None:
+def add_cluster_options(p, what: str = "the Monte Carlo chunks") -> None:
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                   help="run the Monte Carlo chunks as tasks on the Dask scheduler at ADDRESS (tcp://host:8786; "
+                   help=f"run {what} as tasks on the Dask scheduler at ADDRESS (tcp://host:8786; "
                         "default: DPE5G_SCHEDULER if set, else this process)")
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="start a Dask LocalCluster of N single-threaded worker processes on this machine")
@@ -237,6 +237,9 @@ def add_store_commands(sub) -> None:
                                     "Debian's libllvm19.")
     add_progress_options(tc, "a progress bar over the UEs")
     tc.add_argument("--force", action="store_true", help="trace again even if the stored city is current")
+    add_cluster_options(tc, "the tracing chunks (batches of UEs; city.trace_chunks)")
+    tc.add_argument("--chunk-batches", type=int, default=1, metavar="K",
+                    help="solver batches of UEs per task on a cluster (default 1); the city is the same bits for any K")
     add_own_city_options(tc)
     tc
 

@@ -21,6 +21,9 @@ BASELINE_DIR = REPOSITORY / "figures"
 #: the Monte Carlo cache's default root (tier 2 of the results on disk); DPE5G_CACHE names another
 DEFAULT_CACHE = REPOSITORY / ".cache" / "montecarlo"
 
+#: the ray tracer's cache of traced batches of UEs (``city.trace_chunks``), so that a stopped trace resumes
+TRACE_CACHE = REPOSITORY / ".cache" / "trace"
+
 
 def store_root() -> Path | None:
     """The results store's folder.

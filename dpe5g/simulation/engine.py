@@ -23,12 +23,13 @@ import numpy as np
 from tqdm import tqdm
 
 from ..common import _checks
+from ..common.cluster import worker_address
 from ..common.errors import Failure
 from ..phy import deployment
 from ..receivers import otdoa, otdoa_nlos, receiver
 from . import trials
 from .chunk_cache import ChunkCache, sliced_chunk, snr_superset_runs
-from .cluster import OtherCode, gather, worker_address
+from .cluster import OtherCode, gather
 from .code_key import changed_since_import, code_version
 from .experiment import OTDOA_DETECTORS, Experiment
 from .results import Results

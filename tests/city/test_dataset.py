@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dpe5g.city import dataset, trace
+from dpe5g.city import dataset, trace, trace_chunks
 from dpe5g.common.errors import DamagedEntry
 from dpe5g.common.locations import STORE_DIR
 from dpe5g.phy import deployment
@@ -168,7 +168,7 @@ def test_trace_leaves_a_current_city_untouched(monkeypatch, capsys):
 
     digest = trace.code_digest()  # (of the code before the stand-in below, which it reads)
     monkeypatch.setattr(trace, "code_digest", lambda: digest)
-    monkeypatch.setattr(trace, "trace_city", refuse)
+    monkeypatch.setattr(trace_chunks, "trace_city", refuse)
     monkeypatch.setattr(city_sensitivity, "trace_variant", refuse)
     folder = STORE_DIR / dataset.CITY_FOLDER
     before = {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in sorted(folder.iterdir())}
@@ -192,7 +192,7 @@ def test_trace_honours_dpe5g_store(tmp_path, monkeypatch, capsys):
 
     digest = trace.code_digest()
     monkeypatch.setattr(trace, "code_digest", lambda: digest)
-    monkeypatch.setattr(trace, "trace_city", refuse)
+    monkeypatch.setattr(trace_chunks, "trace_city", refuse)
     folder = STORE_DIR / dataset.CITY_FOLDER
     before = {p: p.stat().st_mtime_ns for p in folder.iterdir()}
     shutil.copytree(folder, tmp_path / "copy" / dataset.CITY_FOLDER)

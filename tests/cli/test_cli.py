@@ -72,6 +72,9 @@ def workdir(tmp_path, monkeypatch):
 
 
 BAD = [
+    # trace on a cluster: chunk size and workers, checked even where the city is current and nothing is traced
+    (("trace", "--chunk-batches", "0"), "--chunk-batches must be an integer in [1, 10000]"),
+    (("trace", "--workers", "0"), "--workers must be an integer in [1, 256]"),
     # profile: delay spread sign, units and range, profile name, K-factor
     (("profile", "C", "--delay-spread", "-65e-9"), "--delay-spread: delay_spread_s=-6.5e-08 s is outside"),
     (("profile", "C", "--delay-spread=-65e-9"), "delay_spread_s=-6.5e-08 s"),

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from dpe5g.receivers import search_config
+from dpe5g.common import cluster as connection
 from dpe5g.simulation import chunk_cache, cluster, code_key, engine, experiment, store
 
 #: the truth-centred grid search: the quickest engine to compile, in each worker as in this process
@@ -15,12 +16,12 @@ SMALL = dict(n_trials=6, chunk_trials=2, snrs_db=(10.0, 30.0), m_values=(4, 6),
 def test_a_local_cluster_gives_the_results_of_one_process(tmp_path):
     e = experiment.Experiment.build(name="dask", **SMALL)
     one = engine.run(e, cache=tmp_path / "one", progress=False, use_store=False)
-    client = cluster.connect(workers=2)
+    client = connection.connect(workers=2)
     try:
         assert len(client.scheduler_info()["workers"]) == 2
         two = engine.run(e, cache=tmp_path / "two", progress=False, use_store=False, client=client)
     finally:
-        cluster.close(client)
+        connection.close(client)
     assert sorted(p.name for p in chunk_cache.cache_dir(e, tmp_path / "two").glob("*.npz")) == [
         "trials-0000000-0000002.npz", "trials-0000002-0000004.npz", "trials-0000004-0000006.npz"]
     for k in store.stored_fields(e):
@@ -29,21 +30,21 @@ def test_a_local_cluster_gives_the_results_of_one_process(tmp_path):
 
 def test_bad_cluster_options_are_named(monkeypatch):
     monkeypatch.delenv("DPE5G_SCHEDULER", raising=False)
-    assert cluster.connect() is None
+    assert connection.connect() is None
     with pytest.raises(ValueError, match="--scheduler .* and --workers 2 exclude each other"):
-        cluster.connect("tcp://127.0.0.1:1", 2)
+        connection.connect("tcp://127.0.0.1:1", 2)
     with pytest.raises(ValueError, match="--workers must be"):
-        cluster.connect(workers=0)
+        connection.connect(workers=0)
     for address in ("localhost:8786", "tls://127.0.0.1:8786", "ucx://127.0.0.1:8786", "inproc://127.0.0.1/1/2",
                     "tcp://127.0.0.1", "tcp://127.0.0.1:0", "tcp://127.0.0.1:70000", "tcp://:8786", "tcp://a b:1"):
         with pytest.raises(ValueError, match="--scheduler must be a Dask scheduler address tcp://host:port"):
-            cluster.connect(address)
+            connection.connect(address)
     monkeypatch.setenv("DPE5G_SCHEDULER", "tcp://127.0.0.1:1")
     with pytest.raises(ValueError, match="DPE5G_SCHEDULER tcp://127.0.0.1:1: no Dask scheduler answers there"):
-        cluster.connect(timeout_s=1.0)
+        connection.connect(timeout_s=1.0)
     monkeypatch.setenv("DPE5G_SCHEDULER", "ucx://127.0.0.1:8786")
     with pytest.raises(ValueError, match="DPE5G_SCHEDULER must be a Dask scheduler address"):
-        cluster.connect()
+        connection.connect()
 
 
 def test_a_port_where_no_scheduler_speaks_is_named_within_the_timeout(monkeypatch):
@@ -59,7 +60,7 @@ def test_a_port_where_no_scheduler_speaks_is_named_within_the_timeout(monkeypatc
     try:
         t0 = time.monotonic()
         with pytest.raises(ValueError, match="no Dask scheduler answered within 1 s .*8786"):
-            cluster.connect(f"tcp://127.0.0.1:{server.server_address[1]}", timeout_s=1.0)
+            connection.connect(f"tcp://127.0.0.1:{server.server_address[1]}", timeout_s=1.0)
         assert time.monotonic() - t0 < 10
     finally:
         server.shutdown()
@@ -82,7 +83,7 @@ def test_a_worker_running_other_code_is_refused(tmp_path):
     sc = other / "dpe5g" / "receivers" / "search_config.py"
     sc.write_text(sc.read_text() + "\n\ndef levels_of_another_checkout():\n    return 3\n")
     e = experiment.Experiment.build(name="dask", **SMALL)
-    with cluster.local_cluster(0, processes=False, protocol="tcp") as lc, cluster.connect(lc.scheduler_address) as client:
+    with connection.local_cluster(0, processes=False, protocol="tcp") as lc, connection.connect(lc.scheduler_address) as client:
         env = {**os.environ, "PYTHONPATH": str(other), "DPE5G_JAX_CACHE": "off"}
         worker = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", lc.scheduler_address,
                                    "--nthreads", "1", "--no-nanny", "--no-dashboard"], cwd=other, env=env,
@@ -110,7 +111,7 @@ def test_a_worker_killed_repeatedly_is_one_line(tmp_path):
 
     chunks = chunk_cache.ChunkCache(experiment.Experiment.build(name="dask", **SMALL), tmp_path).open()
     with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
-        with cluster.local_cluster(1) as lc, Client(lc) as client:
+        with connection.local_cluster(1) as lc, Client(lc) as client:
             with pytest.raises(ClusterFailed, match="trials 0-1 died repeatedly .*0 of the run's 3 chunks are "
                                                     "finished and kept in the cache"):
                 cluster.gather({client.submit(os._exit, 1, pure=False): (0, 2)}, chunks)
@@ -142,10 +143,10 @@ def test_a_lost_scheduler_is_one_line_from_the_command_line(tmp_path, monkeypatc
 
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("DPE5G_CACHE", str(tmp_path / "cache"))
-    lc = cluster.local_cluster(1, protocol="tcp")
+    lc = connection.local_cluster(1, protocol="tcp")
 
     async def in_a_loop():
-        return cluster.check_scheduler(lc.scheduler_address, 10.0)
+        return connection.check_scheduler(lc.scheduler_address, 10.0)
 
     assert asyncio.run(in_a_loop()) > 0
 

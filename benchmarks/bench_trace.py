@@ -1,0 +1,101 @@
+"""Benchmark of the ray tracing of a city in chunks (``city.trace_chunks``) in this process and on Dask workers (a
+script, not a test): prints a table and writes JSON, so that a reader can size a cluster for a larger city or a
+denser network.
+
+    .venv/bin/python benchmarks/bench_trace.py [--ues 100] [--batch 25] [--workers 1 2]
+                                               [--out benchmarks/bench_trace.json]
+
+The book's city settings (``city.trace.CitySpec()``: Munich, 26 BSs, diffuse reflection on) with ``--ues`` UEs traced
+in batches of ``--batch`` (the stored city's calls hold ``trace.ues_per_call`` = 50 UEs; a smaller batch keeps two
+workers inside this machine's memory), each set-up from an empty trace cache: in this process on Dr.Jit's pool of
+threads (``trace.trace_links``, as the stored city was traced), in this process on one thread
+(``trace_chunks.trace_city``, the same bits at every run), and on a ``LocalCluster`` of N worker processes for each
+N of ``--workers`` (one batch per task; each worker loads the scene itself), each set-up in a fresh process (a
+process keeps what Dr.Jit allocated: three of them at once ran this machine out of memory).  Reports the wall time of the links
+(the scene's loading and the placements timed apart, once), links per second, and whether every set-up's city is
+the same bits as the one-thread run's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+from benchutil import write
+
+SETUPS = {"threads": "this process, Dr.Jit's threads", "one": "this process, one thread"}
+
+
+def run_setup(setup: str, ues: int, batch: int, folder: str) -> dict:
+    """One set-up in this process: its arrays saved to ``folder``/``setup``.npz, its times returned."""
+    from dpe5g.city import trace, trace_chunks
+    from dpe5g.common import cluster
+
+    spec = trace.CitySpec(n_ue=ues)
+    t0 = time.perf_counter()
+    scene, region, bs, ue = trace.layout(spec)
+    layout_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    if setup == "threads":
+        got = trace.trace_links(scene, bs, ue, spec, batch=batch)
+    else:
+        del scene
+        client = None if setup == "one" else cluster.connect(workers=int(setup))
+        try:
+            got = trace_chunks.trace_city(spec, progress=False, cache=f"{folder}/cache-{setup}", batch=batch,
+                                          client=client)
+        finally:
+            cluster.close(client)
+        got = {k: v for k, v in got.items() if k not in ("region", "bs_xyz", "ue_xyz")}
+    seconds = time.perf_counter() - t0 - (0.0 if setup == "threads" else layout_s)  # (trace_city places them again)
+    np.savez(f"{folder}/{setup}.npz", **got)
+    return {"seconds": seconds, "layout_s": layout_s, "links": int(len(got["link_ue"])), "bs": int(len(bs)),
+            "scene": spec.scene}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--ues", type=int, default=100)
+    ap.add_argument("--batch", type=int, default=25)
+    ap.add_argument("--workers", type=int, nargs="*", default=[1, 2])
+    ap.add_argument("--out", default="benchmarks/bench_trace.json")
+    ap.add_argument("--setup", default=None, help=argparse.SUPPRESS)  # (a child: one set-up)
+    ap.add_argument("--folder", default=None, help=argparse.SUPPRESS)
+    a = ap.parse_args()
+    if a.setup is not None:
+        print(json.dumps(run_setup(a.setup, a.ues, a.batch, a.folder)))
+        return
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for setup in ["threads", "one", *map(str, a.workers)]:
+            r = subprocess.run([sys.executable, os.path.abspath(__file__), "--setup", setup, "--folder", tmp,
+                                "--ues", str(a.ues), "--batch", str(a.batch)], capture_output=True, text=True,
+                               check=True)
+            out = json.loads(r.stdout.strip().splitlines()[-1])
+            name = SETUPS.get(setup, f"{setup} Dask worker{'s' if setup != '1' else ''} (one thread each)")
+            rows.append((setup, name, out))
+            print(f"{name}: {out['seconds']:.1f} s, {out['links']} links", flush=True)
+        one = dict(np.load(f"{tmp}/one.npz"))
+        same = {s: all(np.array_equal(np.load(f"{tmp}/{s}.npz")[k], one[k]) for k in one) for s, _, _ in rows}
+    first = rows[0][2]
+    print(f"{a.ues} UEs x {first['bs']} BSs of {first['scene']}, batches of {a.batch} UEs; scene and placements "
+          f"{first['layout_s']:.1f} s (not counted below)")
+    print(f"{'set-up':40s} {'seconds':>8s} {'links':>6s} {'links/s':>8s}  same bits as one thread")
+    for s, name, r in rows:
+        print(f"{name:40s} {r['seconds']:8.1f} {r['links']:6d} {r['links'] / r['seconds']:8.2f}  {same[s]}")
+    write(a.out, {"ues": a.ues, "bs": first["bs"], "batch": a.batch, "scene": first["scene"],
+                  "layout_s": round(first["layout_s"], 1),
+                  "rows": [{"setup": name, "seconds": round(r["seconds"], 1), "links": r["links"],
+                            "links_per_s": round(r["links"] / r["seconds"], 2), "same_bits_as_one_thread": same[s]}
+                           for s, name, r in rows]})
+
+
+if __name__ == "__main__":
+    main()
