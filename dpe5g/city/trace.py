@@ -424,18 +424,10 @@ def place_ues(scene, region, spec: CitySpec) -> np.ndarray:
     return np.column_stack([xy, np.full(spec.n_ue, spec.ue_height_m)])
 
 
-#: BS–UE pairs per call of the solver, by whether diffuse reflection is traced (``ues_per_call``): the book's 26 BSs
-#: with 50 UEs, or 250 without it
-PAIRS_PER_CALL = {True: 26 * 50, False: 26 * 250}
-
-
 def ues_per_call(spec: CitySpec) -> int:
-    """UEs per call of the solver: ``PAIRS_PER_CALL`` over the BSs, so that a call's memory does not grow with them.
-
-    The paths of diffuse reflection fill the memory: 50 UEs of the book's 26 BSs at S = 0.3 took 15 GB, 200 more than
-    this machine's 23 GB, and 50 UEs of 104 BSs (4 times the paper's density) were killed for memory, so a denser
-    network is traced in calls of fewer UEs (the book's city: 50 with diffuse reflection, 250 without).  A UE's paths
-    depend on the UEs traced beside it only through the solver's table of chains found (``solve_paths``), sized per UE.
+    """UEs per call of the solver: 250, or 50 where diffuse reflection is traced (its paths fill the memory: 50 UEs at
+    S = 0.3 took 15 GB, 200 more than this machine's 23 GB).  A UE's paths do not depend on the UEs traced beside it
+    (``solve_paths``' table of chains is sized per UE; ``tests/city/test_city.py`` traces a few UEs alone and compares).
 
     Parameters
     ----------
@@ -444,9 +436,8 @@ def ues_per_call(spec: CitySpec) -> int:
     Returns
     -------
     int
-        At least 1.
     """
-    return max(1, PAIRS_PER_CALL[spec.diffuse_reflection] // spec.n_bs)
+    return 50 if spec.diffuse_reflection else 250
 
 
 def trace_links(scene, bs_xyz, ue_xyz, spec: CitySpec, batch: int | None = None, progress=None) -> dict:

@@ -2,7 +2,6 @@
 meets refused by the placement instead of drawing forever; the tracing code's digest blind to those refusals only."""
 
 import math
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -59,13 +58,3 @@ def test_the_digest_reads_the_code_that_traces_not_its_refusals():
     cls = "class S:\n    a: int = 1\n\n    def __post_init__(self):\n        check(self.a)\n"
     assert trace.tracing_code(cls) == trace.tracing_code(cls.replace("check(self.a)", "check(self.a, 2)"))
     assert trace.tracing_code(cls) != trace.tracing_code(cls.replace("a: int = 1", "a: int = 2"))
-
-
-def test_a_call_of_the_solver_holds_as_many_links_whatever_the_density():
-    """The book's city keeps its calls (50 UEs with diffuse reflection, 250 without); 4 times its BSs, a quarter of
-    the UEs per call (50 UEs of 104 BSs were killed for memory on a 23 GB machine)."""
-    book = trace.CitySpec()
-    assert book.n_bs == 26 and book.diffuse_reflection and trace.ues_per_call(book) == 50
-    assert trace.ues_per_call(replace(book, diffuse_reflection=False, scattering_coefficient=0.0)) == 250
-    assert trace.ues_per_call(replace(book, n_bs=104)) == 12
-    assert trace.ues_per_call(replace(book, n_bs=200)) == 6
