@@ -264,7 +264,8 @@ def trace_city(spec: trace.CitySpec, progress: bool = True, region=None, bs_xyz=
     n = trace.ues_per_call(spec) if batch is None else _checks.integer("batch", batch, 1, 100_000)
     folder = Path(cache or TRACE_CACHE) / batch_key(spec, region, bs, ue, n)
     n_batches = math.ceil(len(ue) / n)
-    todo = [b for b in range(n_batches) if read_batch(folder, b) is None]
+    parts = {b: read_batch(folder, b) for b in range(n_batches)}  # (each read once: the cached, then the traced)
+    todo = [b for b, part in parts.items() if part is None]
     chunks = [tuple(todo[i:i + chunk_batches]) for i in range(0, len(todo), chunk_batches)]
     size = lambda b: min(n, len(ue) - b * n)  # noqa: E731
     with tqdm(total=len(ue), initial=len(ue) - sum(map(size, todo)), unit="UE", disable=not progress,
@@ -277,10 +278,8 @@ def trace_city(spec: trace.CitySpec, progress: bool = True, region=None, bs_xyz=
                 bar.update(size(b))
         else:
             _gather(client, spec, bs, ue, chunks, n, folder, bar, size)
-    parts = []
-    for b in range(n_batches):
-        part = read_batch(folder, b)
-        parts.append(part | {"link_ue": part["link_ue"] + b * n})
+    parts.update({b: read_batch(folder, b) for b in todo})
+    parts = [part | {"link_ue": part["link_ue"] + b * n} for b, part in sorted(parts.items())]
     links = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     return {"region": np.asarray(region), "bs_xyz": bs, "ue_xyz": ue} | links
 

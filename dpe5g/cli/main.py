@@ -394,10 +394,7 @@ def _reproduce(args) -> int:
 
 
 def _trace(args) -> int:
-    import time
-
     from ..city import dataset as city_paths, ray_tracer, trace as city_trace
-    from ..simulation import store
     from ..studies import city as city_study, city_sensitivity
 
     from ..common import _checks
@@ -422,9 +419,7 @@ def _trace(args) -> int:
     else:
         start = time.perf_counter()
         traced = _trace_chunks(args, spec)
-        provenance = {"commit": store.git_commit(), "code": city_trace.code_digest(),
-                      "seconds": round(time.perf_counter() - start, 1), "ues_per_call": city_trace.ues_per_call(spec),
-                      "solver_threads": 1, "libraries": ray_tracer.library_versions()}
+        provenance = _trace_provenance(spec, start)
         path = city_paths.save_city(name, traced, spec.to_dict(), provenance)
         print(f"trace: {len(traced['link_ue'])} links of {spec.n_ue} UEs and {spec.n_bs} BSs traced, written to "
               f"{path} in {provenance['seconds']:.0f} s", flush=True)
@@ -434,6 +429,17 @@ def _trace(args) -> int:
     for line in city_sensitivity.trace_stale(city_paths.load_city(name), args.force):  # the solver's settings tested
         print(f"trace: {line}", flush=True)
     return 0
+
+
+def _trace_provenance(spec, start: float) -> dict:
+    """What a traced city's record keeps of how it was traced: commit, tracing code, seconds since ``start``, the
+    solver's calls (UEs per call, one thread each: ``trace_chunks``) and the ray tracer's libraries."""
+    from ..city import ray_tracer, trace as city_trace
+    from ..simulation import store
+
+    return {"commit": store.git_commit(), "code": city_trace.code_digest(),
+            "seconds": round(time.perf_counter() - start, 1), "ues_per_call": city_trace.ues_per_call(spec),
+            "solver_threads": 1, "libraries": ray_tracer.library_versions()}
 
 
 def _trace_chunks(args, spec, region=None, bs_xyz=None) -> dict:
@@ -516,7 +522,6 @@ def _trace_own(args) -> int:
     """``dpe5g trace --out DIR``: a city of one's own, traced into DIR unless it is current there."""
     from ..city import dataset as city_paths, ray_tracer, trace as city_trace
     from ..common.locations import STORE_DIR
-    from ..simulation import store
 
     if args.out is None:
         raise ValueError(f"{own_city_options(args)[0]}: a city of your own needs --out DIR, its folder (the results "
@@ -538,9 +543,7 @@ def _trace_own(args) -> int:
     else:
         start = time.perf_counter()
         traced = _trace_chunks(args, spec, region, bs_xyz)
-        provenance = {"commit": store.git_commit(), "code": city_trace.code_digest(),
-                      "seconds": round(time.perf_counter() - start, 1), "ues_per_call": city_trace.ues_per_call(spec),
-                      "solver_threads": 1, "libraries": ray_tracer.library_versions()}
+        provenance = _trace_provenance(spec, start)
         path = city_paths.save_city(name, traced, spec.to_dict(), provenance, root=dest, extra={"inputs": inputs})
         print(f"trace: {len(traced['link_ue'])} links of {spec.n_ue} UEs and {spec.n_bs} BSs traced in "
               f"{provenance['seconds']:.0f} s, written to {path}", flush=True)
