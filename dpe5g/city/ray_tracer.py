@@ -121,6 +121,56 @@ def check_llvm(path: str) -> None:
         raise Failure(f"{path}: Dr.Jit's CPU backend cannot run on it ({why[:200]}): {remedy}")
 
 
+#: the ray tracer's backends, each a Mitsuba variant: Dr.Jit's CPU backend on LLVM, and its CUDA backend on an NVIDIA
+#: GPU; "auto" is Sionna RT's own choice when it is imported: CUDA where a GPU answers, else LLVM
+BACKENDS = {"llvm": "llvm_ad_mono_polarized", "cuda": "cuda_ad_mono_polarized"}
+
+
+def use_backend(backend: str = "auto") -> str:
+    """Trace on ``backend`` in this process: Mitsuba's variant set before Sionna RT is imported (which would
+    otherwise choose it), or checked where it is set already.
+
+    Parameters
+    ----------
+    backend : str
+        "auto", or a key of ``BACKENDS``.
+
+    Returns
+    -------
+    str
+        The Mitsuba variant the process traces on.
+
+    Raises
+    ------
+    ValueError
+        An unknown backend.
+    errors.Failure
+        In one line: "cuda" where Dr.Jit finds no CUDA device, or a process that already traces on another backend.
+    """
+    if backend != "auto" and backend not in BACKENDS:
+        raise ValueError(f"backend must be 'auto' or one of {', '.join(BACKENDS)}, got {backend!r}")
+    if backend != "cuda":
+        llvm_library()  # (the LLVM backend needs it set before Dr.Jit loads; "auto" may fall back to it)
+    else:
+        check_packages()
+    import mitsuba as mi  # (Sionna RT's renderer: loaded only to trace)
+
+    wanted = [BACKENDS[backend]] if backend in BACKENDS else [BACKENDS["cuda"], BACKENDS["llvm"]]
+    if mi.variant() is not None:
+        if mi.variant() in wanted:
+            return mi.variant()
+        raise Failure(f"backend {backend}: this process already traces on {mi.variant()} (the backend is chosen once "
+                      "per process, before anything is traced)")
+    why = ""
+    for variant in wanted:
+        try:
+            mi.set_variant(variant)
+            return variant
+        except ImportError as err:  # (Dr.Jit: no CUDA device or driver)
+            why = " ".join(str(err).split())[:200]
+    raise Failure(f"backend cuda: Dr.Jit finds no CUDA device here ({why}); backend llvm traces on the CPU")
+
+
 def library_versions() -> dict:
     """The versions of the ray tracer's stack (sionna-rt, mitsuba, drjit) and the libLLVM it runs on.
 

@@ -135,8 +135,9 @@ class CitySpec:
 
 
 #: the functions whose code makes a traced city (``code_digest``)
-TRACING_CODE = ("CitySpec", "scene_file", "load_scene", "ground_open", "outdoors", "densest_square", "outdoor_points", "place_bs",
-                "place_ues", "solve_paths", "trace_links", "compact_links", "layout", "trace_city")
+TRACING_CODE = ("CitySpec", "scene_file", "load_scene", "ground_open", "outdoors", "densest_square", "outdoor_points",
+                "place_bs", "place_ues", "ues_per_call", "solve_paths", "bs_groups", "trace_links", "compact_links",
+                "layout", "trace_city")
 
 
 #: today's tracing code → the earlier one it traces as (``code_digest``s): a stored city that records the earlier is
@@ -144,8 +145,11 @@ TRACING_CODE = ("CitySpec", "scene_file", "load_scene", "ground_open", "outdoors
 #: traces Sionna RT's scenes at its own placements as be5f1ddeef7b47d5 did: the stored city's links of 8 UEs traced
 #: again agreed with the stored ones (``dataset.verify_links``), as ``make test`` checks on a sample at every run
 #: ff41ab9fa78779a4 (``layout``: ``trace_city``'s placements as a function of their own, the same calls in the same
-#: order, so that ``trace_chunks`` places a city as ``trace_city`` does) traces as 8f0bae123f4e7ea6 did
-SAME_TRACE_AS = {"8f0bae123f4e7ea6": "be5f1ddeef7b47d5", "ff41ab9fa78779a4": "be5f1ddeef7b47d5"}
+#: order, so that ``trace_chunks`` places a city as ``trace_city`` does) traces as 8f0bae123f4e7ea6 did;
+#: be3769bb50c7cb45 (``bs_groups``: more than 26 BSs traced in calls of 26; ``ues_per_call`` read by the digest) traces
+#: a city of at most 26 BSs in the same calls as ff41ab9fa78779a4 did
+SAME_TRACE_AS = {"8f0bae123f4e7ea6": "be5f1ddeef7b47d5", "ff41ab9fa78779a4": "be5f1ddeef7b47d5",
+                 "be3769bb50c7cb45": "be5f1ddeef7b47d5"}
 
 
 def code_digest() -> str:
@@ -440,10 +444,36 @@ def ues_per_call(spec: CitySpec) -> int:
     return 50 if spec.diffuse_reflection else 250
 
 
+def bs_groups(n_bs: int, per_call: int = 26) -> list[range]:
+    """The BSs of each call of the solver: consecutive groups of ``per_call`` (one group for the paper's 26).
+
+    A call's memory grows with its BSs (rays are launched per source): 26 BSs × 50 UEs with diffuse reflection took
+    15 GB, and 104 BSs were killed for memory on a 23 GB machine at 50 UEs a call and at 12.
+
+    A link's paths depend on the BSs traced beside it (the solver's rays are drawn per call: the same 12 UEs of 8 BSs
+    traced in one call and in two calls of 4 gave 10 of 26 shared links other paths, up to 6.6 dB apart, with diffuse
+    reflection, 1 of 12 without), so the groups are part of what is traced.
+
+    Parameters
+    ----------
+    n_bs : int
+        The BSs, B.
+    per_call : int
+        BSs per call (part of the tracing code: ``code_digest`` reads its default).
+
+    Returns
+    -------
+    list of range
+        Indices into the BSs, in order, covering 0 … B − 1.
+    """
+    return [range(b, min(b + per_call, n_bs)) for b in range(0, n_bs, per_call)]
+
+
 def trace_links(scene, bs_xyz, ue_xyz, spec: CitySpec, batch: int | None = None, progress=None) -> dict:
     """Trace every BS → UE link (``solve_paths``) and keep each link's ``spec.n_paths`` paths (``compact_links``).
 
-    UEs are traced ``batch`` at a time (``ues_per_call(spec)`` when None).
+    UEs are traced ``batch`` at a time (``ues_per_call(spec)`` when None), each batch with the BSs of each of
+    ``bs_groups`` in a call of its own.
 
     Parameters
     ----------
@@ -463,22 +493,27 @@ def trace_links(scene, bs_xyz, ue_xyz, spec: CitySpec, batch: int | None = None,
     Returns
     -------
     dict
-        ``compact_links``'s arrays over the links that have a path, their UE and BS indices in "link_ue", "link_bs".
+        ``compact_links``'s arrays over the links that have a path, their UE and BS indices in "link_ue", "link_bs",
+        in order of UE, then BS.
     """
     parts, batch = [], batch or ues_per_call(spec)
+    bs_xyz = np.asarray(bs_xyz, float)
     for u0 in range(0, len(ue_xyz), batch):
         ues = np.asarray(ue_xyz[u0:u0 + batch], float)
-        paths = solve_paths(scene, bs_xyz, ues, spec)
-        a, tau = paths.cir(normalize_delays=False, out_type="numpy")  # (U, 1, B, 1, P, 1), (U, B, P)
-        a = a[:, 0, :, 0, :, 0]
-        valid = np.asarray(paths.valid.numpy()) & (np.abs(a) > 0)
-        direct = np.all(np.asarray(paths.interactions.numpy()) == 0, axis=0) & valid  # no interaction: the LoS path
-        part = compact_links(a, tau, valid, direct, bs_xyz, ues, spec.n_paths)
-        part["link_ue"] = part["link_ue"] + u0
-        parts.append(part)
+        for group in bs_groups(len(bs_xyz)):
+            paths = solve_paths(scene, bs_xyz[group.start:group.stop], ues, spec)
+            a, tau = paths.cir(normalize_delays=False, out_type="numpy")  # (U, 1, B, 1, P, 1), (U, B, P)
+            a = a[:, 0, :, 0, :, 0]
+            valid = np.asarray(paths.valid.numpy()) & (np.abs(a) > 0)
+            direct = np.all(np.asarray(paths.interactions.numpy()) == 0, axis=0) & valid  # no interaction: LoS
+            part = compact_links(a, tau, valid, direct, bs_xyz[group.start:group.stop], ues, spec.n_paths)
+            part["link_ue"], part["link_bs"] = part["link_ue"] + u0, part["link_bs"] + group.start
+            parts.append(part)
         if progress is not None:
             progress(len(ues))
-    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    links = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    order = np.lexsort((links["link_bs"], links["link_ue"]))  # (the order of one call where one group)
+    return {k: v[order] for k, v in links.items()}
 
 
 def compact_links(a, tau, valid, direct, bs_xyz, ue_xyz, n_paths: int) -> dict:

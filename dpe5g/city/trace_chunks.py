@@ -4,9 +4,9 @@ process or as tasks on a Dask cluster, and the city the same to the bit whatever
 The solver's table of the specular chains it has found is shared by the UEs of one call (``ray_tracer.solve_paths``),
 so a UE's paths may depend on the UEs traced beside it.  The unit of work is therefore ``trace.trace_links``' own
 batch, UEs b·n … (b + 1)·n − 1 with n = ``trace.ues_per_call(spec)``, whatever the chunk, the worker or the order: a
-chunk is a run of whole batches (``chunk_batches`` of them, one task), and each batch is one call of the solver, seeded
-by ``spec.seed``.  The BSs are not split: a call traces every BS.  Each call runs on one Dr.Jit thread
-(``one_thread``): on Dr.Jit's pool of threads the same call's path gains vary in their last bits from run to run
+chunk is a run of whole batches (``chunk_batches`` of them, one task), and each batch is one call of the solver per
+group of BSs (``trace.bs_groups``: one call for 26 BSs or fewer), seeded by ``spec.seed``.  Each call runs on one
+Dr.Jit thread (``one_thread``): on Dr.Jit's pool of threads the same call's path gains vary in their last bits from run to run
 (Sionna RT's street canyon, 4 BSs × 10 UEs traced four times in one process: power_db differed by up to 7.6e-6 dB),
 on one thread they are the same bits every time; the parallelism is the workers'.  A batch is written to the cache
 (``TRACE_CACHE/<key>/batch-<b>.npz``, atomically) as soon as it is back, so a stopped trace resumes where it stopped;

@@ -395,7 +395,7 @@ def _reproduce(args) -> int:
 
 def _trace(args) -> int:
     from ..city import dataset as city_paths, ray_tracer, trace as city_trace
-    from ..studies import city as city_study, city_sensitivity
+    from ..studies import city as city_study, city_density, city_sensitivity
 
     from ..common import _checks
 
@@ -409,7 +409,7 @@ def _trace(args) -> int:
         raise ValueError("DPE5G_STORE is 'off': dpe5g trace writes the traced city to a results store (unset it, or "
                          "name a folder)")
     writable_dir("DPE5G_STORE", root)  # the city goes to the store in use (locations.cities_dir)
-    ray_tracer.llvm_library()  # the tracer's packages and its LLVM, checked before anything is traced or written
+    ray_tracer.use_backend(args.backend)  # the tracer's packages and its backend, checked before anything is traced
     spec, name = city_trace.CitySpec(), city_study.CITY
     finish_publish(city_paths.city_folder(), name)  # (a publication a stop cut short: finished first)
     retraced = args.force or not city_paths.is_current(name, spec.to_dict(), city_trace.code_digest())
@@ -426,20 +426,25 @@ def _trace(args) -> int:
     if retraced or not _view_whole(name):  # a current city's files stay as they are, byte for byte
         path = city_paths.save_view(name, _city_view(spec, name))
         print(f"trace: the 3-D view of its first trial's UE written to {path}", flush=True)
-    for line in city_sensitivity.trace_stale(city_paths.load_city(name), args.force):  # the solver's settings tested
+    city = city_paths.load_city(name)
+    for line in city_sensitivity.trace_stale(city, args.force):  # the solver's settings tested
         print(f"trace: {line}", flush=True)
+    for line in city_density.trace_stale(city, lambda spec: _trace_chunks(args, spec), _trace_provenance, args.force):
+        print(f"trace: {line}", flush=True)  # the denser networks
     return 0
 
 
 def _trace_provenance(spec, start: float) -> dict:
-    """What a traced city's record keeps of how it was traced: commit, tracing code, seconds since ``start``, the
-    solver's calls (UEs per call, one thread each: ``trace_chunks``) and the ray tracer's libraries."""
+    """What a traced city's record keeps of how it was traced: commit, tracing code, seconds since ``start`` (the
+    batches read from the trace cache took none), the solver's calls (UEs per call, groups of BSs, one thread each:
+    ``trace_chunks``), the ray tracer's libraries and its backend (Mitsuba variant)."""
     from ..city import ray_tracer, trace as city_trace
     from ..simulation import store
 
     return {"commit": store.git_commit(), "code": city_trace.code_digest(),
             "seconds": round(time.perf_counter() - start, 1), "ues_per_call": city_trace.ues_per_call(spec),
-            "solver_threads": 1, "libraries": ray_tracer.library_versions()}
+            "bs_groups": len(city_trace.bs_groups(spec.n_bs)), "solver_threads": 1,
+            "libraries": ray_tracer.library_versions() | {"variant": ray_tracer.use_backend("auto")}}
 
 
 def _trace_chunks(args, spec, region=None, bs_xyz=None) -> dict:
@@ -534,7 +539,7 @@ def _trace_own(args) -> int:
     name = city_paths.check_city_name("--name", args.name)
     writable_dir("--out", dest / city_paths.CITY_FOLDER, args.out)
     inputs = own_city_inputs(spec, region, bs_xyz)  # (a scene file of one's own: read, so it exists)
-    ray_tracer.llvm_library()
+    ray_tracer.use_backend(args.backend)
     finish_publish(dest / city_paths.CITY_FOLDER, name)  # (a publication a stop cut short: finished first)
     if (not args.force and city_paths.is_current(name, spec.to_dict(), city_trace.code_digest(), dest)
             and city_paths.read_record(name, dest).get("inputs") == inputs):

@@ -230,16 +230,19 @@ def add_store_commands(sub) -> None:
                                     "and write the paths to the results store (figures/trials/cities) and the "
                                     "city's deployment beside them, unless they were traced with today's settings "
                                     "and tracing code; then the 3-D view (the buildings, one UE's traced paths), "
-                                    "and a subset of its UEs under each solver setting of "
-                                    "city_sensitivity.VARIANTS that is not stored yet.  "
-                                    "`make reproduce` runs it first (from scratch about 20 minutes on 2 cores for the city and 40 for the "
-                                    "subsets); it needs "
-                                    "Debian's libllvm19.")
+                                    "a subset of its UEs under each solver setting of "
+                                    "city_sensitivity.VARIANTS and the denser networks of city_density that are not "
+                                    "stored yet.  `make reproduce` runs it first (from scratch on 2 cores about 37 "
+                                    "minutes for the city, 38 for the subsets and 50 for the denser networks); it "
+                                    "needs Debian's libllvm19 on the CPU.")
     add_progress_options(tc, "a progress bar over the UEs")
     tc.add_argument("--force", action="store_true", help="trace again even if the stored city is current")
     add_cluster_options(tc, "the tracing chunks (batches of UEs; city.trace_chunks)")
     tc.add_argument("--chunk-batches", type=int, default=1, metavar="K",
                     help="solver batches of UEs per task on a cluster (default 1); the city is the same bits for any K")
+    tc.add_argument("--backend", choices=("auto", "llvm", "cuda"), default="auto",
+                    help="Dr.Jit's backend: 'llvm' (the CPU), 'cuda' (an NVIDIA GPU), 'auto' (default: CUDA where a "
+                         "GPU answers, else the CPU, Sionna RT's own choice); a cached batch is reused on its own backend only")
     add_own_city_options(tc)
     tc
 

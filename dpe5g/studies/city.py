@@ -18,7 +18,7 @@ from scipy import stats
 from ..phy import propagation
 from ..city import dataset as city_paths
 from ..simulation import engine, traced_draw, trials
-from ..simulation.experiment import Experiment
+from ..simulation.experiment import OTDOA_DETECTORS, Experiment
 from . import choices, intervals, paper
 
 #: the traced city (its deployment's and its dataset's name): Sionna RT's "munich" scene (``city_trace.CitySpec``)
@@ -100,11 +100,8 @@ def city_families(m: int, n_trials: int | None = None) -> tuple[dict, dict]:
 
 
 def city_clock(m: int, prior_s: float | None, n_trials: int | None = None) -> Experiment:
-    """The honest DPE of ``city_fig10(m, "otdoa")`` told the UE clock to σ = prior_s, or not at all (None).
-
-    At the clock model's σ (``CITY_CLOCK_PRIORS_S[0]``) it is that experiment; otherwise its twin with
-    ``Receiver.clock_prior_s`` (name "-clock{σ in ns}ns") or clock_window "free" ("-clock-free"): the same trials and
-    signals, only the DPE's clock window differs.
+    """The honest DPE of ``city_fig10(m, "otdoa")`` told the UE clock to σ = prior_s, or not at all (None): its
+    ``clock_twin``.
 
     Parameters
     ----------
@@ -119,12 +116,92 @@ def city_clock(m: int, prior_s: float | None, n_trials: int | None = None) -> Ex
     -------
     Experiment
     """
-    e = city_fig10(m, "otdoa", n_trials)
+    return clock_twin(city_fig10(m, "otdoa", n_trials), prior_s)
+
+
+def clock_twin(e: Experiment, prior_s: float | None) -> Experiment:
+    """The honest DPE experiment ``e`` with its DPE told the UE clock to σ = prior_s, or not at all (None).
+
+    At the clock model's σ (``CITY_CLOCK_PRIORS_S[0]``) it is ``e``; otherwise its twin with ``Receiver.clock_prior_s``
+    (name "-clock{σ in ns}ns") or clock_window "free" ("-clock-free"): the same trials and signals, only the DPE's
+    clock window differs.
+
+    Parameters
+    ----------
+    e : Experiment
+        A city experiment centred on the OTDoA fix (``city_fig10(m, "otdoa")``, ``stored_city_fig10``).
+    prior_s : float or None
+        A σ, seconds; None: no clock prior.
+
+    Returns
+    -------
+    Experiment
+    """
     if prior_s is None:
         return e.replace(name=f"{e.run.name}-clock-free", clock_window="free")
     if prior_s == e.scenario.clock_sigma_s:
         return e
     return e.replace(name=f"{e.run.name}-clock{round(prior_s * 1e9)}ns", clock_prior_s=prior_s)
+
+
+def stored_city_fig10(name: str, m: int) -> Experiment:
+    """The city's honest DPE and OTDoA (``city_fig10(m, "otdoa")``, the clock model's prior) on another stored city
+    (its deployment, ``deployment.builtin``): every UE of it that hears m BSs.
+
+    Parameters
+    ----------
+    name : str
+        A city in the store (a subset traced under other settings, a denser network).
+    m : int
+        The links, the UE's m strongest.
+
+    Returns
+    -------
+    Experiment
+        "city-{name}-m{m}-otdoa".
+    """
+    e = city_fig10(m, "otdoa", n_trials=1).replace(deployment=name)
+    city = city_paths.load_city(name)
+    n = len(traced_draw.traced_links(city, m, traced_draw.heard_links(e, city, e.load_deployment())).ue_index)
+    return e.replace(name=f"city-{name}-m{m}-otdoa", n_trials=n)
+
+
+def same_clock_families(e: Experiment) -> tuple[dict, dict]:
+    """The naive DPE of ``e`` and every OTDoA receiver on its trials with the DPE's knowledge of the clock.
+
+    Parameters
+    ----------
+    e : Experiment
+        A city experiment centred on the OTDoA fix (``stored_city_fig10``, or its ``clock_twin``); run or loaded.
+
+    Returns
+    -------
+    dpe, otdoa : dict
+        {"naive DPE": errors (T,) m}; {"first-path OTDoA", "strongest-peak OTDoA", and the ToA fits of eq. (T1) in
+        the DPE's windows (``choices.toa_fit_errors``): errors (T,) m}.
+    """
+    res = engine.run(e, progress=False)
+    err = {det: res.otdoa_error_m[:, 0, k, 0] for k, det in enumerate(OTDOA_DETECTORS)}
+    otdoa = {"first-path OTDoA": err["first_path"], "strongest-peak OTDoA": err["peak"]}
+    return {"naive DPE": res.error_m[:, 0, 0]}, otdoa | {k: v[:, 0] for k, v in choices.toa_fit_errors(res).items()}
+
+
+def heard_per_ue(city: city_paths.TracedCity, m: int = CITY_M[0]) -> np.ndarray:
+    """How many BSs each UE of ``city`` hears (``traced_draw.heard_links``) under the city experiment's link budget.
+
+    Parameters
+    ----------
+    city : city_paths.TracedCity
+        A stored city.
+    m : int
+        The links of the experiment whose budget and detection threshold are read (``city_fig10``).
+
+    Returns
+    -------
+    int (U,)
+    """
+    e = city_fig10(m, "otdoa", n_trials=1).replace(deployment=city.name)
+    return np.bincount(city.link_ue[traced_draw.heard_links(e, city, e.load_deployment())], minlength=city.n_ue)
 
 
 def clock_families(m: int, prior_s: float | None, n_trials: int | None = None) -> tuple[dict, dict]:

@@ -22,9 +22,8 @@ import numpy as np
 from ..common import _checks
 from ..common._io import arrays_digest, atomic_write
 from ..city import dataset as city_paths, ray_tracer, trace as city_trace
-from ..simulation import engine, store, traced_draw
-from ..simulation.experiment import OTDOA_DETECTORS
-from . import choices, city as city_study
+from ..simulation import store
+from . import city as city_study
 
 #: the UEs of the subset: the stored city's first SUBSET_UES, every BS
 SUBSET_UES = 200
@@ -291,8 +290,9 @@ def trace_stale(city: city_paths.TracedCity, force: bool = False):
 
 
 def settings_experiment(key: str, city: str = "munich"):
-    """The city's honest DPE and OTDoA (``city_study.city_fig10`` with ``city_study.CITY_M[0]`` links, the clock model's
-    prior) on ``city``'s subset traced under ``VARIANTS[key]``: every UE of the subset that hears that many BSs.
+    """The city's honest DPE and OTDoA on ``city``'s subset traced under ``VARIANTS[key]``
+    (``city_study.stored_city_fig10`` with ``city_study.CITY_M[0]`` links): every UE of the subset that hears that many
+    BSs.
 
     Parameters
     ----------
@@ -306,16 +306,12 @@ def settings_experiment(key: str, city: str = "munich"):
     Experiment
         "city-{subset}-m{M}-otdoa", its deployment the subset's (``deployment.builtin``).
     """
-
-    name, m = variant_name(city, key), city_study.CITY_M[0]
-    e = city_study.city_fig10(m, "otdoa", n_trials=1).replace(deployment=name)
-    sub = city_paths.load_city(name)
-    n = len(traced_draw.traced_links(sub, m, traced_draw.heard_links(e, sub, e.load_deployment())).ue_index)
-    return e.replace(name=f"city-{name}-m{m}-otdoa", n_trials=n)
+    return city_study.stored_city_fig10(variant_name(city, key), city_study.CITY_M[0])
 
 
 def settings_families(key: str, city: str = "munich") -> tuple[dict, dict]:
-    """The DPE and OTDoA families of ``settings_experiment(key)`` on its trials, with the same clock knowledge.
+    """The DPE and OTDoA families of ``settings_experiment(key)`` on its trials, with the same clock knowledge
+    (``city_study.same_clock_families``).
 
     Parameters
     ----------
@@ -328,13 +324,9 @@ def settings_families(key: str, city: str = "munich") -> tuple[dict, dict]:
     -------
     dpe, otdoa : dict
         {"naive DPE": errors (T,) m}; {"first-path OTDoA", "strongest-peak OTDoA", and the ToA fits of eq. (T1) in
-        the DPE's windows (``studies.toa_fit_errors``): errors (T,) m}.
+        the DPE's windows: errors (T,) m}.
     """
-
-    res = engine.run(settings_experiment(key, city), progress=False)
-    err = {det: res.otdoa_error_m[:, 0, k, 0] for k, det in enumerate(OTDOA_DETECTORS)}
-    otdoa = {"first-path OTDoA": err["first_path"], "strongest-peak OTDoA": err["peak"]}
-    return {"naive DPE": res.error_m[:, 0, 0]}, otdoa | {k: v[:, 0] for k, v in choices.toa_fit_errors(res).items()}
+    return city_study.same_clock_families(settings_experiment(key, city))
 
 
 def all_experiments(city: str = "munich") -> list:

@@ -293,3 +293,25 @@ def test_a_sionna_without_its_ray_tracer_is_one_line(tmp_path, monkeypatch):
     monkeypatch.setattr(ray_tracer.importlib.util, "find_spec", lambda name: bare if name == "sionna" else real(name))
     with pytest.raises(Failure, match=r"ray tracing needs sionna-rt \(its module sionna.rt is missing\)"):
         ray_tracer.check_packages()
+
+
+def test_the_backend_is_chosen_once_per_process_and_a_missing_gpu_is_one_line():
+    """``ray_tracer.use_backend``: "llvm" traces on the CPU's variant; "cuda" where Dr.Jit finds no GPU, and any other
+    backend once a process traces on one, is an ``errors.Failure`` of one line; ``dpe5g trace --backend cuda`` then
+    exits with code 1 and one line, as a missing LLVM does.  (Run in fresh processes: a process chooses its backend once.)"""
+    probe = ("from dpe5g.city import ray_tracer\nfrom dpe5g.common.errors import Failure\n"
+             "print(ray_tracer.use_backend('llvm'))\n"
+             "try:\n    ray_tracer.use_backend('cuda')\nexcept Failure as err:\n    print('refused:', err)\n")
+    r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.splitlines() == [ray_tracer.BACKENDS["llvm"], "refused: backend cuda: this process already traces "
+                                     f"on {ray_tracer.BACKENDS['llvm']} (the backend is chosen once per process, "
+                                     "before anything is traced)"]
+    with pytest.raises(ValueError, match="backend must be 'auto' or one of llvm, cuda, got 'gpu'"):
+        ray_tracer.use_backend("gpu")
+    r = subprocess.run([sys.executable, "-m", "dpe5g", "trace", "--backend", "cuda"], capture_output=True, text=True,
+                       timeout=300)
+    if r.returncode == 0 or "no CUDA device" not in r.stderr:  # (a machine with a GPU: nothing to refuse)
+        pytest.skip(f"Dr.Jit found a CUDA device here (exit {r.returncode})")
+    assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr, r.stderr
+    assert "backend cuda: Dr.Jit finds no CUDA device here" in r.stderr and "backend llvm traces on the CPU" in r.stderr

@@ -61,3 +61,21 @@ def test_a_worker_with_another_stack_is_refused_before_any_work(spec):
     with pytest.raises(ValueError, match="chunk_batches must be an integer in"):
         trace_chunks.trace_city(spec, progress=False, chunk_batches=0)
     assert issubclass(ClusterFailed, Exception)
+
+
+def test_more_bss_than_one_call_takes_are_traced_in_groups_and_merged(spec, monkeypatch):
+    """``trace.trace_links`` traces each group of ``trace.bs_groups`` in a call of its own and merges the links in order
+    of UE, then BS: the same bits as the groups traced on their own (here groups of 2 of the street canyon's 4 BSs)."""
+    assert trace.bs_groups(26) == [range(26)] and trace.bs_groups(27) == [range(26), range(26, 27)]
+    assert trace.bs_groups(104) == [range(b, b + 26) for b in range(0, 104, 26)]
+    scene, _, bs, ue = trace.layout(spec)
+    with trace_chunks.one_thread():
+        halves = [trace.trace_links(scene, bs[g], ue, spec, batch=5) for g in (slice(0, 2), slice(2, 4))]
+        monkeypatch.setattr(trace, "bs_groups", lambda n: [range(0, 2), range(2, n)])
+        grouped = trace.trace_links(scene, bs, ue, spec, batch=5)
+    halves[1]["link_bs"] = halves[1]["link_bs"] + 2
+    merged = {k: np.concatenate([h[k] for h in halves]) for k in halves[0]}
+    order = np.lexsort((merged["link_bs"], merged["link_ue"]))
+    assert not same(grouped, {k: v[order] for k, v in merged.items()})
+    assert np.all(np.diff(grouped["link_ue"].astype(int) * 4 + grouped["link_bs"]) > 0)  # by UE, then BS
+    assert grouped["link_bs"].dtype == np.int16 and grouped["link_ue"].dtype == np.int32
