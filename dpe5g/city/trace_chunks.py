@@ -34,20 +34,22 @@ import numpy as np
 
 from ..common import _checks, _io
 from ..common.cluster import worker_address
-from ..common.errors import ClusterFailed
+from ..common.errors import ClusterFailed, Failure
 from ..common.locations import TRACE_CACHE
 from . import ray_tracer, trace
 
 
 def stack() -> dict:
-    """What a traced batch depends on beyond its inputs: the tracing code's digest and the ray tracer's libraries.
+    """What a traced batch depends on beyond its inputs: the tracing code's digest, the ray tracer's libraries and the
+    backend it traces on.
 
     Returns
     -------
     dict
-        {"code": ``trace.code_digest()``, and ``ray_tracer.library_versions()``}.
+        {"code": ``trace.code_digest()``, ``ray_tracer.library_versions()``, and "variant": the Mitsuba variant of
+        this process (``ray_tracer.use_backend``: "auto" where none is chosen yet)}.
     """
-    return {"code": trace.code_digest()} | ray_tracer.library_versions()
+    return {"code": trace.code_digest()} | ray_tracer.library_versions() | {"variant": ray_tracer.use_backend("auto")}
 
 
 def batch_key(spec: trace.CitySpec, region, bs_xyz, ue_xyz, n: int) -> str:
@@ -193,6 +195,11 @@ def trace_task(spec: trace.CitySpec, bs_xyz, ue_xyz, batches: tuple[int, ...], n
     ValueError
         Before any work, when this process's ``stack()`` is not ``expected``.
     """
+    backend = {v: k for k, v in ray_tracer.BACKENDS.items()}.get(expected.get("variant"), "auto")
+    try:
+        ray_tracer.use_backend(backend)  # (the client's; a worker that cannot is refused below, naming its own)
+    except Failure:
+        pass
     mine, where = stack(), worker_address()
     if mine != expected:
         raise ValueError(other_stack_message(where, mine, expected))
