@@ -17,6 +17,7 @@ import math
 import sys
 import textwrap
 from dataclasses import asdict, dataclass
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -152,8 +153,12 @@ SAME_TRACE_AS = {"8f0bae123f4e7ea6": "be5f1ddeef7b47d5", "ff41ab9fa78779a4": "be
                  "be3769bb50c7cb45": "be5f1ddeef7b47d5"}
 
 
+@lru_cache(maxsize=1)
 def code_digest() -> str:
     """SHA-256 (16 hex digits) of the code of ``TRACING_CODE``: the tracing code a stored city records.
+
+    Read once per process: the code this process traces with, even where its files are edited while it runs (the
+    source is read from the files, and a long trace read an edited ``ray_tracer.py`` for its later cities' cache keys).
 
     Each function's or class's syntax tree less what cannot change a traced city: docstrings, the checks that refuse
     settings (``__post_init__``, and each ``if …: raise …``: code that only stops a trace never changes one that ran

@@ -79,3 +79,11 @@ def test_more_bss_than_one_call_takes_are_traced_in_groups_and_merged(spec, monk
     assert not same(grouped, {k: v[order] for k, v in merged.items()})
     assert np.all(np.diff(grouped["link_ue"].astype(int) * 4 + grouped["link_bs"]) > 0)  # by UE, then BS
     assert grouped["link_bs"].dtype == np.int16 and grouped["link_ue"].dtype == np.int32
+
+
+def test_the_tracing_code_digest_is_read_once_per_process(monkeypatch):
+    """A process traces with the code it imported: files edited under a running trace (``inspect.getsource`` reads
+    them) leave its digest, and so its cache keys and its cities' records, as they were."""
+    first = trace.code_digest()
+    monkeypatch.setattr(trace.inspect, "getsource", lambda obj: "def edited():\n    return 1\n")
+    assert trace.code_digest() == first
