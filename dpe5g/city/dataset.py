@@ -427,7 +427,8 @@ def is_current(name: str, spec: dict, code_digest: str, root: Path | None = None
     """
     damage, meta, _ = _read_city(name, root)
     traced_by = meta.get("provenance", {}).get("code")
-    same_code = traced_by == code_digest or traced_by == city_trace.SAME_TRACE_AS.get(code_digest)
+    one_group = len(city_trace.bs_groups(int(spec.get("n_bs", 0)))) <= 1  # (what SAME_TRACE_AS declares)
+    same_code = traced_by == code_digest or (one_group and traced_by == city_trace.SAME_TRACE_AS.get(code_digest))
     return damage is None and meta.get("spec") == spec and same_code
 
 

@@ -43,7 +43,8 @@ def llvm_library() -> str:
     Returns
     -------
     str
-        The library's path (also set in DRJIT_LIBLLVM_PATH, which Dr.Jit reads when it is imported).
+        The library's path (also set in DRJIT_LIBLLVM_PATH, which Dr.Jit reads when it is imported); "" in a process
+        that traces on CUDA (``traces_on_cuda``), which needs none.
 
     Raises
     ------
@@ -51,6 +52,8 @@ def llvm_library() -> str:
         When sionna-rt is missing, or no usable libLLVM is found: one line naming the package to install.
     """
     check_packages()
+    if traces_on_cuda():
+        return ""  # (Dr.Jit's CUDA backend needs no LLVM)
     path = os.environ.get("DRJIT_LIBLLVM_PATH")
     if path and not os.path.exists(path):
         raise Failure(f"DRJIT_LIBLLVM_PATH={path}: no such file (unset it, or name libLLVM.so.19.1)")
@@ -149,10 +152,15 @@ def use_backend(backend: str = "auto") -> str:
     """
     if backend != "auto" and backend not in BACKENDS:
         raise ValueError(f"backend must be 'auto' or one of {', '.join(BACKENDS)}, got {backend!r}")
+    no_llvm = None
+    check_packages()
     if backend != "cuda":
-        llvm_library()  # (the LLVM backend needs it set before Dr.Jit loads; "auto" may fall back to it)
-    else:
-        check_packages()
+        try:
+            llvm_library()  # (set before Dr.Jit loads: the LLVM backend reads it then)
+        except Failure as err:
+            if backend == "llvm":
+                raise
+            no_llvm = err  # ("auto": a GPU needs no LLVM)
     import mitsuba as mi  # (Sionna RT's renderer: loaded only to trace)
 
     wanted = [BACKENDS[backend]] if backend in BACKENDS else [BACKENDS["cuda"], BACKENDS["llvm"]]
@@ -163,22 +171,38 @@ def use_backend(backend: str = "auto") -> str:
                       "per process, before anything is traced)")
     why = ""
     for variant in wanted:
+        if variant == BACKENDS["llvm"] and no_llvm is not None:
+            raise no_llvm
         try:
             mi.set_variant(variant)
             return variant
-        except ImportError as err:  # (Dr.Jit: no CUDA device or driver)
+        except ImportError as err:  # (Dr.Jit: no CUDA device or driver, or no LLVM)
             why = " ".join(str(err).split())[:200]
-    raise Failure(f"backend cuda: Dr.Jit finds no CUDA device here ({why}); backend llvm traces on the CPU")
+    if backend == "cuda":
+        raise Failure(f"backend cuda: Dr.Jit finds no CUDA device here ({why}); backend llvm traces on the CPU")
+    raise Failure(f"backend {backend}: Dr.Jit cannot start {wanted[-1]} here ({why})")
+
+
+def traces_on_cuda() -> bool:
+    """Whether this process traces on Dr.Jit's CUDA backend (Mitsuba imported, its variant ``BACKENDS["cuda"]``).
+
+    Returns
+    -------
+    bool
+    """
+    mi = sys.modules.get("mitsuba")
+    return mi is not None and mi.variant() == BACKENDS["cuda"]
 
 
 def library_versions() -> dict:
-    """The versions of the ray tracer's stack (sionna-rt, mitsuba, drjit) and the libLLVM it runs on.
+    """The versions of the ray tracer's stack (sionna-rt, mitsuba, drjit) and the libLLVM it runs on (none on CUDA).
 
     Returns
     -------
     dict
     """
-    return {p: version(p) for p in ("sionna-rt", "mitsuba", "drjit")} | {"libllvm": os.path.basename(llvm_library())}
+    out = {p: version(p) for p in ("sionna-rt", "mitsuba", "drjit")}
+    return out if traces_on_cuda() else out | {"libllvm": os.path.basename(llvm_library())}
 
 
 #: slots per UE in the path solver's table of specular chains already found (``solve_paths``)

@@ -148,7 +148,8 @@ TRACING_CODE = ("CitySpec", "scene_file", "load_scene", "ground_open", "outdoors
 #: ff41ab9fa78779a4 (``layout``: ``trace_city``'s placements as a function of their own, the same calls in the same
 #: order, so that ``trace_chunks`` places a city as ``trace_city`` does) traces as 8f0bae123f4e7ea6 did;
 #: be3769bb50c7cb45 (``bs_groups``: more than 26 BSs traced in calls of 26; ``ues_per_call`` read by the digest) traces
-#: a city of at most 26 BSs in the same calls as ff41ab9fa78779a4 did
+#: a city of at most 26 BSs in the same calls as ff41ab9fa78779a4 did.  Every one of these holds for a city whose BSs
+#: are one group of ``bs_groups`` (``dataset.is_current`` asks that of today's digest's)
 SAME_TRACE_AS = {"8f0bae123f4e7ea6": "be5f1ddeef7b47d5", "ff41ab9fa78779a4": "be5f1ddeef7b47d5",
                  "be3769bb50c7cb45": "be5f1ddeef7b47d5"}
 
@@ -471,6 +472,8 @@ def bs_groups(n_bs: int, per_call: int = 26) -> list[range]:
     list of range
         Indices into the BSs, in order, covering 0 … B − 1.
     """
+    if isinstance(per_call, bool) or not isinstance(per_call, int) or per_call < 1:
+        raise ValueError(f"per_call must be an integer ≥ 1 (BSs per call of the solver), got {per_call!r}")
     return [range(b, min(b + per_call, n_bs)) for b in range(0, n_bs, per_call)]
 
 

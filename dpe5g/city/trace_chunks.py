@@ -41,15 +41,16 @@ from . import ray_tracer, trace
 
 def stack() -> dict:
     """What a traced batch depends on beyond its inputs: the tracing code's digest, the ray tracer's libraries and the
-    backend it traces on.
+    backend it traces on.  Chooses the backend where none is chosen yet (``ray_tracer.use_backend("auto")``).
 
     Returns
     -------
     dict
-        {"code": ``trace.code_digest()``, ``ray_tracer.library_versions()``, and "variant": the Mitsuba variant of
-        this process (``ray_tracer.use_backend``: "auto" where none is chosen yet)}.
+        {"code": ``trace.code_digest()``, ``ray_tracer.library_versions()``, and "variant": this process's Mitsuba
+        variant, a value of ``ray_tracer.BACKENDS``}.
     """
-    return {"code": trace.code_digest()} | ray_tracer.library_versions() | {"variant": ray_tracer.use_backend("auto")}
+    variant = ray_tracer.use_backend("auto")
+    return {"code": trace.code_digest()} | ray_tracer.library_versions() | {"variant": variant}
 
 
 def batch_key(spec: trace.CitySpec, region, bs_xyz, ue_xyz, n: int) -> str:

@@ -233,7 +233,7 @@ def add_store_commands(sub) -> None:
                                     "a subset of its UEs under each solver setting of "
                                     "city_sensitivity.VARIANTS and the denser networks of city_density that are not "
                                     "stored yet.  `make reproduce` runs it first (from scratch on 2 cores about 37 "
-                                    "minutes for the city, 38 for the subsets and 50 for the denser networks); it "
+                                    "minutes for the city, 38 for the subsets and 47 for the denser networks); it "
                                     "needs Debian's libllvm19 on the CPU.")
     add_progress_options(tc, "a progress bar over the UEs")
     tc.add_argument("--force", action="store_true", help="trace again even if the stored city is current")
