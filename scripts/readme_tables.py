@@ -342,7 +342,26 @@ def city_line(ref) -> str:
             f"first-path OTDoA {c['otdoa_p90_m']:.1f} m): a difference of {v:+.1f} m, 95 % interval "
             f"[{lo:+.1f}, {hi:+.1f}] m ({verdict}).  The answer depends on that clock: {told}.  On the trials' NLoS "
             f"links the first path within {-city_study.FIRST_PATH_THRESHOLD_DB:.0f} dB of the strongest is {c['excess_trial_ns']:.0f} ns late at the median, "
-            f"against TR 38.901's UMi {c['umi_median_ns']:.0f} ns.")
+            f"against TR 38.901's UMi {c['umi_median_ns']:.0f} ns.  {density_sentence()}")
+
+
+def density_sentence() -> str:
+    """README's sentence on the density sweep (``city_density.comparison``, from the results store)."""
+    import numpy as np
+
+    from dpe5g.city import dataset
+    from dpe5g.studies import city as city_study, city_density
+
+    hear, median = [], []
+    for f in city_density.FACTORS:
+        net = dataset.load_city(city_density.density_name(city_study.CITY, f))
+        hear.append(f"{100 * np.mean(city_study.heard_per_ue(net) >= 4):.0f} %")
+        b = city_density.comparison(f, city_density.DENSITY_CLOCK_PRIORS_S[0]).best[0]
+        median.append(f"×{f} {b.verdict()} ({b.difference.text('+.1f')} m)")
+    f = [str(k) for k in city_density.FACTORS]
+    return (f"At {', '.join(f[:-1])} and {f[-1]} times the paper's density ({city_density.DENSITY_UES} UEs each), "
+            f"{', '.join(hear[:-1])} and {hear[-1]} of the UEs hear four BSs; with the clock known to 5 ns, the best "
+            f"DPE against the best OTDoA at the median: {'; '.join(median)}.")
 
 
 def readings_table() -> str:

@@ -13,11 +13,13 @@ Units: BSs per km², metres, seconds.
 from __future__ import annotations
 
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
+
+import numpy as np
 
 from ..city import dataset as city_paths, trace as city_trace
 from ..simulation.experiment import Experiment
-from . import city as city_study
+from . import city as city_study, intervals
 
 #: the networks: these multiples of the paper's density (1: the paper's 114 BSs per km²)
 FACTORS = (1, 2, 4)
@@ -153,3 +155,57 @@ def all_experiments(city: str = city_study.CITY) -> list[Experiment]:
     list of Experiment
     """
     return [e for f in FACTORS for e in experiments(f, city).values()]
+
+
+#: the points of the error distribution compared, as quantiles
+QUANTILES = (0.5, 0.9)
+
+
+@dataclass(frozen=True)
+class DensityComparison:
+    """DPE against OTDoA on one network with one clock prior, on the same trials (``comparison``).
+
+    Attributes
+    ----------
+    n_trials : int
+        Trials: the network's UEs that hear four BSs.
+    dpe_m, otdoa_m : tuple of float
+        The naive DPE's and first-path OTDoA's errors at ``QUANTILES``, metres.
+    naive : tuple of intervals.Interval
+        Naive DPE − first-path OTDoA at each of ``QUANTILES``, paired, metres.
+    best : tuple of intervals.BestComparison
+        The best DPE against the best OTDoA (the ToA fits given the DPE's window) at each of ``QUANTILES``.
+    """
+
+    n_trials: int
+    dpe_m: tuple
+    otdoa_m: tuple
+    naive: tuple
+    best: tuple
+
+
+def comparison(factor: int, prior_s: float | None, city: str = city_study.CITY) -> DensityComparison:
+    """The naive DPE against first-path OTDoA, and the best of each family, on the network at ``factor`` with the DPE
+    told the clock to ``prior_s`` (a value of ``DENSITY_CLOCK_PRIORS_S``), from its stored experiment.
+
+    Parameters
+    ----------
+    factor : int
+        One of ``FACTORS``.
+    prior_s : float or None
+        Seconds, or None: no clock prior.
+    city : str
+        The stored city's name.
+
+    Returns
+    -------
+    DensityComparison
+    """
+    if prior_s not in DENSITY_CLOCK_PRIORS_S:
+        raise ValueError(f"prior_s must be one of {DENSITY_CLOCK_PRIORS_S}, got {prior_s!r}")
+    dpe, otdoa = city_study.same_clock_families(experiments(factor, city)[prior_s])
+    a, b = dpe["naive DPE"], otdoa["first-path OTDoA"]
+    return DensityComparison(len(a), tuple(float(np.quantile(a, q)) for q in QUANTILES),
+                             tuple(float(np.quantile(b, q)) for q in QUANTILES),
+                             tuple(intervals.quantile_difference(a, b, q) for q in QUANTILES),
+                             tuple(intervals.best_comparison(dpe, otdoa, q) for q in QUANTILES))
