@@ -395,7 +395,7 @@ def _reproduce(args) -> int:
 
 def _trace(args) -> int:
     from ..city import dataset as city_paths, ray_tracer, trace as city_trace
-    from ..studies import city as city_study, city_density, city_sensitivity
+    from ..studies import city as city_study, city_density, city_second, city_sensitivity
 
     from ..common import _checks
 
@@ -431,6 +431,12 @@ def _trace(args) -> int:
         print(f"trace: {line}", flush=True)
     for line in city_density.trace_stale(city, lambda spec: _trace_chunks(args, spec), _trace_provenance, args.force):
         print(f"trace: {line}", flush=True)  # the denser networks
+    second, retraced = city_second.SECOND_CITY, args.force or not city_second.is_current()
+    for line in city_second.trace_stale(lambda spec: _trace_chunks(args, spec), _trace_provenance, args.force):
+        print(f"trace: {line}", flush=True)  # the second city
+    if retraced or not _view_whole(second):
+        print(f"trace: its 3-D view written to {city_paths.save_view(second, _city_view(city_second.second_spec(), second))}",
+              flush=True)
     return 0
 
 
@@ -576,7 +582,7 @@ def _city_view(spec, name: str) -> dict:
     from ..studies import city as city_study
 
     city = city_paths.load_city(name)
-    _, links = traced_draw.population(city_study.city_fig10(city_study.CITY_M[0], "otdoa", n_trials=1))
+    _, links = traced_draw.population(city_study.city_fig10(city_study.CITY_M[0], "otdoa", n_trials=1, city=name))
     u, bs = int(links.ue_index[0]), links.bs_index[0]
     scene = city_trace.load_scene(spec)
     return {"triangles": city_view.scene_triangles(scene, city.region), "ue": u, "ue_bs": bs} | \

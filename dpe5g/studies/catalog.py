@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from ..simulation import code_key
 from ..simulation.experiment import Experiment
-from . import city as city_study, city_density, city_sensitivity, nlos as nlos_study, paper, readings
+from . import city as city_study, city_density, city_second, city_sensitivity, nlos as nlos_study, paper, readings
 
 
 def store_experiments() -> list[Experiment]:
@@ -40,6 +40,7 @@ def store_experiments() -> list[Experiment]:
     out += city_study.all_experiments()
     out += city_sensitivity.all_experiments()
     out += city_density.all_experiments()
+    out += city_second.all_experiments()
     longest, version = {}, code_key.code_version()
     for e in out:  # one entry per cached run (the name and config without the trial count), at its largest count
         k = (e.run.name, e.key(version))

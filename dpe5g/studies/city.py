@@ -11,6 +11,7 @@ first-path excess delays against TR 38.901's log-normal (``excess_fit``), and it
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import lru_cache
 
 import numpy as np
 from scipy import stats
@@ -21,11 +22,13 @@ from ..simulation import engine, traced_draw, trials
 from ..simulation.experiment import OTDOA_DETECTORS, Experiment
 from . import choices, intervals, paper
 
-#: the traced city (its deployment's and its dataset's name): Sionna RT's "munich" scene (``city_trace.CitySpec``)
+#: the traced city (its deployment's and its dataset's name): Sionna RT's "munich" scene (``city_trace.CitySpec``); every
+#: experiment of this module takes ``city``, another stored city (the second city, ``city_second``), this by default
 CITY = "munich"
 #: the numbers M of links: Fig. 10's 4, and 6
 CITY_M = (4, 6)
-#: trials of the city experiments with M links: the first CITY_TRIALS[M] UEs that hear M BSs (of 1808 and 307)
+#: trials of the city experiments with M links: the first CITY_TRIALS[M] UEs that hear M BSs (of Munich's 1808 and
+#: 307), or every one where fewer do (``city_trials``)
 CITY_TRIALS = {4: 1000, 6: 300}
 #: the centrings run: the honest DPE (on the OTDoA fix, with both OTDoA detectors) and the paper's, on the truth
 CITY_CENTRINGS = ("otdoa", "truth")
@@ -34,7 +37,7 @@ CITY_CENTRINGS = ("otdoa", "truth")
 CITY_CLOCK_PRIORS_S = (5e-9, 30e-9, 100e-9, None)
 
 
-def city_fig10(m: int, centring: str, n_trials: int | None = None) -> Experiment:
+def city_fig10(m: int, centring: str, n_trials: int | None = None, city: str = CITY) -> Experiment:
     """Fig. 10's experiment (LoS from eq. (11), link-budget SNR) on the traced city, with M = m links.
 
     Parameters
@@ -44,18 +47,39 @@ def city_fig10(m: int, centring: str, n_trials: int | None = None) -> Experiment
     centring : str
         ``CITY_CENTRINGS``.
     n_trials : int or None
-        Trials: the first n_trials UEs that hear m BSs; None: ``CITY_TRIALS[m]``.
+        Trials: the first n_trials UEs that hear m BSs; None: ``city_trials(m, city)``.
+    city : str
+        The stored city's name.
 
     Returns
     -------
     Experiment
-        "city-munich-m{m}-{centring}".
+        "city-{city}-m{m}-{centring}".
     """
-    e = paper.fig10(CITY_TRIALS[m] if n_trials is None else n_trials)[("pr_los", centring)]
-    return e.replace(name=f"city-{CITY}-m{m}-{centring}", deployment=CITY, channel="traced", m_values=(m,))
+    e = paper.fig10(city_trials(m, city) if n_trials is None else n_trials)[("pr_los", centring)]
+    return e.replace(name=f"city-{city}-m{m}-{centring}", deployment=city, channel="traced", m_values=(m,))
 
 
-def city_nlos(m: int, n_trials: int | None = None) -> dict:
+@lru_cache(maxsize=None)
+def city_trials(m: int, city: str = CITY) -> int:
+    """The trials of ``city``'s experiments with m links: ``CITY_TRIALS[m]``, or the UEs that hear m BSs where fewer
+    do (read from the store once per process).
+
+    Parameters
+    ----------
+    m : int
+        One of ``CITY_M``.
+    city : str
+        The stored city's name.
+
+    Returns
+    -------
+    int
+    """
+    return min(CITY_TRIALS[m], stored_city_fig10(city, m).run.n_trials)
+
+
+def city_nlos(m: int, n_trials: int | None = None, city: str = CITY) -> dict:
     """The NLoS-aware receivers on the trials of the city's honest experiment (``city_fig10(m, "otdoa")``).
 
     Each assumes TR 38.901's UMi excess delay (``Receiver.nlos_prior`` "umi": the city's delays have no law a
@@ -67,6 +91,8 @@ def city_nlos(m: int, n_trials: int | None = None) -> dict:
         The links, the UE's m strongest.
     n_trials : int or None
         As ``city_fig10``'s.
+    city : str
+        As ``city_fig10``'s.
 
     Returns
     -------
@@ -75,13 +101,13 @@ def city_nlos(m: int, n_trials: int | None = None) -> dict:
         delay ("clock_nlos"), "aware": the NLoS-aware DPE (``dpe_nlos``)}, each named as the honest experiment with
         "-nlos-otdoa", "-clock-nlos" or "-nlos-dpe" added.
     """
-    e = city_fig10(m, "otdoa", n_trials)
+    e = city_fig10(m, "otdoa", n_trials, city)
     wide = e.replace(name=f"{e.run.name}-clock-nlos", clock_window="clock_nlos", nlos_prior="umi")
     return {"ot": e.replace(name=f"{e.run.name}-nlos-otdoa", otdoa_nlos=True), "wide": wide,
             "aware": wide.replace(name=f"{e.run.name}-nlos-dpe", dpe_nlos=True)}
 
 
-def city_families(m: int, n_trials: int | None = None) -> tuple[dict, dict]:
+def city_families(m: int, n_trials: int | None = None, city: str = CITY) -> tuple[dict, dict]:
     """Every DPE and every OTDoA receiver on the city's trials with m links (``studies.receiver_families``).
 
     Parameters
@@ -90,16 +116,18 @@ def city_families(m: int, n_trials: int | None = None) -> tuple[dict, dict]:
         The links, the UE's m strongest.
     n_trials : int or None
         As ``city_fig10``'s.
+    city : str
+        As ``city_fig10``'s.
 
     Returns
     -------
     dpe, otdoa : dict
         {receiver: errors (T,) m}.
     """
-    return choices.receiver_families({"naive": city_fig10(m, "otdoa", n_trials), **city_nlos(m, n_trials)})
+    return choices.receiver_families({"naive": city_fig10(m, "otdoa", n_trials, city), **city_nlos(m, n_trials, city)})
 
 
-def city_clock(m: int, prior_s: float | None, n_trials: int | None = None) -> Experiment:
+def city_clock(m: int, prior_s: float | None, n_trials: int | None = None, city: str = CITY) -> Experiment:
     """The honest DPE of ``city_fig10(m, "otdoa")`` told the UE clock to σ = prior_s, or not at all (None): its
     ``clock_twin``.
 
@@ -111,12 +139,14 @@ def city_clock(m: int, prior_s: float | None, n_trials: int | None = None) -> Ex
         A σ of ``CITY_CLOCK_PRIORS_S``, seconds; None: no clock prior.
     n_trials : int or None
         As ``city_fig10``'s.
+    city : str
+        As ``city_fig10``'s.
 
     Returns
     -------
     Experiment
     """
-    return clock_twin(city_fig10(m, "otdoa", n_trials), prior_s)
+    return clock_twin(city_fig10(m, "otdoa", n_trials, city), prior_s)
 
 
 def clock_twin(e: Experiment, prior_s: float | None) -> Experiment:
@@ -204,7 +234,7 @@ def heard_per_ue(city: city_paths.TracedCity, m: int = CITY_M[0]) -> np.ndarray:
     return np.bincount(city.link_ue[traced_draw.heard_links(e, city, e.load_deployment())], minlength=city.n_ue)
 
 
-def clock_families(m: int, prior_s: float | None, n_trials: int | None = None) -> tuple[dict, dict]:
+def clock_families(m: int, prior_s: float | None, n_trials: int | None = None, city: str = CITY) -> tuple[dict, dict]:
     """The DPE and OTDoA families on the city's trials with m links when the UE clock is known to σ = prior_s.
 
     At the clock model's σ, ``city_families``.  Otherwise the DPE family is the naive DPE of ``city_clock`` (the
@@ -219,6 +249,8 @@ def clock_families(m: int, prior_s: float | None, n_trials: int | None = None) -
         As ``city_clock``'s.
     n_trials : int or None
         As ``city_fig10``'s.
+    city : str
+        As ``city_fig10``'s.
 
     Returns
     -------
@@ -226,11 +258,12 @@ def clock_families(m: int, prior_s: float | None, n_trials: int | None = None) -
         {receiver: errors (T,) m}.
     """
     if prior_s == CITY_CLOCK_PRIORS_S[0]:
-        return city_families(m, n_trials)
-    return choices.receiver_families({"naive": city_clock(m, prior_s, n_trials), "ot": city_nlos(m, n_trials)["ot"]})
+        return city_families(m, n_trials, city)
+    return choices.receiver_families({"naive": city_clock(m, prior_s, n_trials, city),
+                                      "ot": city_nlos(m, n_trials, city)["ot"]})
 
 
-def city_window(m: int, n_taps: int, n_trials: int | None = None) -> Experiment:
+def city_window(m: int, n_taps: int, n_trials: int | None = None, city: str = CITY) -> Experiment:
     """The honest DPE of ``city_fig10(m, "otdoa")`` with a receiver window of n_taps taps (eq. (10)'s L) instead of
     ``search_config.DEFAULT_TAPS``: the same trials, signals and clock prior (name "-L{n_taps}").
 
@@ -242,24 +275,33 @@ def city_window(m: int, n_taps: int, n_trials: int | None = None) -> Experiment:
         The window L, taps.
     n_trials : int or None
         As ``city_fig10``'s.
+    city : str
+        As ``city_fig10``'s.
 
     Returns
     -------
     Experiment
     """
-    e = city_fig10(m, "otdoa", n_trials)
+    e = city_fig10(m, "otdoa", n_trials, city)
     return e.replace(name=f"{e.run.name}-L{n_taps}", search=replace(e.receiver.search, n_taps=n_taps))
 
 
-def all_experiments() -> list[Experiment]:
-    """Every experiment of the city chapter, at the trial counts it reads.
+def all_experiments(city: str = CITY) -> list[Experiment]:
+    """Every experiment of the city chapter on ``city``, at the trial counts it reads.
+
+    Parameters
+    ----------
+    city : str
+        The stored city's name.
 
     Returns
     -------
     list of Experiment
     """
-    return ([city_fig10(m, c) for m in CITY_M for c in CITY_CENTRINGS] + [e for m in CITY_M for e in city_nlos(m).values()]
-            + [city_clock(m, p) for m in CITY_M for p in CITY_CLOCK_PRIORS_S[1:]] + [city_window(CITY_M[0], 1)])
+    return ([city_fig10(m, c, city=city) for m in CITY_M for c in CITY_CENTRINGS]
+            + [e for m in CITY_M for e in city_nlos(m, city=city).values()]
+            + [city_clock(m, p, city=city) for m in CITY_M for p in CITY_CLOCK_PRIORS_S[1:]]
+            + [city_window(CITY_M[0], 1, city=city)])
 
 
 #: the first path's power below the link's strongest path, dB, by which ``excess_fit`` may define a link's first path:
@@ -525,39 +567,48 @@ def los_by_distance(city: city_paths.TracedCity, edges_m) -> dict:
             "eq11": eq11}
 
 
-def summary() -> dict:
-    """The city's answer in numbers with M = ``CITY_M[0]`` (README's line; the chapter derives each).
+def summary(city: str = CITY, m: int = CITY_M[0]) -> dict:
+    """A city's answer in numbers with m links (README's line and the chapter's two cities; the chapter derives each).
+
+    Parameters
+    ----------
+    city : str
+        The stored city's name.
+    m : int
+        The links, one of ``CITY_M``.
 
     Returns
     -------
     dict
-        "hear4_pct" the share of UEs that hear ``CITY_M[0]`` BSs (%), "n_trials", "clock_half_m" the DPE's clock
-        window with the clock model's prior (m), "dpe_p90_m" and "otdoa_p90_m" the honest DPE's and first-path OTDoA's
-        90 % errors with it (m), "best_otdoa" the best OTDoA receiver at the 90 % point with the same clock window and
-        "best_otdoa_p90_m" its 90 % error, "diff_p90" the best DPE − best OTDoA at the 90 % point as (value, lo, hi) m,
-        "verdicts" {σ of ``CITY_CLOCK_PRIORS_S`` (None: no prior): (verdict at 50 %, at 90 %)},
-        "excess_trial_ns" the median first-path excess delay on the trials' NLoS links (the first path within
-        ``FIRST_PATH_THRESHOLD_DB`` of the strongest, ns), "umi_median_ns" TR 38.901's UMi median (ns),
-        "scattering_coefficient" and "refraction", the tracer's settings (``city_trace.CitySpec``).
+        "n_ue" the traced UEs, "hear_pct" {k: the share of UEs that hear k or more BSs (%) for k = 3, 4, 6},
+        "hear4_pct" the share that hear m, "n_trials", "clock_half_m" the DPE's clock window with the clock model's
+        prior (m), "dpe_p90_m" and "otdoa_p90_m" the honest DPE's and first-path OTDoA's 90 % errors with it (m),
+        "best_otdoa" the best OTDoA receiver at the 90 % point with the same clock window and "best_otdoa_p90_m" its
+        90 % error, "diff_p90" the best DPE − best OTDoA at the 90 % point as (value, lo, hi) m, "best" {(σ of
+        ``CITY_CLOCK_PRIORS_S``, None: no prior; quantile 0.5 or 0.9): ``intervals.BestComparison``}, "verdicts" {σ:
+        (verdict at 50 %, at 90 %)}, "los_trial_pct" the share of the trials' links in LoS (%), "excess_trial_ns" the
+        median first-path excess delay on the trials' NLoS links (the first path within ``FIRST_PATH_THRESHOLD_DB``
+        of the strongest, ns), "umi_median_ns" TR 38.901's UMi median (ns), "scattering_coefficient" and
+        "refraction", the tracer's settings (``city_trace.CitySpec``).
     """
-
-    m = CITY_M[0]
-    e = city_fig10(m, "otdoa")
-    city = city_paths.load_city(CITY)
-    heard = traced_draw.heard_links(e, city, e.load_deployment())
-    n_heard = np.bincount(city.link_ue[heard], minlength=city.n_ue)
+    e = city_fig10(m, "otdoa", city=city)
+    traced = city_paths.load_city(city)
+    n_heard = heard_per_ue(traced, m)
     res = engine.run(e)
-    fam = {p: clock_families(m, p) for p in CITY_CLOCK_PRIORS_S}
+    fam = {p: clock_families(m, p, city=city) for p in CITY_CLOCK_PRIORS_S}
     best = {(p, q): intervals.best_comparison(*fam[p], q) for p in CITY_CLOCK_PRIORS_S for q in (0.5, 0.9)}
     b = best[(CITY_CLOCK_PRIORS_S[0], 0.9)]
-    trial = link_populations(city, e, res)["trial"] & ~city.los
-    return {"hear4_pct": 100 * float(np.mean(n_heard >= m)), "n_trials": e.run.n_trials,
+    links = link_populations(traced, e, res)["trial"]
+    return {"n_ue": traced.n_ue, "hear_pct": {k: 100 * float(np.mean(n_heard >= k)) for k in (3, 4, 6)},
+            "hear4_pct": 100 * float(np.mean(n_heard >= m)), "n_trials": e.run.n_trials,
             "clock_half_m": e.receiver_search().bias_half_width_m,
             "dpe_p90_m": float(np.quantile(res.error_m[:, 0, 0], 0.9)),
             "otdoa_p90_m": float(np.quantile(res.otdoa_error_m[:, 0, 0, 0], 0.9)), "best_otdoa": b.best_b,
             "best_otdoa_p90_m": float(np.quantile(fam[CITY_CLOCK_PRIORS_S[0]][1][b.best_b], 0.9)),
-            "diff_p90": (b.difference.value, b.difference.lo, b.difference.hi),
+            "diff_p90": (b.difference.value, b.difference.lo, b.difference.hi), "best": best,
             "verdicts": {p: (best[(p, 0.5)].verdict(), best[(p, 0.9)].verdict()) for p in CITY_CLOCK_PRIORS_S},
-            "excess_trial_ns": 1e9 * float(np.median(city.first_excess_s(FIRST_PATH_THRESHOLD_DB)[trial])),
+            "los_trial_pct": 100 * float(np.mean(traced.los[links])),
+            "excess_trial_ns": 1e9 * float(np.median(traced.first_excess_s(FIRST_PATH_THRESHOLD_DB)[links & ~traced.los])),
             "umi_median_ns": 1e9 * propagation.TR38901_EXCESS_DELAY[propagation.NLOS_EXCESS_ROW].median_s,
-            "scattering_coefficient": float(city.spec["scattering_coefficient"]), "refraction": bool(city.spec["refraction"])}
+            "scattering_coefficient": float(traced.spec["scattering_coefficient"]),
+            "refraction": bool(traced.spec["refraction"])}
