@@ -24,8 +24,8 @@ $(STAMP): environment.txt pyproject.toml
 	$(BIN)/python -m pip install --quiet --no-compile -r environment.txt
 	touch $@
 
-# Ray-trace the city chapter's city, its solver-settings subsets and the density sweep's three networks (Sionna RT,
-# about 37, 38 and 47 minutes on 2 cores from scratch, skipped where current; needs Debian's libllvm19), recompute every
+# Ray-trace the city chapter's city, its solver-settings subsets, the density sweep's three networks and the second
+# city (Sionna RT, about 37, 38, 47 and 7 minutes on 2 cores from scratch, skipped where current; needs Debian's libllvm19), recompute every
 # experiment of the results store (figures/trials) from its seeds, report every stored trial that
 # differs, rewrite the store; then the figure baselines (PNG + data JSON) and README's tables from it.  Run it after a
 # change that the store's verification in `make test` fails on.  SCHEDULER=tcp://host:8786 (or DPE5G_SCHEDULER) runs

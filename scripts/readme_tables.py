@@ -342,7 +342,22 @@ def city_line(ref) -> str:
             f"first-path OTDoA {c['otdoa_p90_m']:.1f} m): a difference of {v:+.1f} m, 95 % interval "
             f"[{lo:+.1f}, {hi:+.1f}] m ({verdict}).  The answer depends on that clock: {told}.  On the trials' NLoS "
             f"links the first path within {-city_study.FIRST_PATH_THRESHOLD_DB:.0f} dB of the strongest is {c['excess_trial_ns']:.0f} ns late at the median, "
-            f"against TR 38.901's UMi {c['umi_median_ns']:.0f} ns.  {density_sentence()}")
+            f"against TR 38.901's UMi {c['umi_median_ns']:.0f} ns.  {density_sentence()}  {second_sentence()}")
+
+
+def second_sentence() -> str:
+    """README's sentence on the second city (``city_second``; ``city_study.summary``, from the results store)."""
+    from dpe5g.studies import city as city_study, city_second
+
+    c = city_study.summary(city_second.SECOND_CITY)
+    name = lambda p: "told nothing" if p is None else f"told {p * 1e9:.0f} ns"  # noqa: E731
+    said = "; ".join(f"{name(p)}, {c['best'][(p, 0.5)].verdict()} at the median "
+                     f"({c['best'][(p, 0.5)].difference.text('+.1f')} m) and {c['best'][(p, 0.9)].verdict()} at the "
+                     f"90 % point ({c['best'][(p, 0.9)].difference.text('+.1f')} m)"
+                     for p in (city_study.CITY_CLOCK_PRIORS_S[0], None))
+    return (f"In a second city, Sionna RT's Étoile (Paris: wide avenues; {c['n_ue']} UEs, the same settings), "
+            f"{c['hear4_pct']:.0f} % of the UEs hear four BSs; on {c['n_trials']} of them, the best DPE against the "
+            f"best OTDoA: {said}.")
 
 
 def density_sentence() -> str:
