@@ -309,12 +309,13 @@ def claims_verdicts(verdicts: dict) -> str:
     return f"{as_read} under our reading of its set-up, {honest} {honest_words}"
 
 
-@functools.lru_cache(maxsize=1)
-def city_summary() -> dict:
-    """``city_study.summary()``, computed once per process: README and the landing page both show it (10 s each)."""
+@functools.lru_cache(maxsize=None)
+def city_summary(city: str | None = None) -> dict:
+    """``city_study.summary`` of ``city`` (None: the book's city), computed once per process: README and the landing
+    page both show it (10 s each)."""
     from dpe5g.studies import city as city_study
 
-    return city_study.summary()
+    return city_study.summary(city_study.CITY if city is None else city)
 
 
 def city_line(ref) -> str:
@@ -335,7 +336,7 @@ def city_line(ref) -> str:
               if c["scattering_coefficient"] > 0 else "diffuse reflection not traced")
     traced += ", refraction traced" if c["refraction"] else ", refraction not"
     return (f"- **Ray-traced city** (Sionna RT's Munich, the paper's density, {traced}; "
-            f"{ref('chapter-city', 'Chapter %s')}): {c['hear4_pct']:.0f} % of outdoor UEs hear four BSs.  "
+            f"{ref('chapter-city', 'Chapter %s')}): {c['hear_m_pct']:.0f} % of outdoor UEs hear four BSs.  "
             f"On {c['n_trials']} of them, with the UE clock known to 5 ns (the DPE's clock window "
             f"±{c['clock_half_m']:.1f} m), the honest DPE's 90 % error is {c['dpe_p90_m']:.1f} m against "
             f"{c['best_otdoa_p90_m']:.1f} m for the best OTDoA receiver given the same window ({c['best_otdoa']}; "
@@ -349,14 +350,14 @@ def second_sentence() -> str:
     """README's sentence on the second city (``city_second``; ``city_study.summary``, from the results store)."""
     from dpe5g.studies import city as city_study, city_second
 
-    c = city_study.summary(city_second.SECOND_CITY)
+    c = city_summary(city_second.SECOND_CITY)
     name = lambda p: "told nothing" if p is None else f"told {p * 1e9:.0f} ns"  # noqa: E731
     said = "; ".join(f"{name(p)}, {c['best'][(p, 0.5)].verdict()} at the median "
                      f"({c['best'][(p, 0.5)].difference.text('+.1f')} m) and {c['best'][(p, 0.9)].verdict()} at the "
                      f"90 % point ({c['best'][(p, 0.9)].difference.text('+.1f')} m)"
                      for p in (city_study.CITY_CLOCK_PRIORS_S[0], None))
     return (f"In a second city, Sionna RT's Étoile (Paris: wide avenues; {c['n_ue']} UEs, the same settings), "
-            f"{c['hear4_pct']:.0f} % of the UEs hear four BSs; on {c['n_trials']} of them, the best DPE against the "
+            f"{c['hear_m_pct']:.0f} % of the UEs hear four BSs; on {c['n_trials']} of them, the best DPE against the "
             f"best OTDoA: {said}.")
 
 

@@ -435,8 +435,8 @@ def _trace(args) -> int:
     for line in city_second.trace_stale(lambda spec: _trace_chunks(args, spec), _trace_provenance, args.force):
         print(f"trace: {line}", flush=True)  # the second city
     if retraced or not _view_whole(second):
-        print(f"trace: its 3-D view written to {city_paths.save_view(second, _city_view(city_second.second_spec(), second))}",
-              flush=True)
+        path = city_paths.save_view(second, _city_view(city_second.second_spec(), second))
+        print(f"trace: its 3-D view written to {path}", flush=True)
     return 0
 
 

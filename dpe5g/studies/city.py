@@ -18,6 +18,7 @@ from scipy import stats
 
 from ..phy import propagation
 from ..city import dataset as city_paths
+from ..common import locations
 from ..simulation import engine, traced_draw, trials
 from ..simulation.experiment import OTDOA_DETECTORS, Experiment
 from . import choices, intervals, paper
@@ -60,10 +61,9 @@ def city_fig10(m: int, centring: str, n_trials: int | None = None, city: str = C
     return e.replace(name=f"city-{city}-m{m}-{centring}", deployment=city, channel="traced", m_values=(m,))
 
 
-@lru_cache(maxsize=None)
 def city_trials(m: int, city: str = CITY) -> int:
     """The trials of ``city``'s experiments with m links: ``CITY_TRIALS[m]``, or the UEs that hear m BSs where fewer
-    do (read from the store once per process).
+    do (counted once per process for each stored version of the city).
 
     Parameters
     ----------
@@ -76,6 +76,12 @@ def city_trials(m: int, city: str = CITY) -> int:
     -------
     int
     """
+    return _heard_trials(m, city, str(locations.cities_dir()), city_paths.read_record(city)["record_checksum"])
+
+
+@lru_cache(maxsize=None)
+def _heard_trials(m: int, city: str, folder: str, record_checksum: str) -> int:
+    """``city_trials`` of the city whose record, in ``folder``, has ``record_checksum`` (the cache's key)."""
     return min(CITY_TRIALS[m], stored_city_fig10(city, m).run.n_trials)
 
 
@@ -175,13 +181,13 @@ def clock_twin(e: Experiment, prior_s: float | None) -> Experiment:
 
 
 def stored_city_fig10(name: str, m: int) -> Experiment:
-    """The city's honest DPE and OTDoA (``city_fig10(m, "otdoa")``, the clock model's prior) on another stored city
-    (its deployment, ``deployment.builtin``): every UE of it that hears m BSs.
+    """The city's honest DPE and OTDoA (``city_fig10(m, "otdoa")``, the clock model's prior) on a stored city (its
+    deployment, ``deployment.builtin``): every UE of it that hears m BSs.
 
     Parameters
     ----------
     name : str
-        A city in the store (a subset traced under other settings, a denser network).
+        A city in the store (the book's, a subset traced under other settings, a denser network, the second city).
     m : int
         The links, the UE's m strongest.
 
@@ -581,7 +587,7 @@ def summary(city: str = CITY, m: int = CITY_M[0]) -> dict:
     -------
     dict
         "n_ue" the traced UEs, "hear_pct" {k: the share of UEs that hear k or more BSs (%) for k = 3, 4, 6},
-        "hear4_pct" the share that hear m, "n_trials", "clock_half_m" the DPE's clock window with the clock model's
+        "hear_m_pct" the share that hear m, "n_trials", "clock_half_m" the DPE's clock window with the clock model's
         prior (m), "dpe_p90_m" and "otdoa_p90_m" the honest DPE's and first-path OTDoA's 90 % errors with it (m),
         "best_otdoa" the best OTDoA receiver at the 90 % point with the same clock window and "best_otdoa_p90_m" its
         90 % error, "diff_p90" the best DPE − best OTDoA at the 90 % point as (value, lo, hi) m, "best" {(σ of
@@ -600,7 +606,7 @@ def summary(city: str = CITY, m: int = CITY_M[0]) -> dict:
     b = best[(CITY_CLOCK_PRIORS_S[0], 0.9)]
     links = link_populations(traced, e, res)["trial"]
     return {"n_ue": traced.n_ue, "hear_pct": {k: 100 * float(np.mean(n_heard >= k)) for k in (3, 4, 6)},
-            "hear4_pct": 100 * float(np.mean(n_heard >= m)), "n_trials": e.run.n_trials,
+            "hear_m_pct": 100 * float(np.mean(n_heard >= m)), "n_trials": e.run.n_trials,
             "clock_half_m": e.receiver_search().bias_half_width_m,
             "dpe_p90_m": float(np.quantile(res.error_m[:, 0, 0], 0.9)),
             "otdoa_p90_m": float(np.quantile(res.otdoa_error_m[:, 0, 0, 0], 0.9)), "best_otdoa": b.best_b,

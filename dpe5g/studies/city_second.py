@@ -5,8 +5,8 @@ around the Arc de Triomphe) is another street pattern: wide avenues radiating fr
 buildings up to about 50 m; 60 % of its densest 476.8 m square is outdoors (``city_trace.outdoors``).  (San
 Francisco's scene, the other candidate, lies on hills, its ground 0 to 171 m high, and ``city_trace.ground_open``
 places UEs on flat ground only.)  The second city is the book's ``city_trace.CitySpec`` (the paper's square and 26 BSs,
-114 per km², the solver's settings, the seed) in that scene with ``SECOND_UES`` UEs, fewer than Munich's 5000 so that
-the results store stays within its 50 MB.  ``dpe5g trace`` traces it into the store beside the city (``make
+114 per km², the solver's settings, the seed) in that scene with ``SECOND_UES`` UEs, fewer than the book city's
+(``CitySpec.n_ue``): each brings about twice as many traced links, and the results store has a size budget.  ``dpe5g trace`` traces it into the store beside the city (``make
 reproduce``), with its 3-D view; every experiment of the city chapter runs on it (``all_experiments``:
 ``city_study.all_experiments`` of ``SECOND_CITY``).  The solver-settings subsets and the density sweep stay Munich's.
 """
