@@ -593,6 +593,7 @@ def _verify(args) -> int:
     import random
 
     from ..common import _checks
+    from ..common.errors import DamagedEntry
     from ..simulation import store, verify
     from ..studies import catalog
 
@@ -605,9 +606,9 @@ def _verify(args) -> int:
     for err in damaged:
         print(err, file=sys.stderr)
     print(f"verify: every entry of the results store read, {len(damaged)} damaged", flush=True)
-    try:
+    try:  # (the city experiments' trials are counted on the stored cities: a damaged city stops the listing)
         exps = catalog.store_experiments()
-    except ValueError as err:
+    except (ValueError, DamagedEntry) as err:
         if not damaged:
             raise
         print(f"verify: no trial recomputed: the stored experiments cannot be listed while the store is damaged "
