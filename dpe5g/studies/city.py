@@ -573,7 +573,7 @@ def los_by_distance(city: city_paths.TracedCity, edges_m) -> dict:
             "eq11": eq11}
 
 
-def summary(city: str = CITY, m: int = CITY_M[0]) -> dict:
+def summary(city: str = CITY, m: int = CITY_M[0], families: dict | None = None, best: dict | None = None) -> dict:
     """A city's answer in numbers with m links (README's line and the chapter's two cities; the chapter derives each).
 
     Parameters
@@ -582,6 +582,12 @@ def summary(city: str = CITY, m: int = CITY_M[0]) -> dict:
         The stored city's name.
     m : int
         The links, one of ``CITY_M``.
+    families : dict or None
+        {σ of ``CITY_CLOCK_PRIORS_S``: ``clock_families(m, σ, city=city)``} where the caller has them (the chapter);
+        None: computed here.
+    best : dict or None
+        {(σ, quantile 0.5 or 0.9): ``intervals.best_comparison`` of those families} where the caller has them; None:
+        computed here.
 
     Returns
     -------
@@ -601,8 +607,9 @@ def summary(city: str = CITY, m: int = CITY_M[0]) -> dict:
     traced = city_paths.load_city(city)
     n_heard = heard_per_ue(traced, m)
     res = engine.run(e)
-    fam = {p: clock_families(m, p, city=city) for p in CITY_CLOCK_PRIORS_S}
-    best = {(p, q): intervals.best_comparison(*fam[p], q) for p in CITY_CLOCK_PRIORS_S for q in (0.5, 0.9)}
+    fam = {p: clock_families(m, p, city=city) for p in CITY_CLOCK_PRIORS_S} if families is None else families
+    if best is None:
+        best = {(p, q): intervals.best_comparison(*fam[p], q) for p in CITY_CLOCK_PRIORS_S for q in (0.5, 0.9)}
     b = best[(CITY_CLOCK_PRIORS_S[0], 0.9)]
     links = link_populations(traced, e, res)["trial"]
     return {"n_ue": traced.n_ue, "hear_pct": {k: 100 * float(np.mean(n_heard >= k)) for k in (3, 4, 6)},
